@@ -1,0 +1,62 @@
+//! The `star` command line: one subcommand per job, each in its own file.
+//!
+//! Every subcommand returns `anyhow::Result`; `main` prints the error chain
+//! once and exits non-zero.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod check_config;
+
+/// STAR: monocular localization against a colored mesh map.
+#[derive(Debug, Parser)]
+#[command(name = "star", version, about, long_about = None)]
+pub struct Cli {
+    /// Log filter, e.g. `info` or `star=debug` (overrides RUST_LOG).
+    #[arg(long, global = true)]
+    pub log: Option<String>,
+    /// The job to run.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Validate a configuration file and print the effective values.
+    CheckConfig {
+        /// The TOML file (default: /etc/star/star.toml).
+        #[arg(default_value = "/etc/star/star.toml")]
+        config: PathBuf,
+    },
+}
+
+fn init_tracing(filter: Option<&str>) {
+    use tracing_subscriber::EnvFilter;
+    let filter = match filter {
+        Some(f) => EnvFilter::new(f),
+        None => EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")),
+    };
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// Parses the command line, runs the subcommand, and maps errors to an exit code.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_tracing(cli.log.as_deref());
+    let result = match cli.command {
+        Command::CheckConfig { config } => check_config::run(&config),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,255 @@
+//! Typed configuration (`config/star.toml`, deployed as `/etc/star/star.toml`).
+//!
+//! Owns parsing and validation. Unknown keys are rejected by serde
+//! (`deny_unknown_fields`) and out-of-range values by [`Config::validate`];
+//! both errors name the file, the key and the reason. Every section has
+//! defaults, so an empty file is a valid configuration.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::PinholeCamera;
+
+/// Errors loading or validating a configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The file is not valid TOML, has an unknown key, or a value of the wrong type.
+    #[error("invalid config {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// toml's message: line, column, key and what was expected.
+        message: String,
+    },
+    /// A value is out of range.
+    #[error("invalid config {path}: key `{key}`: {reason}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// Dotted key, e.g. `tracker.pyramid_levels`.
+        key: String,
+        /// What is wrong and what was expected.
+        reason: String,
+    },
+}
+
+/// Which renderer draws keyframes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum RendererKind {
+    /// Hardware adapter, then software adapter, then the CPU rasterizer.
+    #[default]
+    Auto,
+    /// A hardware wgpu adapter only.
+    Gpu,
+    /// wgpu's software adapter (Mesa lavapipe/llvmpipe) only.
+    Software,
+    /// The built-in CPU rasterizer.
+    Cpu,
+}
+
+/// Photometric model between rendered keyframe and camera image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum IlluminationModel {
+    /// Affine gain and bias, estimated per frame.
+    #[default]
+    Affine,
+    /// The paper's median offset (beta).
+    Median,
+}
+
+/// The whole configuration.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Camera source and calibration.
+    pub camera: CameraConfig,
+    /// The map.
+    pub map: MapConfig,
+    /// Keyframe rendering.
+    pub render: RenderConfig,
+    /// The tracker and keyframe policy.
+    pub tracker: TrackerConfig,
+}
+
+/// `[camera]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    /// Source URI: `v4l2:/dev/videoN`, `aravis:ID`, `replay:DATASET`.
+    pub source: String,
+    /// Requested frame rate, Hz.
+    pub fps: f64,
+    /// Calibration of the camera (distortion included).
+    pub intrinsics: PinholeCamera,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            source: "v4l2:/dev/video0".into(),
+            fps: 50.0,
+            intrinsics: PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5),
+        }
+    }
+}
+
+/// `[map]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapConfig {
+    /// OBJ mesh of the building, world frame, meters.
+    pub mesh: PathBuf,
+}
+
+impl Default for MapConfig {
+    fn default() -> Self {
+        Self {
+            mesh: PathBuf::from("/var/lib/star/map/map.obj"),
+        }
+    }
+}
+
+/// `[render]`
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderConfig {
+    /// `auto`, `gpu`, `software` or `cpu`.
+    pub renderer: RendererKind,
+}
+
+/// `[tracker]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackerConfig {
+    /// Pyramid levels, coarsest first in alignment.
+    pub pyramid_levels: u32,
+    /// Illumination model.
+    pub illumination: IlluminationModel,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        Self {
+            pyramid_levels: 4,
+            illumination: IlluminationModel::Affine,
+        }
+    }
+}
+
+impl Config {
+    /// Reads, parses and validates `path`.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses and validates TOML `text`; `path` is used in error messages.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let config: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        config.validate(path)?;
+        Ok(config)
+    }
+
+    /// Checks every value against its valid range.
+    pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
+        let invalid = |key: &str, reason: String| ConfigError::Invalid {
+            path: path.to_owned(),
+            key: key.to_string(),
+            reason,
+        };
+        if let Err(e) = self.camera.intrinsics.validate() {
+            return Err(invalid("camera.intrinsics", e.to_string()));
+        }
+        if !(self.camera.fps.is_finite() && self.camera.fps > 0.0 && self.camera.fps <= 1000.0) {
+            return Err(invalid(
+                "camera.fps",
+                format!("expected 0 < fps <= 1000, found {}", self.camera.fps),
+            ));
+        }
+        if !(1..=6).contains(&self.tracker.pyramid_levels) {
+            return Err(invalid(
+                "tracker.pyramid_levels",
+                format!("expected 1..=6, found {}", self.tracker.pyramid_levels),
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_file_is_default() {
+        let c = Config::parse("", Path::new("x.toml")).expect("defaults are valid");
+        assert_eq!(c, Config::default());
+    }
+
+    #[test]
+    fn shipped_default_config_parses() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/star.toml");
+        Config::load(&path).expect("config/star.toml must be valid");
+    }
+
+    #[test]
+    fn unknown_key_names_file_and_key() {
+        let err = Config::parse(
+            "[tracker]\npyramid_levelz = 3\n",
+            Path::new("/etc/star/star.toml"),
+        )
+        .expect_err("unknown key");
+        let msg = err.to_string();
+        assert!(msg.contains("/etc/star/star.toml"), "{msg}");
+        assert!(msg.contains("pyramid_levelz"), "{msg}");
+    }
+
+    #[test]
+    fn out_of_range_names_key_and_reason() {
+        let err = Config::parse("[tracker]\npyramid_levels = 9\n", Path::new("a.toml"))
+            .expect_err("out of range");
+        let msg = err.to_string();
+        assert!(
+            msg.contains("a.toml")
+                && msg.contains("tracker.pyramid_levels")
+                && msg.contains("found 9"),
+            "{msg}"
+        );
+        let err = Config::parse(
+            "[camera.intrinsics]\nwidth=640\nheight=512\nfx=-3\nfy=400\ncx=320\ncy=256\n",
+            Path::new("a.toml"),
+        )
+        .expect_err("negative focal length");
+        assert!(err.to_string().contains("fx"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_is_rejected() {
+        let err = Config::parse("[render]\nrenderer = \"vulkan\"\n", Path::new("a.toml"))
+            .expect_err("unknown renderer");
+        assert!(err.to_string().contains("renderer"), "{err}");
+    }
+
+    #[test]
+    fn missing_file_names_path() {
+        let err = Config::load(Path::new("/nonexistent/star.toml")).expect_err("missing");
+        assert!(err.to_string().contains("/nonexistent/star.toml"));
+    }
+}

@@ -1,0 +1,13 @@
+//! STAR: Simultaneous Tracking and Rendering (Ok, Greene, Roy).
+//!
+//! Monocular localization of a micro air vehicle against a colored triangle
+//! mesh of the building. Modules follow the data flow: a camera source
+//! publishes frames, the tracker aligns each frame against a keyframe rendered
+//! from the map, and the pose goes to the autopilot over MAVLink.
+
+pub mod cli;
+pub mod config;
+pub mod geometry;
+pub mod imgproc;
+pub mod map;
+pub mod render;

@@ -1,0 +1,115 @@
+//! Keyframe rendering: a gray image and a metric depth image of the map at a
+//! pose, through the [`Renderer`] trait.
+//!
+//! Implementations: `cpu` (the tiled software rasterizer, the last fallback
+//! and the reference the GPU output is tested against) and `gpu` (wgpu).
+//! Renderers take the mesh once at construction and render an ideal pinhole
+//! view (distortion is removed from camera frames instead). Pixel centers are
+//! at integer coordinates, as everywhere in `star`.
+
+use crate::geometry::{PinholeCamera, Pose};
+use crate::imgproc::ImageF32;
+
+/// Depth value of a pixel that sees no surface (unmapped space or a hole).
+pub const NO_DEPTH: f32 = 0.0;
+
+/// Errors from a renderer.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    /// The output buffers do not match the requested camera size.
+    #[error("render target is {found_w}x{found_h} but the camera is {want_w}x{want_h}")]
+    TargetSize {
+        /// Target width.
+        found_w: usize,
+        /// Target height.
+        found_h: usize,
+        /// Camera width.
+        want_w: u32,
+        /// Camera height.
+        want_h: u32,
+    },
+    /// The pose or intrinsics contain NaN or infinity.
+    #[error("render request is not finite: {0}")]
+    NotFinite(&'static str),
+    /// The rendering backend failed (device lost, out of memory, ...).
+    #[error("renderer backend failed: {0}")]
+    Backend(String),
+}
+
+/// One rendered view: gray intensity (0..=255) and metric depth (the z
+/// coordinate in the camera optical frame, meters; [`NO_DEPTH`] where nothing
+/// was hit). Allocated once and reused for every render.
+#[derive(Debug, Clone)]
+pub struct RenderedView {
+    /// Gray intensity, 0..=255; 0 where nothing was hit.
+    pub gray: ImageF32,
+    /// Depth along the optical axis in meters; [`NO_DEPTH`] where nothing was hit.
+    pub depth_m: ImageF32,
+}
+
+impl RenderedView {
+    /// Buffers for a `width x height` view, cleared to "no hit".
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            gray: ImageF32::new(width, height, 0.0),
+            depth_m: ImageF32::new(width, height, NO_DEPTH),
+        }
+    }
+
+    /// Buffers sized for `camera`.
+    pub fn for_camera(camera: &PinholeCamera) -> Self {
+        Self::new(camera.width as usize, camera.height as usize)
+    }
+
+    /// True when pixel depth `d` is a surface hit.
+    #[inline]
+    pub fn is_hit(depth_m: f32) -> bool {
+        depth_m > 0.0
+    }
+
+    /// Checks the buffers match `camera`.
+    pub fn check_size(&self, camera: &PinholeCamera) -> Result<(), RenderError> {
+        let (w, h) = (self.gray.width(), self.gray.height());
+        if w != camera.width as usize
+            || h != camera.height as usize
+            || self.depth_m.width() != w
+            || self.depth_m.height() != h
+        {
+            return Err(RenderError::TargetSize {
+                found_w: w,
+                found_h: h,
+                want_w: camera.width,
+                want_h: camera.height,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Renders the map at a pose. The mesh is given at construction.
+pub trait Renderer: Send {
+    /// A short human-readable name, e.g. `cpu` or `wgpu: Intel(R) UHD (Vulkan)`.
+    fn name(&self) -> String;
+
+    /// Renders the view of an ideal pinhole `camera` (distortion ignored)
+    /// at `world_from_camera` into `out`, which must be sized for `camera`.
+    fn render(
+        &mut self,
+        world_from_camera: &Pose,
+        camera: &PinholeCamera,
+        out: &mut RenderedView,
+    ) -> Result<(), RenderError>;
+}
+
+/// Checks that a render request is finite; shared by every renderer.
+pub fn check_request(world_from_camera: &Pose, camera: &PinholeCamera) -> Result<(), RenderError> {
+    let t = world_from_camera.translation.vector;
+    let q = world_from_camera.rotation.coords;
+    if !(t.iter().all(|v| v.is_finite()) && q.iter().all(|v| v.is_finite())) {
+        return Err(RenderError::NotFinite("pose"));
+    }
+    if camera.validate().is_err() {
+        return Err(RenderError::NotFinite("intrinsics"));
+    }
+    Ok(())
+}
