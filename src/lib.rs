@@ -7,6 +7,7 @@
 
 pub mod cli;
 pub mod config;
+pub mod dataset;
 pub mod geometry;
 pub mod imgproc;
 pub mod map;
