@@ -78,8 +78,47 @@ pub struct Config {
     pub map: MapConfig,
     /// Keyframe rendering.
     pub render: RenderConfig,
-    /// The tracker and keyframe policy.
+    /// The tracker.
     pub tracker: TrackerConfig,
+    /// When to render a new keyframe, and when tracking is lost.
+    pub keyframe: KeyframeConfig,
+}
+
+/// `[keyframe]`: the keyframe policy and the lost test.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct KeyframeConfig {
+    /// Render a new keyframe when the visible fraction of keyframe points drops below this.
+    pub min_visible: f32,
+    /// ... when the translation from the keyframe exceeds this fraction of its median depth.
+    pub max_baseline_ratio: f32,
+    /// ... when the rotation from the keyframe exceeds this, degrees.
+    pub max_rotation_deg: f32,
+    /// ... when the inlier ratio drops below this.
+    pub min_inlier_ratio: f32,
+    /// ... when the keyframe is older than this, seconds.
+    pub max_interval_s: f32,
+    /// Tracking is lost when the inlier ratio drops below this.
+    pub lost_inlier_ratio: f32,
+    /// Tracking is lost when fewer than this fraction of keyframe points are visible.
+    pub lost_visible_ratio: f32,
+    /// Tracking is lost when the estimate jumps this far from the prediction in one frame, meters.
+    pub lost_max_jump_m: f32,
+}
+
+impl Default for KeyframeConfig {
+    fn default() -> Self {
+        Self {
+            min_visible: 0.75,
+            max_baseline_ratio: 0.08,
+            max_rotation_deg: 6.0,
+            min_inlier_ratio: 0.75,
+            max_interval_s: 1.0,
+            lost_inlier_ratio: 0.35,
+            lost_visible_ratio: 0.15,
+            lost_max_jump_m: 0.3,
+        }
+    }
 }
 
 /// `[camera]`
@@ -269,6 +308,55 @@ impl Config {
                 ),
             ),
         ];
+        let k = &self.keyframe;
+        let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
+        let positive = |v: f32| v.is_finite() && v > 0.0;
+        let kchecks: [(&str, bool, f32); 8] = [
+            ("keyframe.min_visible", unit(k.min_visible), k.min_visible),
+            (
+                "keyframe.max_baseline_ratio",
+                positive(k.max_baseline_ratio),
+                k.max_baseline_ratio,
+            ),
+            (
+                "keyframe.max_rotation_deg",
+                positive(k.max_rotation_deg) && k.max_rotation_deg < 90.0,
+                k.max_rotation_deg,
+            ),
+            (
+                "keyframe.min_inlier_ratio",
+                unit(k.min_inlier_ratio),
+                k.min_inlier_ratio,
+            ),
+            (
+                "keyframe.max_interval_s",
+                positive(k.max_interval_s),
+                k.max_interval_s,
+            ),
+            (
+                "keyframe.lost_inlier_ratio",
+                unit(k.lost_inlier_ratio),
+                k.lost_inlier_ratio,
+            ),
+            (
+                "keyframe.lost_visible_ratio",
+                unit(k.lost_visible_ratio),
+                k.lost_visible_ratio,
+            ),
+            (
+                "keyframe.lost_max_jump_m",
+                positive(k.lost_max_jump_m),
+                k.lost_max_jump_m,
+            ),
+        ];
+        for (key, ok, value) in kchecks {
+            if !ok {
+                return Err(invalid(
+                    key,
+                    format!("out of range: {value} (ratios are 0..=1, others > 0)"),
+                ));
+            }
+        }
         for (key, ok, reason) in checks {
             if !ok {
                 return Err(invalid(key, reason));

@@ -10,6 +10,7 @@ pub mod config;
 pub mod dataset;
 pub mod geometry;
 pub mod imgproc;
+pub mod localizer;
 pub mod map;
 pub mod render;
 pub mod track;
