@@ -13,3 +13,4 @@ pub mod geometry;
 pub mod imgproc;
 pub mod map;
 pub mod render;
+pub mod track;
