@@ -8,6 +8,7 @@
 pub mod cli;
 pub mod config;
 pub mod dataset;
+pub mod eval;
 pub mod geometry;
 pub mod imgproc;
 pub mod localizer;

@@ -9,6 +9,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod check_config;
+mod eval;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]
@@ -31,6 +32,20 @@ pub enum Command {
         #[arg(default_value = "/etc/star/star.toml")]
         config: PathBuf,
     },
+    /// Absolute trajectory error (no alignment) and relative pose error of
+    /// an estimated TUM trajectory against ground truth.
+    Eval {
+        /// Ground-truth trajectory (TUM format, world_from_camera).
+        gt: PathBuf,
+        /// Estimated trajectory (TUM format, world_from_camera).
+        est: PathBuf,
+        /// Also compute the RPE over this many matched frames.
+        #[arg(long)]
+        delta: Option<usize>,
+        /// Association tolerance in seconds (5 ms suits 50 Hz; use 0.02 for 30 Hz TUM).
+        #[arg(long, default_value_t = crate::eval::DEFAULT_MAX_DT_S)]
+        max_dt: f64,
+    },
 }
 
 fn init_tracing(filter: Option<&str>) {
@@ -51,6 +66,12 @@ pub fn main() -> ExitCode {
     init_tracing(cli.log.as_deref());
     let result = match cli.command {
         Command::CheckConfig { config } => check_config::run(&config),
+        Command::Eval {
+            gt,
+            est,
+            delta,
+            max_dt,
+        } => eval::run(&gt, &est, delta, max_dt),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
