@@ -11,6 +11,7 @@
 //!
 //! After [`Localizer::start`], [`Localizer::process_frame`] allocates nothing.
 
+pub mod offline;
 pub mod policy;
 pub mod worker;
 
