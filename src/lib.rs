@@ -10,4 +10,5 @@ pub mod config;
 pub mod geometry;
 pub mod imgproc;
 pub mod map;
+pub mod mavlink_io;
 pub mod render;
