@@ -12,3 +12,4 @@ pub mod imgproc;
 pub mod map;
 pub mod mavlink_io;
 pub mod render;
+pub mod service;
