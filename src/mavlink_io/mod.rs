@@ -135,6 +135,7 @@ impl Shared {
 
     pub fn mark_broken(&self, generation: u64, error: &LinkError) {
         if self.broken_generation.swap(generation, Ordering::AcqRel) != generation {
+            stats::bump(&self.counters.link_errors);
             tracing::warn!(%error, "MAVLink link down");
         }
     }
@@ -186,7 +187,7 @@ impl MavlinkLink {
         let mut handle = MavlinkHandle {
             shared: shared.clone(),
             threads: Vec::with_capacity(2),
-            done_rx,
+            done_rx: Mutex::new(done_rx),
         };
         let starts: [(&'static str, fn(Arc<Shared>)); 2] =
             [("mavlink-tx", sender::run), ("mavlink-rx", receiver::run)];
@@ -216,11 +217,13 @@ impl Drop for DoneGuard {
     }
 }
 
-/// The tracker's side of the link.
+/// The tracker's side of the link. `Send + Sync`: share it behind an `Arc`
+/// if several threads publish or read stats.
 pub struct MavlinkHandle {
     shared: Arc<Shared>,
     threads: Vec<JoinHandle<()>>,
-    done_rx: mpsc::Receiver<()>,
+    /// In a mutex only to make the handle `Sync`; used with `&mut self`.
+    done_rx: Mutex<mpsc::Receiver<()>>,
 }
 
 impl MavlinkHandle {
@@ -252,7 +255,8 @@ impl MavlinkHandle {
         let mut finished = 0;
         while finished < self.threads.len() {
             let left = deadline.saturating_duration_since(Instant::now());
-            match self.done_rx.recv_timeout(left) {
+            let done_rx = self.done_rx.get_mut().unwrap_or_else(PoisonError::into_inner);
+            match done_rx.recv_timeout(left) {
                 Ok(()) => finished += 1,
                 Err(_) => break,
             }

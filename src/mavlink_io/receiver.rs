@@ -68,10 +68,7 @@ fn handle(
             match link.send(&ours, &reply) {
                 Ok(true) => bump(&shared.counters.timesync_replies_sent),
                 Ok(false) => {}
-                Err(error) => {
-                    bump(&shared.counters.link_errors);
-                    shared.mark_broken(generation, &error);
-                }
+                Err(error) => shared.mark_broken(generation, &error),
             }
         }
         MavMessage::TIMESYNC(d) => {

@@ -201,7 +201,6 @@ impl Sender {
         match link.send(&self.shared.header, message) {
             Ok(sent) => sent,
             Err(error) => {
-                bump(&self.shared.counters.link_errors);
                 self.shared.mark_broken(*generation, &error);
                 false
             }
