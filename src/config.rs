@@ -82,6 +82,8 @@ pub struct Config {
     pub tracker: TrackerConfig,
     /// When to render a new keyframe, and when tracking is lost.
     pub keyframe: KeyframeConfig,
+    /// The MAVLink link to the autopilot.
+    pub mavlink: crate::mavlink_io::MavlinkConfig,
 }
 
 /// `[keyframe]`: the keyframe policy and the lost test.
@@ -262,6 +264,9 @@ impl Config {
                 format!("expected 1..=6, found {}", self.tracker.pyramid_levels),
             ));
         }
+        if let Err((key, reason)) = self.mavlink.validate() {
+            return Err(invalid(&format!("mavlink.{key}"), reason));
+        }
         let t = &self.tracker;
         let checks: [(&str, bool, String); 7] = [
             (
@@ -418,6 +423,33 @@ mod tests {
         let err = Config::parse("[render]\nrenderer = \"vulkan\"\n", Path::new("a.toml"))
             .expect_err("unknown renderer");
         assert!(err.to_string().contains("renderer"), "{err}");
+    }
+
+    #[test]
+    fn mavlink_section_is_validated() {
+        let err = Config::parse(
+            "[mavlink]\nconnection = \"serial:/dev/ttyACM0\"\n",
+            Path::new("a.toml"),
+        )
+        .expect_err("serial without baud");
+        let msg = err.to_string();
+        assert!(
+            msg.contains("mavlink.connection") && msg.contains("PORT:BAUD"),
+            "{msg}"
+        );
+        let c = Config::parse(
+            "[mavlink]\nmessage = \"odometry\"\n[mavlink.body_from_camera]\nquaternion_wxyz = [1.0, 0.0, 0.0, 0.0]\n",
+            Path::new("a.toml"),
+        )
+        .expect("quaternion alone is valid");
+        assert_eq!(c.mavlink.message, crate::mavlink_io::PoseMessage::Odometry);
+        assert_eq!(c.mavlink.body_from_camera.rpy_deg, None);
+        let err = Config::parse(
+            "[mavlink.ned_from_world]\nrpy_deg = [0.0, 0.0]\n",
+            Path::new("a.toml"),
+        )
+        .expect_err("two angles");
+        assert!(err.to_string().contains("rpy_deg"), "{err}");
     }
 
     #[test]

@@ -13,5 +13,7 @@ pub mod geometry;
 pub mod imgproc;
 pub mod localizer;
 pub mod map;
+pub mod mavlink_io;
 pub mod render;
+pub mod service;
 pub mod track;
