@@ -9,9 +9,9 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod check_config;
+mod eval;
 pub mod localize;
 mod pose_arg;
-mod eval;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]
