@@ -6,8 +6,10 @@
 //! from the map, and the pose goes to the autopilot over MAVLink.
 
 pub mod cli;
+pub mod camera;
 pub mod config;
 pub mod geometry;
 pub mod imgproc;
+pub mod ipc;
 pub mod map;
 pub mod render;

@@ -8,7 +8,9 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod camera;
 mod check_config;
+mod replay;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]
@@ -31,6 +33,10 @@ pub enum Command {
         #[arg(default_value = "/etc/star/star.toml")]
         config: PathBuf,
     },
+    /// Run the camera process: read a camera and publish frames over iceoryx2.
+    Camera(camera::CameraArgs),
+    /// Play a dataset into a v4l2loopback device (virtual camera) or onto iceoryx2.
+    Replay(replay::ReplayArgs),
 }
 
 fn init_tracing(filter: Option<&str>) {
@@ -51,6 +57,8 @@ pub fn main() -> ExitCode {
     init_tracing(cli.log.as_deref());
     let result = match cli.command {
         Command::CheckConfig { config } => check_config::run(&config),
+        Command::Camera(args) => camera::run(&args),
+        Command::Replay(args) => replay::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
