@@ -3,8 +3,8 @@
 //!
 //! The publisher loans a sample in shared memory, lets the camera source
 //! write header and pixels in place, validates the header, sends, and raises
-//! the frame event. The subscriber blocks on a WaitSet attached to that event
-//! (with a deadline to notice a silent camera), takes the newest frame,
+//! the frame event. The subscriber blocks on that event (with a deadline to
+//! notice a silent camera), takes the newest frame,
 //! validates it, and hands the tracker a view into shared memory. Neither side
 //! allocates per frame. Counters say what was published, dropped and rejected.
 
@@ -17,10 +17,8 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::identifiers::UniquePublisherId;
-use iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBuilder};
 use iceoryx2::sample::Sample;
 use iceoryx2::service::ipc;
-use iceoryx2::waitset::WaitSetRunResult;
 use tracing::{debug, info, warn};
 
 use super::frame::{Frame, FrameError, FrameSlot, FrameView};
@@ -232,81 +230,70 @@ impl FrameSubscriber {
         self.state.take_latest(&self.ports)
     }
 
-    /// Blocks on a WaitSet until frames arrive and calls `on_event` with the
-    /// newest one; when nothing arrives for `silence`, calls it with
-    /// [`FrameEvent::Silent`]. Returns when `on_event` breaks or on SIGINT/SIGTERM.
+    /// Blocks on the frame event until frames arrive and calls `on_event`
+    /// with the newest one; when nothing arrives for `silence`, calls it with
+    /// [`FrameEvent::Silent`]. Returns when `on_event` breaks or on
+    /// SIGINT/SIGTERM.
+    ///
+    /// This waits on the event listener directly rather than through a
+    /// [`WaitSet`](iceoryx2::prelude::WaitSet): iceoryx2 0.10's WaitSet
+    /// allocates a vector on every wake-up, which would break the tracker's
+    /// allocation-free steady state. The listener is the same primitive the
+    /// WaitSet multiplexes; callers that need to wait on more than frames can
+    /// attach [`FrameSubscriber::listener`] to their own WaitSet and call
+    /// [`FrameSubscriber::take_latest`].
     pub fn run(
         &mut self,
         silence: Duration,
         mut on_event: impl FnMut(FrameEvent<'_>) -> ControlFlow<()>,
     ) -> Result<RunEnd, IpcError> {
-        let waitset = WaitSetBuilder::new()
-            .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
-            .create::<ipc::Service>()
-            .map_err(|e| IpcError::iceoryx("create waitset", FRAME_EVENT_SERVICE, e))?;
-        let ports = &self.ports;
-        let state = &mut self.state;
-        let guard = waitset
-            .attach_deadline(&ports.listener, silence)
-            .map_err(|e| IpcError::iceoryx("attach to waitset", FRAME_EVENT_SERVICE, e))?;
-        let mut error: Option<IpcError> = None;
-        let mut stopped = false;
         let mut silent = false;
         loop {
-            let result = waitset.wait_and_process_once(|id| {
-                let flow = if id.has_event_from(&guard) {
-                    match state.take_latest(ports) {
-                        Ok(Some(frame)) => match frame.view() {
-                            Ok(view) => {
-                                if silent {
-                                    info!("camera frames resumed");
-                                    silent = false;
-                                }
-                                on_event(FrameEvent::Frame(view))
-                            }
-                            Err(e) => {
-                                state.stats.rejected += 1;
-                                warn!(error = %e, "rejected frame");
-                                ControlFlow::Continue(())
-                            }
-                        },
-                        Ok(None) => ControlFlow::Continue(()),
-                        Err(e) => {
-                            error = Some(e);
-                            ControlFlow::Break(())
+            if termination_requested() {
+                return Ok(RunEnd::TerminationRequested);
+            }
+            let flow = match self.state.take_latest(&self.ports)? {
+                Some(frame) => match frame.view() {
+                    Ok(view) => {
+                        if silent {
+                            info!("camera frames resumed");
+                            silent = false;
                         }
+                        on_event(FrameEvent::Frame(view))
                     }
-                } else if id.has_missed_deadline(&guard) {
-                    state.stats.silent_periods += 1;
+                    Err(e) => {
+                        self.state.stats.rejected += 1;
+                        warn!(error = %e, "rejected frame");
+                        ControlFlow::Continue(())
+                    }
+                },
+                None => {
+                    let woken = self
+                        .ports
+                        .listener
+                        .timed_wait(|_| {}, silence)
+                        .map_err(|e| IpcError::iceoryx("wait", FRAME_EVENT_SERVICE, e))?;
+                    if woken > 0 || self.ports.subscriber.has_samples().unwrap_or(false) {
+                        continue;
+                    }
+                    self.state.stats.silent_periods += 1;
                     if !silent {
                         warn!(silence_ms = silence.as_millis() as u64, "no camera frames");
                         silent = true;
                     }
                     on_event(FrameEvent::Silent)
-                } else {
-                    ControlFlow::Continue(())
-                };
-                match flow {
-                    ControlFlow::Continue(()) => CallbackProgression::Continue,
-                    ControlFlow::Break(()) => {
-                        stopped = true;
-                        CallbackProgression::Stop
-                    }
                 }
-            });
-            if let Some(e) = error.take() {
-                return Err(e);
-            }
-            match result {
-                _ if stopped => return Ok(RunEnd::Stopped),
-                Ok(WaitSetRunResult::TerminationRequest) => {
-                    return Ok(RunEnd::TerminationRequested)
-                }
-                Ok(_) => {}
-                Err(e) => return Err(IpcError::iceoryx("wait", FRAME_EVENT_SERVICE, e)),
+            };
+            if flow.is_break() {
+                return Ok(RunEnd::Stopped);
             }
         }
     }
+}
+
+/// Whether SIGINT or SIGTERM arrived (iceoryx2's signal handler records them).
+fn termination_requested() -> bool {
+    iceoryx2_bb_posix::signal::SignalHandler::termination_requested()
 }
 
 impl ReceiveState {
