@@ -11,3 +11,4 @@ pub mod geometry;
 pub mod imgproc;
 pub mod map;
 pub mod render;
+pub mod synth;
