@@ -78,8 +78,49 @@ pub struct Config {
     pub map: MapConfig,
     /// Keyframe rendering.
     pub render: RenderConfig,
-    /// The tracker and keyframe policy.
+    /// The tracker.
     pub tracker: TrackerConfig,
+    /// When to render a new keyframe, and when tracking is lost.
+    pub keyframe: KeyframeConfig,
+    /// The MAVLink link to the autopilot.
+    pub mavlink: crate::mavlink_io::MavlinkConfig,
+}
+
+/// `[keyframe]`: the keyframe policy and the lost test.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct KeyframeConfig {
+    /// Render a new keyframe when the visible fraction of keyframe points drops below this.
+    pub min_visible: f32,
+    /// ... when the translation from the keyframe exceeds this fraction of its median depth.
+    pub max_baseline_ratio: f32,
+    /// ... when the rotation from the keyframe exceeds this, degrees.
+    pub max_rotation_deg: f32,
+    /// ... when the inlier ratio drops below this.
+    pub min_inlier_ratio: f32,
+    /// ... when the keyframe is older than this, seconds.
+    pub max_interval_s: f32,
+    /// Tracking is lost when the inlier ratio drops below this.
+    pub lost_inlier_ratio: f32,
+    /// Tracking is lost when fewer than this fraction of keyframe points are visible.
+    pub lost_visible_ratio: f32,
+    /// Tracking is lost when the estimate jumps this far from the prediction in one frame, meters.
+    pub lost_max_jump_m: f32,
+}
+
+impl Default for KeyframeConfig {
+    fn default() -> Self {
+        Self {
+            min_visible: 0.75,
+            max_baseline_ratio: 0.08,
+            max_rotation_deg: 6.0,
+            min_inlier_ratio: 0.75,
+            max_interval_s: 1.0,
+            lost_inlier_ratio: 0.35,
+            lost_visible_ratio: 0.15,
+            lost_max_jump_m: 0.3,
+        }
+    }
 }
 
 /// `[camera]`
@@ -136,6 +177,25 @@ pub struct TrackerConfig {
     pub pyramid_levels: u32,
     /// Illumination model.
     pub illumination: IlluminationModel,
+    /// Most keyframe points at level 0; level `l` gets `max_points >> l`
+    /// (at least 200).
+    pub max_points: u32,
+    /// Side of the blocks whose median gradient sets the local selection
+    /// threshold, level-0 pixels.
+    pub block_size_px: u32,
+    /// Gradient magnitude above the block median needed for selection,
+    /// gray levels per pixel.
+    pub gradient_threshold: f32,
+    /// Fewest visible points for a level to be used.
+    pub min_points: u32,
+    /// Most Levenberg-Marquardt iterations per level.
+    pub max_iterations: u32,
+    /// Smallest Huber threshold, gray levels.
+    pub huber_min: f32,
+    /// Residuals above this (or above 4 Huber thresholds) get zero weight.
+    pub outlier_cut: f32,
+    /// A residual below this counts as an inlier in the quality figures.
+    pub inlier_threshold: f32,
 }
 
 impl Default for TrackerConfig {
@@ -143,7 +203,22 @@ impl Default for TrackerConfig {
         Self {
             pyramid_levels: 4,
             illumination: IlluminationModel::Affine,
+            max_points: 6000,
+            block_size_px: 32,
+            gradient_threshold: 4.0,
+            min_points: 40,
+            max_iterations: 12,
+            huber_min: 4.0,
+            outlier_cut: 40.0,
+            inlier_threshold: 20.0,
         }
+    }
+}
+
+impl TrackerConfig {
+    /// Point budget of pyramid level `level`.
+    pub fn max_points_per_level(&self, level: usize) -> usize {
+        ((self.max_points as usize) >> level).max(200)
     }
 }
 
@@ -188,6 +263,109 @@ impl Config {
                 "tracker.pyramid_levels",
                 format!("expected 1..=6, found {}", self.tracker.pyramid_levels),
             ));
+        }
+        if let Err((key, reason)) = self.mavlink.validate() {
+            return Err(invalid(&format!("mavlink.{key}"), reason));
+        }
+        let t = &self.tracker;
+        let checks: [(&str, bool, String); 7] = [
+            (
+                "tracker.max_points",
+                (100..=100_000).contains(&t.max_points),
+                format!("expected 100..=100000, found {}", t.max_points),
+            ),
+            (
+                "tracker.block_size_px",
+                (8..=256).contains(&t.block_size_px),
+                format!("expected 8..=256, found {}", t.block_size_px),
+            ),
+            (
+                "tracker.gradient_threshold",
+                t.gradient_threshold.is_finite() && t.gradient_threshold >= 0.0,
+                format!(
+                    "expected a finite value >= 0, found {}",
+                    t.gradient_threshold
+                ),
+            ),
+            (
+                "tracker.min_points",
+                (6..=10_000).contains(&t.min_points),
+                format!("expected 6..=10000, found {}", t.min_points),
+            ),
+            (
+                "tracker.max_iterations",
+                (1..=100).contains(&t.max_iterations),
+                format!("expected 1..=100, found {}", t.max_iterations),
+            ),
+            (
+                "tracker.huber_min",
+                t.huber_min.is_finite() && t.huber_min > 0.0,
+                format!("expected a finite value > 0, found {}", t.huber_min),
+            ),
+            (
+                "tracker.outlier_cut",
+                t.outlier_cut.is_finite()
+                    && t.outlier_cut > t.huber_min
+                    && t.inlier_threshold > 0.0,
+                format!(
+                    "expected outlier_cut > huber_min and inlier_threshold > 0, found {} and {}",
+                    t.outlier_cut, t.inlier_threshold
+                ),
+            ),
+        ];
+        let k = &self.keyframe;
+        let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
+        let positive = |v: f32| v.is_finite() && v > 0.0;
+        let kchecks: [(&str, bool, f32); 8] = [
+            ("keyframe.min_visible", unit(k.min_visible), k.min_visible),
+            (
+                "keyframe.max_baseline_ratio",
+                positive(k.max_baseline_ratio),
+                k.max_baseline_ratio,
+            ),
+            (
+                "keyframe.max_rotation_deg",
+                positive(k.max_rotation_deg) && k.max_rotation_deg < 90.0,
+                k.max_rotation_deg,
+            ),
+            (
+                "keyframe.min_inlier_ratio",
+                unit(k.min_inlier_ratio),
+                k.min_inlier_ratio,
+            ),
+            (
+                "keyframe.max_interval_s",
+                positive(k.max_interval_s),
+                k.max_interval_s,
+            ),
+            (
+                "keyframe.lost_inlier_ratio",
+                unit(k.lost_inlier_ratio),
+                k.lost_inlier_ratio,
+            ),
+            (
+                "keyframe.lost_visible_ratio",
+                unit(k.lost_visible_ratio),
+                k.lost_visible_ratio,
+            ),
+            (
+                "keyframe.lost_max_jump_m",
+                positive(k.lost_max_jump_m),
+                k.lost_max_jump_m,
+            ),
+        ];
+        for (key, ok, value) in kchecks {
+            if !ok {
+                return Err(invalid(
+                    key,
+                    format!("out of range: {value} (ratios are 0..=1, others > 0)"),
+                ));
+            }
+        }
+        for (key, ok, reason) in checks {
+            if !ok {
+                return Err(invalid(key, reason));
+            }
         }
         Ok(())
     }
@@ -245,6 +423,33 @@ mod tests {
         let err = Config::parse("[render]\nrenderer = \"vulkan\"\n", Path::new("a.toml"))
             .expect_err("unknown renderer");
         assert!(err.to_string().contains("renderer"), "{err}");
+    }
+
+    #[test]
+    fn mavlink_section_is_validated() {
+        let err = Config::parse(
+            "[mavlink]\nconnection = \"serial:/dev/ttyACM0\"\n",
+            Path::new("a.toml"),
+        )
+        .expect_err("serial without baud");
+        let msg = err.to_string();
+        assert!(
+            msg.contains("mavlink.connection") && msg.contains("PORT:BAUD"),
+            "{msg}"
+        );
+        let c = Config::parse(
+            "[mavlink]\nmessage = \"odometry\"\n[mavlink.body_from_camera]\nquaternion_wxyz = [1.0, 0.0, 0.0, 0.0]\n",
+            Path::new("a.toml"),
+        )
+        .expect("quaternion alone is valid");
+        assert_eq!(c.mavlink.message, crate::mavlink_io::PoseMessage::Odometry);
+        assert_eq!(c.mavlink.body_from_camera.rpy_deg, None);
+        let err = Config::parse(
+            "[mavlink.ned_from_world]\nrpy_deg = [0.0, 0.0]\n",
+            Path::new("a.toml"),
+        )
+        .expect_err("two angles");
+        assert!(err.to_string().contains("rpy_deg"), "{err}");
     }
 
     #[test]

@@ -1,0 +1,33 @@
+# The two commands of the README:
+#   make demo   set up what is missing, build, run the demo
+#   make test   set up what is missing, build once in release, run every test
+.PHONY: deps build demo test test-rust test-python install bench clean-shm
+
+CARGO ?= cargo
+VENV ?= $(CURDIR)/.venv
+export STAR_VENV := $(VENV)
+
+deps:
+	scripts/setup.sh
+
+build: deps
+	$(CARGO) build --release
+
+demo: build
+	scripts/demo.sh
+
+test-rust: deps
+	$(CARGO) test --release
+
+test-python: build
+	@if ls hil_tests/test_*.py >/dev/null 2>&1; then \
+		$(VENV)/bin/python -m pytest -q hil_tests; \
+	else echo "hil_tests: no pytest tests yet"; fi
+
+test: test-rust test-python
+
+bench: deps
+	$(CARGO) bench
+
+install: build
+	scripts/install.sh

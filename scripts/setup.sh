@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Idempotent set-up for a fresh Debian/Ubuntu machine that has only Rust:
+# installs the missing system packages and creates the Python venv (.venv)
+# used by the evaluation and hardware-in-the-loop tests.
+# Usage: scripts/setup.sh            (called by `make demo` and `make test`)
+set -euo pipefail
+
+root="$(cd "$(dirname "$0")/.." && pwd)"
+cd "$root"
+
+# System packages: libclang for the v4l bindings, Aravis (library + fake
+# camera tools), libusb, Mesa's Vulkan drivers (lavapipe) for wgpu, a Python
+# venv for the harness, systemd-analyze for unit checks, pkg-config.
+packages=(
+  pkg-config clang libclang-dev
+  libaravis-dev aravis-tools libusb-1.0-0-dev
+  mesa-vulkan-drivers libvulkan1
+  python3 python3-venv python3-pip
+  systemd
+)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "setup: installing system packages: ${missing[*]}"
+  sudo_cmd=()
+  if [ "$(id -u)" -ne 0 ]; then sudo_cmd=(sudo); fi
+  "${sudo_cmd[@]}" apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"
+else
+  echo "setup: system packages present"
+fi
+
+# Python venv for evo (trajectory metrics), pymavlink and pytest.
+venv="${STAR_VENV:-$root/.venv}"
+req="$root/hil_tests/requirements.txt"
+stamp="$venv/.requirements.sha256"
+want="$(sha256sum "$req" | cut -d' ' -f1)"
+if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  echo "setup: creating Python venv at $venv"
+  python3 -m venv "$venv"
+  "$venv/bin/pip" install -q --upgrade pip
+  "$venv/bin/pip" install -q -r "$req"
+  echo "$want" > "$stamp"
+else
+  echo "setup: Python venv up to date ($venv)"
+fi
