@@ -33,6 +33,7 @@ fn subdivide_once(mesh: &Mesh) -> Mesh {
     };
     let mut midpoints: HashMap<(u32, u32), u32> = HashMap::with_capacity(mesh.indices.len());
     let n = mesh.positions.len();
+    let has_uvs = mesh.uvs.len() == n;
     let attr = |v: &Vec<f32>, i: u32| v.get(i as usize).copied().unwrap_or(0.0);
     let uv = |i: u32| mesh.uvs.get(i as usize).copied().unwrap_or([0.0, 0.0]);
     let mut midpoint = |out: &mut Mesh, a: u32, b: u32| -> u32 {
@@ -46,8 +47,10 @@ fn subdivide_once(mesh: &Mesh) -> Mesh {
             ]);
             out.gray
                 .push(0.5 * (attr(&mesh.gray, a) + attr(&mesh.gray, b)));
-            let (ua, ub) = (uv(a), uv(b));
-            out.uvs.push([0.5 * (ua[0] + ub[0]), 0.5 * (ua[1] + ub[1])]);
+            if has_uvs {
+                let (ua, ub) = (uv(a), uv(b));
+                out.uvs.push([0.5 * (ua[0] + ub[0]), 0.5 * (ua[1] + ub[1])]);
+            }
             (out.positions.len() - 1) as u32
         })
     };

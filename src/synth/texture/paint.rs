@@ -151,6 +151,8 @@ fn ceiling(c: &mut Canvas, rng: &mut SplitMix64) {
     let nx = ((w + ox) / panel).ceil() as i64 + 1;
     let ny = ((h + oy) / panel).ceil() as i64 + 1;
     let low = rng.next_u64();
+    // Fissures about 1.5 texels wide.
+    let fissure_k = 0.08 * c.px_per_m / 1.5;
     c.fill_with(|x, y| 180.0 + 15.0 * fbm(low, x, y, 1.5, 2, 0.5));
     for j in 0..ny {
         for i in 0..nx {
@@ -171,12 +173,15 @@ fn ceiling(c: &mut Canvas, rng: &mut SplitMix64) {
                     k += 1;
                 }
             } else {
-                let base = rng.range(165.0, 210.0);
+                let base = rng.range(150.0, 215.0);
                 c.paint_rect(inner, move |x, y, old| {
+                    // Speckle plus dark worm-like fissures of acoustic tiles.
+                    let fissure = (1.0 - fbm(s ^ 5, x, y, 0.08, 2, 0.5).abs() * fissure_k).max(0.0);
                     0.3 * old
                         + 0.7 * base
                         + 14.0 * fbm(s, x, y, 0.035, 2, 0.5)
                         + 9.0 * fbm(s ^ 3, x, y, 0.25, 2, 0.5)
+                        - 45.0 * fissure
                 });
                 // Shadow of the bar on one side of the panel.
                 c.fill_rect(

@@ -10,13 +10,31 @@ use super::{fbm, Canvas, Rect, SplitMix64};
 pub(super) fn wall(c: &mut Canvas, rng: &mut SplitMix64) {
     let (w, h) = c.size_m();
     let base = rng.range(150.0, 200.0);
-    let (s1, s2, s3) = (rng.next_u64(), rng.next_u64(), rng.next_u64());
+    let (s1, s2, s3, s4) = (
+        rng.next_u64(),
+        rng.next_u64(),
+        rng.next_u64(),
+        rng.next_u64(),
+    );
+    let blotch = rng.range(18.0, 28.0);
+    let blob_m = rng.range(0.04, 0.07);
+    // Steepness so that blob edges span about 1.5 texels and cracks are
+    // 1.5 texels wide: sharp but anti-aliased (fBm slopes are about
+    // 2 / wavelength).
+    let texel_m = 1.0 / c.px_per_m;
+    let blob_k = blob_m / (3.0 * texel_m);
+    let crack_k = 0.35 / (1.5 * texel_m);
     c.fill_with(|x, y| {
-        base + 24.0 * fbm(s1, x, y, 1.3, 3, 0.5)
-            + 10.0 * fbm(s2, x, y, 0.14, 3, 0.55)
-            + 6.0 * fbm(s3, x, y, 0.03, 2, 0.5)
+        // Broad shading, "knockdown" plaster blobs with crisp edges, fine
+        // grain, and hairline cracks in a few areas.
+        let blob = ((fbm(s2, x, y, blob_m, 2, 0.5) - 0.1) * blob_k).clamp(0.0, 1.0);
+        let crack_area = ((fbm(s4 ^ 1, x, y, 1.5, 2, 0.5) - 0.25) * 6.0).clamp(0.0, 1.0);
+        let crack = (1.0 - fbm(s4, x, y, 0.35, 3, 0.5).abs() * crack_k).max(0.0);
+        base + 20.0 * fbm(s1, x, y, 1.3, 3, 0.5) - blotch * blob
+            + 6.0 * fbm(s3, x, y, 0.025, 2, 0.5)
+            - 40.0 * crack * crack_area
     });
-    marks(c, rng, w * h * 4.0, base);
+    marks(c, rng, w * h * 12.0, base);
     stains(c, rng, 12.0);
 
     let mut occupied: Vec<Rect> = Vec::new();
