@@ -17,8 +17,14 @@
 //! meshes, bit for bit, on every platform.
 
 mod build;
+mod objects;
+mod params;
 
 use build::{Face, MeshBuilder, UvMap};
+use objects::{add_box, place_boxes};
+
+pub use objects::SceneBox;
+pub use params::{SceneParams, SceneParamsError};
 
 use super::texture::{paint_surface, SplitMix64, SurfaceKind};
 use crate::map::Mesh;
@@ -31,136 +37,6 @@ pub const FREE_MARGIN_M: f64 = 0.4;
 const FURNITURE_ATLAS_M: f64 = 4.0;
 /// Occluder atlas size, meters.
 const OCCLUDER_ATLAS_M: [f64; 2] = [2.0, 4.0];
-
-/// Parameters of a synthetic scene. `Default` is an 8 x 6 x 3 m room with
-/// 6 furniture boxes, 2 occluders and 5 % of the map's patches removed.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SceneParams {
-    /// Seed of every random choice (layout, holes, textures).
-    pub seed: u64,
-    /// Room size `[x, y, z]` in meters (x/y floor, z height).
-    pub room_size_m: [f64; 3],
-    /// Number of furniture boxes on the floor (fewer when they do not fit).
-    pub boxes: usize,
-    /// Texture resolution, texels per meter of surface.
-    pub texture_px_per_m: f64,
-    /// Fraction (0..=1) of the room-surface patches removed from the map.
-    pub hole_fraction: f64,
-    /// Number of objects present in the truth mesh but absent from the map.
-    pub occluders: usize,
-}
-
-impl Default for SceneParams {
-    fn default() -> Self {
-        Self {
-            seed: 1,
-            room_size_m: [8.0, 6.0, 3.0],
-            boxes: 6,
-            texture_px_per_m: 128.0,
-            hole_fraction: 0.05,
-            occluders: 2,
-        }
-    }
-}
-
-/// Invalid [`SceneParams`].
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum SceneParamsError {
-    /// A field is out of its range.
-    #[error("scene parameter {field} = {value} is invalid: expected {expected}")]
-    OutOfRange {
-        /// The field name.
-        field: &'static str,
-        /// The value found.
-        value: f64,
-        /// The accepted range.
-        expected: &'static str,
-    },
-}
-
-impl SceneParams {
-    /// Checks ranges: room sides 2..=50 m (height 2..=10 m), resolution
-    /// 8..=1024 texels/m, hole fraction 0..=0.9, at most 100 boxes and 100
-    /// occluders. [`build_scene`] clamps out-of-range values instead.
-    pub fn validate(&self) -> Result<(), SceneParamsError> {
-        let check = |field, value: f64, lo: f64, hi: f64, expected| {
-            if (lo..=hi).contains(&value) {
-                Ok(())
-            } else {
-                Err(SceneParamsError::OutOfRange {
-                    field,
-                    value,
-                    expected,
-                })
-            }
-        };
-        check("room_size_m[0]", self.room_size_m[0], 2.0, 50.0, "2..=50 m")?;
-        check("room_size_m[1]", self.room_size_m[1], 2.0, 50.0, "2..=50 m")?;
-        check("room_size_m[2]", self.room_size_m[2], 2.0, 10.0, "2..=10 m")?;
-        check(
-            "texture_px_per_m",
-            self.texture_px_per_m,
-            8.0,
-            1024.0,
-            "8..=1024",
-        )?;
-        check("hole_fraction", self.hole_fraction, 0.0, 0.9, "0..=0.9")?;
-        check("boxes", self.boxes as f64, 0.0, 100.0, "0..=100")?;
-        check("occluders", self.occluders as f64, 0.0, 100.0, "0..=100")
-    }
-
-    /// A copy with every field clamped into its valid range (NaN becomes
-    /// the default).
-    pub fn clamped(&self) -> Self {
-        let d = Self::default();
-        let clamp =
-            |v: f64, lo: f64, hi: f64, def: f64| if v.is_nan() { def } else { v.clamp(lo, hi) };
-        Self {
-            seed: self.seed,
-            room_size_m: [
-                clamp(self.room_size_m[0], 2.0, 50.0, d.room_size_m[0]),
-                clamp(self.room_size_m[1], 2.0, 50.0, d.room_size_m[1]),
-                clamp(self.room_size_m[2], 2.0, 10.0, d.room_size_m[2]),
-            ],
-            boxes: self.boxes.min(100),
-            texture_px_per_m: clamp(self.texture_px_per_m, 8.0, 1024.0, d.texture_px_per_m),
-            hole_fraction: clamp(self.hole_fraction, 0.0, 0.9, d.hole_fraction),
-            occluders: self.occluders.min(100),
-        }
-    }
-}
-
-/// A box standing on the floor, rotated about `z`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SceneBox {
-    /// Footprint center `[x, y]`, meters.
-    pub center_xy_m: [f64; 2],
-    /// Half extents along the box's own x and y axes, meters.
-    pub half_size_m: [f64; 2],
-    /// Height above the floor, meters.
-    pub height_m: f64,
-    /// `[cos(yaw), sin(yaw)]` of the box's x axis in the world.
-    pub yaw_cos_sin: [f64; 2],
-}
-
-impl SceneBox {
-    /// True when `p_world` is inside the box grown by `margin_m`.
-    pub fn contains(&self, p_world: [f64; 3], margin_m: f64) -> bool {
-        let dx = p_world[0] - self.center_xy_m[0];
-        let dy = p_world[1] - self.center_xy_m[1];
-        let [c, s] = self.yaw_cos_sin;
-        let (lx, ly) = (c * dx + s * dy, -s * dx + c * dy);
-        lx.abs() < self.half_size_m[0] + margin_m
-            && ly.abs() < self.half_size_m[1] + margin_m
-            && p_world[2] < self.height_m + margin_m
-    }
-
-    /// Radius of the footprint's circumscribed circle.
-    pub fn radius_m(&self) -> f64 {
-        (self.half_size_m[0] * self.half_size_m[0] + self.half_size_m[1] * self.half_size_m[1])
-            .sqrt()
-    }
-}
 
 /// A synthetic scene: the map, the camera's truth, and its free space.
 #[derive(Debug, Clone)]
@@ -416,16 +292,6 @@ fn room_faces([lx, ly, lz]: [f64; 3]) -> Vec<(SurfaceKind, Face)> {
     ]
 }
 
-/// Diffuse shading factor (0..1) of a surface with normal `n`: ambient plus
-/// two fixed directional lights.
-fn lambert(n: [f64; 3]) -> f64 {
-    let light = |l: [f64; 3]| {
-        let norm = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
-        ((n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / norm).max(0.0)
-    };
-    0.62 + 0.22 * light([0.3, 0.5, 0.8]) + 0.14 * light([-0.6, -0.25, 0.75])
-}
-
 /// Darkening near the room's edges and corners: 1 away from them, down to
 /// 0.8 where two room surfaces meet.
 fn room_occlusion(p: [f64; 3], room: [f64; 3]) -> f64 {
@@ -439,165 +305,14 @@ fn room_occlusion(p: [f64; 3], room: [f64; 3]) -> f64 {
     1.0 - 0.2 * (1.0 - (d[1] / 0.35).min(1.0))
 }
 
-/// Places up to `count` boxes without overlapping `existing` or each other.
-/// Furniture stands against a wall half of the time; occluders are
-/// person- or plant-sized and stand in the open.
-fn place_boxes(
-    rng: &mut SplitMix64,
-    params: &SceneParams,
-    existing: &[SceneBox],
-    count: usize,
-    occluder: bool,
-) -> Vec<SceneBox> {
-    let [lx, ly, _] = params.room_size_m;
-    let mut placed: Vec<SceneBox> = Vec::new();
-    for _ in 0..count {
-        for _attempt in 0..200 {
-            let (half, height) = if occluder {
-                (
-                    [rng.range(0.15, 0.3), rng.range(0.12, 0.25)],
-                    rng.range(1.0, 1.85),
-                )
-            } else {
-                (
-                    [rng.range(0.25, 0.8), rng.range(0.2, 0.45)],
-                    rng.range(0.4, 1.2),
-                )
-            };
-            let against_wall = !occluder && rng.chance(0.5);
-            let (center, yaw) = if against_wall {
-                let wall = rng.below(4);
-                let along = if wall % 2 == 0 { lx } else { ly };
-                let t = rng.range(half[0] + 0.05, along - half[0] - 0.05);
-                let off = half[1] + 0.02;
-                match wall {
-                    0 => ([t, off], [1.0, 0.0]),
-                    1 => ([lx - off, t], [0.0, 1.0]),
-                    2 => ([t, ly - off], [1.0, 0.0]),
-                    _ => ([off, t], [0.0, 1.0]),
-                }
-            } else {
-                let r = (half[0] * half[0] + half[1] * half[1]).sqrt() + 0.3;
-                let yaw = random_unit(rng);
-                ([rng.range(r, lx - r), rng.range(r, ly - r)], yaw)
-            };
-            let candidate = SceneBox {
-                center_xy_m: center,
-                half_size_m: half,
-                height_m: height,
-                yaw_cos_sin: yaw,
-            };
-            let clear = existing.iter().chain(&placed).all(|o| {
-                let dx = o.center_xy_m[0] - center[0];
-                let dy = o.center_xy_m[1] - center[1];
-                (dx * dx + dy * dy).sqrt() > o.radius_m() + candidate.radius_m() + 0.35
-            });
-            let inside = center[0] > 0.0 && center[0] < lx && center[1] > 0.0 && center[1] < ly;
-            if clear && inside {
-                placed.push(candidate);
-                break;
-            }
-        }
-    }
-    placed
-}
-
-/// A random unit vector in the plane, without trigonometry.
-fn random_unit(rng: &mut SplitMix64) -> [f64; 2] {
-    for _ in 0..32 {
-        let (a, b) = (rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
-        let n = (a * a + b * b).sqrt();
-        if n > 0.1 && n <= 1.0 {
-            return [a / n, b / n];
-        }
-    }
-    [1.0, 0.0]
-}
-
-/// Adds the top and four sides of `b`, each face on a random part of an
-/// atlas of `atlas_m` meters.
-fn add_box(
-    builder: &mut MeshBuilder,
-    b: &SceneBox,
-    texture: usize,
-    atlas_m: [f64; 2],
-    rng: &mut SplitMix64,
-) {
-    let [c, s] = b.yaw_cos_sin;
-    let (ex, ey) = ([c, s, 0.0], [-s, c, 0.0]);
-    let [hx, hy] = b.half_size_m;
-    let h = b.height_m;
-    let at = |a: f64, bb: f64, z: f64| {
-        [
-            b.center_xy_m[0] + a * ex[0] + bb * ey[0],
-            b.center_xy_m[1] + a * ex[1] + bb * ey[1],
-            z,
-        ]
+/// Diffuse shading factor (0..1) of a surface with normal `n`: ambient plus
+/// two fixed directional lights.
+pub(super) fn lambert(n: [f64; 3]) -> f64 {
+    let light = |l: [f64; 3]| {
+        let norm = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+        ((n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / norm).max(0.0)
     };
-    let neg = |v: [f64; 3]| [-v[0], -v[1], -v[2]];
-    let down = [0.0, 0.0, -1.0];
-    let faces = [
-        Face {
-            origin: at(-hx, -hy, h),
-            u_axis: ex,
-            v_axis: ey,
-            u_len_m: 2.0 * hx,
-            v_len_m: 2.0 * hy,
-            normal: [0.0, 0.0, 1.0],
-        },
-        Face {
-            origin: at(hx, -hy, h),
-            u_axis: ey,
-            v_axis: down,
-            u_len_m: 2.0 * hy,
-            v_len_m: h,
-            normal: ex,
-        },
-        Face {
-            origin: at(hx, hy, h),
-            u_axis: neg(ex),
-            v_axis: down,
-            u_len_m: 2.0 * hx,
-            v_len_m: h,
-            normal: ey,
-        },
-        Face {
-            origin: at(-hx, hy, h),
-            u_axis: neg(ey),
-            v_axis: down,
-            u_len_m: 2.0 * hy,
-            v_len_m: h,
-            normal: neg(ex),
-        },
-        Face {
-            origin: at(-hx, -hy, h),
-            u_axis: ex,
-            v_axis: down,
-            u_len_m: 2.0 * hx,
-            v_len_m: h,
-            normal: neg(ey),
-        },
-    ];
-    for face in &faces {
-        let span = [
-            (face.u_len_m / atlas_m[0]).min(1.0),
-            (face.v_len_m / atlas_m[1]).min(1.0),
-        ];
-        let uv = UvMap {
-            offset: [rng.range(0.0, 1.0 - span[0]), rng.range(0.0, 1.0 - span[1])],
-            scale: [span[0] / face.u_len_m, span[1] / face.v_len_m],
-        };
-        let top = face.normal[2] > 0.5;
-        let shade = |p: [f64; 3]| {
-            let floor_dark = if top {
-                1.0
-            } else {
-                1.0 - 0.2 * (1.0 - (p[2] / 0.3).min(1.0))
-            };
-            lambert(face.normal) * floor_dark
-        };
-        builder.face(face, texture, uv, &shade);
-    }
+    0.62 + 0.22 * light([0.3, 0.5, 0.8]) + 0.14 * light([-0.6, -0.25, 0.75])
 }
 
 #[cfg(test)]

@@ -176,3 +176,30 @@ fn textures_have_gradients_everywhere() {
         );
     }
 }
+
+/// The map written as OBJ + MTL + PNGs loads back equal within a gray level.
+#[test]
+fn map_round_trips_through_obj() {
+    let scene = build_scene(&SceneParams {
+        texture_px_per_m: 16.0,
+        ..small(21)
+    });
+    let dir = tempfile::tempdir().unwrap();
+    let path = crate::map::write_obj(&scene.map, dir.path(), "map").unwrap();
+    let back = crate::map::load_obj(&path).unwrap();
+    assert_eq!(back.triangle_count(), scene.map.triangle_count());
+    assert_eq!(back.textures.len(), scene.map.textures.len());
+    assert_eq!(back.bounds(), scene.map.bounds());
+    for (a, b) in scene.map.textures.iter().zip(&back.textures) {
+        assert_eq!((a.width, a.height), (b.width, b.height));
+        assert!(a
+            .texels
+            .iter()
+            .zip(&b.texels)
+            .all(|(x, y)| (x - y).abs() <= 0.5 + 1e-3));
+    }
+    let corners = |m: &Mesh| -> Vec<[f32; 3]> {
+        m.indices.iter().map(|&i| m.positions[i as usize]).collect()
+    };
+    assert!(corners(&back) == corners(&scene.map));
+}

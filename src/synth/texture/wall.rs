@@ -16,7 +16,7 @@ pub(super) fn wall(c: &mut Canvas, rng: &mut SplitMix64) {
         rng.next_u64(),
         rng.next_u64(),
     );
-    let blotch = rng.range(18.0, 28.0);
+    let blotch = rng.range(22.0, 32.0);
     let blob_m = rng.range(0.04, 0.07);
     // Steepness so that blob edges span about 1.5 texels and cracks are
     // 1.5 texels wide: sharp but anti-aliased (fBm slopes are about
@@ -140,7 +140,7 @@ fn door(c: &mut Canvas, rng: &mut SplitMix64, wall_base: f64) -> Rect {
     let leaf_value = rng.range(95.0, 160.0);
     let s = rng.next_u64();
     c.paint_rect(r, move |x, y, _| {
-        leaf_value + 18.0 * fbm(s, x * 4.0, y * 0.25, 0.05, 3, 0.6)
+        leaf_value + 24.0 * fbm(s, x * 4.0, y * 0.25, 0.05, 3, 0.6)
     });
     let rows = 2 + rng.below(3);
     let cols = 1 + rng.below(2);
@@ -161,7 +161,12 @@ fn door(c: &mut Canvas, rng: &mut SplitMix64, wall_base: f64) -> Rect {
                 Rect::new(p.x0 + 0.015, p.y0 + 0.015, pw - 0.015, ph - 0.015),
                 leaf_value - 40.0,
             );
-            c.fill_rect(p.inset(0.015), leaf_value + rng.range(-10.0, 10.0));
+            let (shift, ps) = (rng.range(-15.0, 15.0), rng.next_u64());
+            c.paint_rect(p.inset(0.015), move |x, y, _| {
+                // Vertical grain, knots of darker wood.
+                leaf_value + shift + 24.0 * fbm(ps, x * 4.0, y * 0.25, 0.05, 3, 0.6)
+                    - 30.0 * ((fbm(ps ^ 1, x, y, 0.12, 2, 0.5) - 0.35) * 8.0).clamp(0.0, 1.0)
+            });
         }
     }
     let (hx, hy) = (r.x1 - 0.09, r.y0 + dh - 1.0);
