@@ -20,7 +20,7 @@ mod validate;
 pub use error::{MapError, MeshProblem, IN_MEMORY};
 pub use obj::{load_gray_texture, load_obj, luma601_255};
 pub use obj_write::write_obj;
-pub use subdivide::subdivide;
+pub use subdivide::{subdivide, MAX_SUBDIVIDED_TRIANGLES};
 
 /// A texture converted to gray intensity (0..=255 as f32), row-major,
 /// with `v = 0` at the top row (image convention, OBJ `vt` is flipped on load).

@@ -22,6 +22,8 @@ pub use paint::paint_surface;
 
 /// Largest texture side in texels (a common GPU limit).
 pub const MAX_TEXTURE_SIDE: u32 = 8192;
+/// Largest texture in texels (64 MB as `f32`).
+pub const MAX_TEXELS: usize = 16 << 20;
 
 /// Kinds of surface, each with its own texture design.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -211,10 +213,17 @@ pub struct Canvas {
 }
 
 impl Canvas {
-    /// A canvas covering `width_m x height_m` at about `px_per_m` (at least
-    /// 8 texels a side, at most [`MAX_TEXTURE_SIDE`]; the resolution is then
-    /// adjusted to fit exactly).
+    /// A canvas covering `width_m x height_m` at about `px_per_m` (lowered
+    /// to stay within [`MAX_TEXELS`]; at least 8 texels a side, at most
+    /// [`MAX_TEXTURE_SIDE`]; the resolution is then adjusted to fit exactly).
     pub fn new(width_m: f64, height_m: f64, px_per_m: f64) -> Self {
+        // Keep one texture within the texel budget.
+        let wanted = width_m * height_m * px_per_m * px_per_m;
+        let px_per_m = if wanted > MAX_TEXELS as f64 {
+            px_per_m * (MAX_TEXELS as f64 / wanted).sqrt()
+        } else {
+            px_per_m
+        };
         let side = |m: f64| ((m * px_per_m).round() as u32).clamp(8, MAX_TEXTURE_SIDE) as usize;
         let (width, height) = (side(width_m), side(height_m));
         let px_per_m = (width as f64 / width_m.max(1e-6)).min(height as f64 / height_m.max(1e-6));
@@ -378,6 +387,15 @@ mod tests {
         assert_ne!(value_noise(3, 0.5, 0.5), value_noise(4, 0.5, 0.5));
         let f = fbm(9, 1.3, 2.7, 0.5, 5, 0.6);
         assert!((-1.0..=1.0).contains(&f));
+    }
+
+    #[test]
+    fn canvas_respects_budget() {
+        let c = Canvas::new(50.0, 50.0, 1024.0);
+        assert!(c.width * c.height <= MAX_TEXELS);
+        assert!(c.width as u32 <= MAX_TEXTURE_SIDE);
+        let (w, h) = c.size_m();
+        assert!(w <= 50.0 + 1e-9 && h <= 50.0 + 1e-9 && w > 49.0);
     }
 
     #[test]

@@ -50,7 +50,7 @@ pub enum SceneParamsError {
 impl SceneParams {
     /// Checks ranges: room sides 2..=50 m (height 2..=10 m), resolution
     /// 8..=1024 texels/m, hole fraction 0..=0.9, at most 100 boxes and 100
-    /// occluders. [`build_scene`] clamps out-of-range values instead.
+    /// occluders. [`super::build_scene`] clamps out-of-range values instead.
     pub fn validate(&self) -> Result<(), SceneParamsError> {
         let check = |field, value: f64, lo: f64, hi: f64, expected| {
             if (lo..=hi).contains(&value) {
