@@ -18,4 +18,5 @@ pub mod map;
 pub mod mavlink_io;
 pub mod render;
 pub mod service;
+pub mod synth;
 pub mod track;
