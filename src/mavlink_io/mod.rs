@@ -151,6 +151,9 @@ impl Shared {
     }
 }
 
+/// The body of a link thread.
+type ThreadBody = fn(Arc<Shared>);
+
 /// Starts the link threads.
 pub struct MavlinkLink;
 
@@ -189,7 +192,7 @@ impl MavlinkLink {
             threads: Vec::with_capacity(2),
             done_rx: Mutex::new(done_rx),
         };
-        let starts: [(&'static str, fn(Arc<Shared>)); 2] =
+        let starts: [(&'static str, ThreadBody); 2] =
             [("mavlink-tx", sender::run), ("mavlink-rx", receiver::run)];
         for (name, body) in starts {
             let shared = shared.clone();
@@ -255,7 +258,10 @@ impl MavlinkHandle {
         let mut finished = 0;
         while finished < self.threads.len() {
             let left = deadline.saturating_duration_since(Instant::now());
-            let done_rx = self.done_rx.get_mut().unwrap_or_else(PoisonError::into_inner);
+            let done_rx = self
+                .done_rx
+                .get_mut()
+                .unwrap_or_else(PoisonError::into_inner);
             match done_rx.recv_timeout(left) {
                 Ok(()) => finished += 1,
                 Err(_) => break,
