@@ -2,7 +2,10 @@
 //! counted, inconsistent headers are rejected on both sides, a publisher
 //! restart is detected, and poses round-trip.
 
-mod common_ipc;
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+mod common;
+use common as common_ipc;
 
 use star::geometry::Pose;
 use star::ipc::services::open_frame_service;
@@ -23,6 +26,7 @@ fn publish_gray(publisher: &mut FramePublisher, width: u32, height: u32, value: 
 
 #[test]
 fn slow_consumer_gets_newest_frame_and_drops_are_counted() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("slow"));
     let config = common_ipc::isolated_config("slow");
     let node = create_node("test-slow", &config).expect("node");
     let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");
@@ -41,7 +45,10 @@ fn slow_consumer_gets_newest_frame_and_drops_are_counted() {
     assert_eq!(view.header.sequence, 10);
     assert!(view.pixels.iter().all(|&p| p == 10), "pixels read in place");
     drop(newest);
-    assert!(subscriber.take_latest().expect("receive").is_none(), "nothing queued");
+    assert!(
+        subscriber.take_latest().expect("receive").is_none(),
+        "nothing queued"
+    );
     let stats = subscriber.stats();
     assert_eq!(stats.received, 2);
     assert_eq!(stats.dropped, 9);
@@ -50,6 +57,7 @@ fn slow_consumer_gets_newest_frame_and_drops_are_counted() {
 
 #[test]
 fn inconsistent_headers_are_rejected_and_counted() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("reject"));
     let config = common_ipc::isolated_config("reject");
     let node = create_node("test-reject", &config).expect("node");
     let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");
@@ -97,6 +105,7 @@ fn inconsistent_headers_are_rejected_and_counted() {
 
 #[test]
 fn publisher_restart_is_detected_without_counting_drops() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("restart"));
     let config = common_ipc::isolated_config("restart");
     let node = create_node("test-restart", &config).expect("node");
     let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");
@@ -118,11 +127,17 @@ fn publisher_restart_is_detected_without_counting_drops() {
 
 #[test]
 fn poses_round_trip() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("pose"));
     let config = common_ipc::isolated_config("pose");
     let node = create_node("test-pose", &config).expect("node");
     let subscriber = PoseSubscriber::new(&node).expect("subscriber");
     let publisher = PosePublisher::new(&node).expect("publisher");
-    let mut msg = PoseMsg::new(123, 4, &Pose::translation(1.0, 2.0, 3.0), TrackingState::Relocalized);
+    let mut msg = PoseMsg::new(
+        123,
+        4,
+        &Pose::translation(1.0, 2.0, 3.0),
+        TrackingState::Relocalized,
+    );
     msg.reset_counter = 2;
     publisher.publish(&msg).expect("publish");
     let got = subscriber

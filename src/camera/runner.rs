@@ -106,7 +106,10 @@ pub fn run_camera(
             match publisher.publish_with(|slot| source.next_frame(slot)) {
                 Ok(sequence) => {
                     debug!(sequence, "frame published");
-                    if settings.max_frames.is_some_and(|n| publisher.stats().published >= n) {
+                    if settings
+                        .max_frames
+                        .is_some_and(|n| publisher.stats().published >= n)
+                    {
                         break 'reopen;
                     }
                 }
@@ -136,7 +139,12 @@ pub fn run_camera(
             }
             if last_log.elapsed() >= settings.stats_interval {
                 let s = publisher.stats();
-                info!(published = s.published, rejected = s.rejected, source_errors = s.source_errors, "camera stats");
+                info!(
+                    published = s.published,
+                    rejected = s.rejected,
+                    source_errors = s.source_errors,
+                    "camera stats"
+                );
                 last_log = Instant::now();
             }
         }

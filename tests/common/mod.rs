@@ -2,13 +2,39 @@
 //! prefix is unique to one test, so tests running in parallel never share
 //! services.
 
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 #![allow(dead_code)]
 
 use std::path::Path;
 
+/// The resource prefix for `tag` in this test process.
+pub fn prefix(tag: &str) -> String {
+    format!("st{}_{}_", std::process::id(), tag)
+}
+
+/// Removes the shared-memory and descriptor files with this test's prefix
+/// when dropped (iceoryx2 keeps a small global management segment per
+/// prefix). Declare it first so it drops after the nodes.
+pub struct Cleanup(pub String);
+
+impl Drop for Cleanup {
+    fn drop(&mut self) {
+        for dir in ["/dev/shm", "/tmp/iceoryx2/nodes", "/tmp/iceoryx2/services"] {
+            let Ok(entries) = std::fs::read_dir(dir) else {
+                continue;
+            };
+            for entry in entries.flatten() {
+                if entry.file_name().to_string_lossy().starts_with(&self.0) {
+                    let _ = std::fs::remove_file(entry.path());
+                }
+            }
+        }
+    }
+}
+
 /// An iceoryx2 config with a prefix unique to this process and `tag`.
 pub fn isolated_config(tag: &str) -> iceoryx2::config::Config {
-    let prefix = format!("st{}_{}_", std::process::id(), tag);
+    let prefix = prefix(tag);
     star::ipc::load_iceoryx_config(Path::new("/nonexistent/iceoryx2.toml"), Some(&prefix))
         .expect("isolated iceoryx2 config")
 }
@@ -16,11 +42,14 @@ pub fn isolated_config(tag: &str) -> iceoryx2::config::Config {
 /// Writes an iceoryx2 config file with that prefix (for child processes)
 /// and a star config that points at it; returns the star config path.
 pub fn write_isolated_configs(dir: &Path, tag: &str, extra_star_toml: &str) -> std::path::PathBuf {
-    let prefix = format!("st{}_{}_", std::process::id(), tag);
+    let prefix = prefix(tag);
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/iceoryx2.toml");
     let text = std::fs::read_to_string(shipped).expect("shipped iceoryx2.toml");
     let text = text.replace("prefix = \"iox2_\"", &format!("prefix = \"{prefix}\""));
-    assert!(text.contains(&prefix), "config/iceoryx2.toml must set prefix = \"iox2_\"");
+    assert!(
+        text.contains(&prefix),
+        "config/iceoryx2.toml must set prefix = \"iox2_\""
+    );
     let iox = dir.join("iceoryx2.toml");
     std::fs::write(&iox, text).expect("write iceoryx2.toml");
     let star = dir.join("star.toml");
