@@ -72,12 +72,21 @@ fn sleep_unless_stopped(total: Duration, stop: &dyn Fn() -> bool) {
 
 /// Runs until `stop()` is true, the source ends, `max_frames` is reached,
 /// or a fatal error occurs. `open` is called again after every disconnect.
+/// Once `stop()` has returned true the loop stops, even if later calls would
+/// return false (signal checks consume the signal).
 pub fn run_camera(
     mut open: impl FnMut() -> Result<Box<dyn FrameSource>, CameraError>,
     publisher: &mut FramePublisher,
     stop: &dyn Fn() -> bool,
     settings: &RunnerSettings,
 ) -> Result<RunSummary, RunError> {
+    let stopped = std::cell::Cell::new(false);
+    let stop = &|| {
+        if !stopped.get() && stop() {
+            stopped.set(true);
+        }
+        stopped.get()
+    };
     let mut summary = RunSummary {
         stats: publisher.stats(),
         opens: 0,
