@@ -148,3 +148,81 @@ fn poses_round_trip() {
     assert_eq!(got.tracking_state(), Some(TrackingState::Relocalized));
     assert!(subscriber.try_next().expect("receive").is_none());
 }
+
+/// A camera that fails: every third frame is corrupt, and after five good
+/// frames the device "disconnects".
+struct FlakyCamera {
+    frames: u32,
+}
+
+impl star::camera::FrameSource for FlakyCamera {
+    fn describe(&self) -> String {
+        "flaky test camera".into()
+    }
+
+    fn next_frame(
+        &mut self,
+        slot: &mut star::ipc::FrameSlot<'_>,
+    ) -> Result<(), star::camera::CameraError> {
+        self.frames += 1;
+        if self.frames > 5 {
+            return Err(star::camera::CameraError::Disconnected {
+                device: "flaky".into(),
+                reason: "unplugged".into(),
+            });
+        }
+        if self.frames % 3 == 0 {
+            return Err(star::camera::CameraError::BadFrame {
+                device: "flaky".into(),
+                reason: "corrupt".into(),
+            });
+        }
+        *slot.header = FrameHeader::gray8(0, 16, 8);
+        Ok(())
+    }
+}
+
+#[test]
+fn failing_camera_is_reconnected_and_bad_frames_skipped() {
+    use star::camera::{run_camera, RunnerSettings};
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("flaky"));
+    let config = common_ipc::isolated_config("flaky");
+    let node = create_node("test-flaky", &config).expect("node");
+    let mut publisher = FramePublisher::new(&node).expect("publisher");
+    let mut opens = 0;
+    let summary = run_camera(
+        || {
+            opens += 1;
+            if opens == 2 {
+                // The device is briefly absent after the disconnect.
+                return Err(star::camera::CameraError::Open {
+                    device: "flaky".into(),
+                    reason: "no such device".into(),
+                });
+            }
+            Ok(Box::new(FlakyCamera { frames: 0 }))
+        },
+        &mut publisher,
+        &|| false,
+        &RunnerSettings {
+            initial_backoff: std::time::Duration::from_millis(1),
+            max_frames: Some(10),
+            ..RunnerSettings::default()
+        },
+    )
+    .expect("run");
+    // Sessions publish frames 1, 2, 4, 5 (frame 3 is skipped) until frame 6
+    // disconnects: 4 + 4 + 2 = 10 over three sessions.
+    assert_eq!(summary.stats.published, 10);
+    assert_eq!(
+        summary.opens, 3,
+        "successful opens; one failed attempt between"
+    );
+    assert_eq!(opens, 4);
+    assert_eq!(summary.skipped, 2);
+    assert_eq!(
+        summary.stats.source_errors,
+        2 + 2,
+        "2 corrupt frames, 2 disconnects"
+    );
+}
