@@ -336,7 +336,10 @@ impl Config {
         ] {
             if let Some(v) = value {
                 if !v.is_finite() || (key == "camera.exposure_us" && v <= 0.0) {
-                    return Err(invalid(key, format!("expected a positive finite value, found {v}")));
+                    return Err(invalid(
+                        key,
+                        format!("expected a positive finite value, found {v}"),
+                    ));
                 }
             }
         }
@@ -349,13 +352,19 @@ impl Config {
         if !(10..=60_000).contains(&self.camera.frame_timeout_ms) {
             return Err(invalid(
                 "camera.frame_timeout_ms",
-                format!("expected 10..=60000, found {}", self.camera.frame_timeout_ms),
+                format!(
+                    "expected 10..=60000, found {}",
+                    self.camera.frame_timeout_ms
+                ),
             ));
         }
         if !(self.camera.replay_speed.is_finite() && self.camera.replay_speed > 0.0) {
             return Err(invalid(
                 "camera.replay_speed",
-                format!("expected a positive factor, found {}", self.camera.replay_speed),
+                format!(
+                    "expected a positive factor, found {}",
+                    self.camera.replay_speed
+                ),
             ));
         }
         if !(10..=60_000).contains(&self.ipc.silence_timeout_ms) {
@@ -539,7 +548,10 @@ mod tests {
             ("[camera]\nbuffers = 1\n", "camera.buffers"),
             ("[camera]\nexposure_us = -1.0\n", "camera.exposure_us"),
             ("[camera]\nreplay_speed = 0.0\n", "camera.replay_speed"),
-            ("[camera]\nframe_timeout_ms = 1\n", "camera.frame_timeout_ms"),
+            (
+                "[camera]\nframe_timeout_ms = 1\n",
+                "camera.frame_timeout_ms",
+            ),
             ("[ipc]\nsilence_timeout_ms = 0\n", "ipc.silence_timeout_ms"),
             (
                 "[camera.intrinsics]\nwidth=4096\nheight=512\nfx=400\nfy=400\ncx=320\ncy=256\n",

@@ -5,8 +5,8 @@
 //! publishes frames, the tracker aligns each frame against a keyframe rendered
 //! from the map, and the pose goes to the autopilot over MAVLink.
 
-pub mod cli;
 pub mod camera;
+pub mod cli;
 pub mod config;
 pub mod dataset;
 pub mod eval;

@@ -3,9 +3,11 @@
 //! frames of the configured size with monotonic capture times, first read
 //! directly, then through the publish loop and the transport.
 
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 #![cfg(feature = "aravis")]
 
-mod common_ipc;
+mod common;
+use common as common_ipc;
 
 use star::camera::aravis::{AravisSource, FAKE_CAMERA_ID};
 use star::camera::{
@@ -40,19 +42,35 @@ fn fake_camera_frames_direct_and_through_transport() {
         let view = frame.view().expect("valid header");
         assert_eq!((view.header.width, view.header.height), (320, 240));
         assert!(view.header.capture_ns > last_ns, "capture times increase");
-        assert!(view.header.capture_ns <= monotonic_now_ns(), "capture time is not in the future");
-        assert!((view.header.exposure_us - 2000.0).abs() < 1.0, "{}", view.header.exposure_us);
+        assert!(
+            view.header.capture_ns <= monotonic_now_ns(),
+            "capture time is not in the future"
+        );
+        assert!(
+            (view.header.exposure_us - 2000.0).abs() < 1.0,
+            "{}",
+            view.header.exposure_us
+        );
         last_ns = view.header.capture_ns;
     }
     let distinct = {
         let mut seen = [false; 256];
-        frame.view().expect("valid").pixels.iter().for_each(|&p| seen[p as usize] = true);
+        frame
+            .view()
+            .expect("valid")
+            .pixels
+            .iter()
+            .for_each(|&p| seen[p as usize] = true);
         seen.iter().filter(|s| **s).count()
     };
-    assert!(distinct > 4, "the fake camera draws a pattern, found {distinct} gray levels");
+    assert!(
+        distinct > 4,
+        "the fake camera draws a pattern, found {distinct} gray levels"
+    );
     drop(source);
 
     // Through the publish loop (the code path of `star camera --source aravis:fake`).
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("aravis"));
     let config = common_ipc::isolated_config("aravis");
     let node = create_node("test-aravis", &config).expect("node");
     let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");

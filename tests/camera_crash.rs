@@ -3,7 +3,10 @@
 //! subscriber reports the camera silent, keeps running, and resumes when a
 //! new camera process starts (which cleans up the dead one's resources).
 
-mod common_ipc;
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+mod common;
+use common as common_ipc;
 
 use std::ops::ControlFlow;
 use std::process::{Child, Command, Stdio};
@@ -31,8 +34,10 @@ enum Phase {
 
 #[test]
 fn tracker_keeps_running_and_resumes_after_camera_crash() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("crash"));
     let tmp = tempfile::tempdir().expect("tmp");
-    let star_config = common_ipc::write_isolated_configs(tmp.path(), "crash", "[camera]\nfps = 100.0\n");
+    let star_config =
+        common_ipc::write_isolated_configs(tmp.path(), "crash", "[camera]\nfps = 100.0\n");
     let iox = star::ipc::load_iceoryx_config(&tmp.path().join("iceoryx2.toml"), None)
         .expect("iceoryx2 config");
     let node = create_node("test-crash-tracker", &iox).expect("node");
@@ -84,7 +89,10 @@ fn tracker_keeps_running_and_resumes_after_camera_crash() {
 
     assert_eq!(end, star::ipc::RunEnd::Stopped);
     assert_eq!(phase, Phase::Restarted, "frames resumed after the restart");
-    assert!(frames_in_phase >= 20, "got {frames_in_phase} frames after restart");
+    assert!(
+        frames_in_phase >= 20,
+        "got {frames_in_phase} frames after restart"
+    );
     let stats = subscriber.stats();
     assert!(stats.silent_periods >= 2, "{stats:?}");
     assert_eq!(stats.publisher_changes, 1, "{stats:?}");

@@ -8,7 +8,10 @@
 //! one allocation per frame, nothing from star's code. The receiving side
 //! must not allocate at all.
 
-mod common_ipc;
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+mod common;
+use common as common_ipc;
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -72,6 +75,7 @@ const COUNTED_FRAMES: u64 = 300;
 
 #[test]
 fn steady_state_publish_and_receive_do_not_allocate() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("noalloc"));
     let config = Arc::new(common_ipc::isolated_config("noalloc"));
     let ready = Arc::new(Barrier::new(2));
     let done = Arc::new(AtomicBool::new(false));
@@ -103,7 +107,13 @@ fn steady_state_publish_and_receive_do_not_allocate() {
                     ControlFlow::Continue(())
                 })
                 .expect("run");
-            (frames, first_sequence, checksum, counted_allocs, subscriber.stats())
+            (
+                frames,
+                first_sequence,
+                checksum,
+                counted_allocs,
+                subscriber.stats(),
+            )
         })
     };
 
@@ -129,10 +139,14 @@ fn steady_state_publish_and_receive_do_not_allocate() {
     let (tx_allocs, tx_stats) = publisher.join().expect("publisher thread");
     std::thread::sleep(Duration::from_millis(200));
     done.store(true, Ordering::SeqCst);
-    let (frames, first_sequence, checksum, rx_allocs, rx_stats) = receiver.join().expect("receiver thread");
+    let (frames, first_sequence, checksum, rx_allocs, rx_stats) =
+        receiver.join().expect("receiver thread");
 
     assert_eq!(tx_stats.published, WARMUP_FRAMES + COUNTED_FRAMES);
-    assert!(frames > WARMUP_FRAMES + COUNTED_FRAMES / 2, "received {frames}");
+    assert!(
+        frames > WARMUP_FRAMES + COUNTED_FRAMES / 2,
+        "received {frames}"
+    );
     assert!(checksum > 0);
     assert_eq!(rx_stats.rejected, 0);
     // Frames sent before the subscriber's first one are not drops: the

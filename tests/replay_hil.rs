@@ -5,7 +5,10 @@
 //! a v4l2loopback device and the V4L2 source reads the frames back; it is
 //! skipped, with a message, where no loopback device exists.
 
-mod common_ipc;
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+mod common;
+use common as common_ipc;
 
 use std::path::Path;
 
@@ -37,6 +40,7 @@ fn write_dataset(dir: &Path, width: u32, height: u32) {
 fn replay_publishes_dataset_frames() {
     let tmp = tempfile::tempdir().expect("tmp");
     write_dataset(tmp.path(), 48, 32);
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("replay"));
     let config = common_ipc::isolated_config("replay");
     let node = create_node("test-replay", &config).expect("node");
     let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");

@@ -2,7 +2,10 @@
 //! counted, inconsistent headers are rejected on both sides, a publisher
 //! restart is detected, and poses round-trip.
 
-mod common_ipc;
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+mod common;
+use common as common_ipc;
 
 use star::geometry::Pose;
 use star::ipc::services::open_frame_service;
@@ -23,6 +26,7 @@ fn publish_gray(publisher: &mut FramePublisher, width: u32, height: u32, value: 
 
 #[test]
 fn slow_consumer_gets_newest_frame_and_drops_are_counted() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("slow"));
     let config = common_ipc::isolated_config("slow");
     let node = create_node("test-slow", &config).expect("node");
     let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");
@@ -41,7 +45,10 @@ fn slow_consumer_gets_newest_frame_and_drops_are_counted() {
     assert_eq!(view.header.sequence, 10);
     assert!(view.pixels.iter().all(|&p| p == 10), "pixels read in place");
     drop(newest);
-    assert!(subscriber.take_latest().expect("receive").is_none(), "nothing queued");
+    assert!(
+        subscriber.take_latest().expect("receive").is_none(),
+        "nothing queued"
+    );
     let stats = subscriber.stats();
     assert_eq!(stats.received, 2);
     assert_eq!(stats.dropped, 9);
@@ -50,6 +57,7 @@ fn slow_consumer_gets_newest_frame_and_drops_are_counted() {
 
 #[test]
 fn inconsistent_headers_are_rejected_and_counted() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("reject"));
     let config = common_ipc::isolated_config("reject");
     let node = create_node("test-reject", &config).expect("node");
     let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");
@@ -97,6 +105,7 @@ fn inconsistent_headers_are_rejected_and_counted() {
 
 #[test]
 fn publisher_restart_is_detected_without_counting_drops() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("restart"));
     let config = common_ipc::isolated_config("restart");
     let node = create_node("test-restart", &config).expect("node");
     let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");
@@ -118,11 +127,17 @@ fn publisher_restart_is_detected_without_counting_drops() {
 
 #[test]
 fn poses_round_trip() {
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("pose"));
     let config = common_ipc::isolated_config("pose");
     let node = create_node("test-pose", &config).expect("node");
     let subscriber = PoseSubscriber::new(&node).expect("subscriber");
     let publisher = PosePublisher::new(&node).expect("publisher");
-    let mut msg = PoseMsg::new(123, 4, &Pose::translation(1.0, 2.0, 3.0), TrackingState::Relocalized);
+    let mut msg = PoseMsg::new(
+        123,
+        4,
+        &Pose::translation(1.0, 2.0, 3.0),
+        TrackingState::Relocalized,
+    );
     msg.reset_counter = 2;
     publisher.publish(&msg).expect("publish");
     let got = subscriber
@@ -132,4 +147,82 @@ fn poses_round_trip() {
     assert_eq!(got, msg);
     assert_eq!(got.tracking_state(), Some(TrackingState::Relocalized));
     assert!(subscriber.try_next().expect("receive").is_none());
+}
+
+/// A camera that fails: every third frame is corrupt, and after five good
+/// frames the device "disconnects".
+struct FlakyCamera {
+    frames: u32,
+}
+
+impl star::camera::FrameSource for FlakyCamera {
+    fn describe(&self) -> String {
+        "flaky test camera".into()
+    }
+
+    fn next_frame(
+        &mut self,
+        slot: &mut star::ipc::FrameSlot<'_>,
+    ) -> Result<(), star::camera::CameraError> {
+        self.frames += 1;
+        if self.frames > 5 {
+            return Err(star::camera::CameraError::Disconnected {
+                device: "flaky".into(),
+                reason: "unplugged".into(),
+            });
+        }
+        if self.frames % 3 == 0 {
+            return Err(star::camera::CameraError::BadFrame {
+                device: "flaky".into(),
+                reason: "corrupt".into(),
+            });
+        }
+        *slot.header = FrameHeader::gray8(0, 16, 8);
+        Ok(())
+    }
+}
+
+#[test]
+fn failing_camera_is_reconnected_and_bad_frames_skipped() {
+    use star::camera::{run_camera, RunnerSettings};
+    let _cleanup = common_ipc::Cleanup(common_ipc::prefix("flaky"));
+    let config = common_ipc::isolated_config("flaky");
+    let node = create_node("test-flaky", &config).expect("node");
+    let mut publisher = FramePublisher::new(&node).expect("publisher");
+    let mut opens = 0;
+    let summary = run_camera(
+        || {
+            opens += 1;
+            if opens == 2 {
+                // The device is briefly absent after the disconnect.
+                return Err(star::camera::CameraError::Open {
+                    device: "flaky".into(),
+                    reason: "no such device".into(),
+                });
+            }
+            Ok(Box::new(FlakyCamera { frames: 0 }))
+        },
+        &mut publisher,
+        &|| false,
+        &RunnerSettings {
+            initial_backoff: std::time::Duration::from_millis(1),
+            max_frames: Some(10),
+            ..RunnerSettings::default()
+        },
+    )
+    .expect("run");
+    // Sessions publish frames 1, 2, 4, 5 (frame 3 is skipped) until frame 6
+    // disconnects: 4 + 4 + 2 = 10 over three sessions.
+    assert_eq!(summary.stats.published, 10);
+    assert_eq!(
+        summary.opens, 3,
+        "successful opens; one failed attempt between"
+    );
+    assert_eq!(opens, 4);
+    assert_eq!(summary.skipped, 2);
+    assert_eq!(
+        summary.stats.source_errors,
+        2 + 2,
+        "2 corrupt frames, 2 disconnects"
+    );
 }

@@ -100,7 +100,11 @@ impl AravisSource {
             .set_region(0, 0, settings.width as i32, settings.height as i32)
             .map_err(|e| glib_err(&name, "set region", e))?;
         let (_, _, width, height) = camera.region().map_err(|e| glib_err(&name, "region", e))?;
-        if width <= 0 || height <= 0 || width as u32 > FRAME_MAX_WIDTH || height as u32 > FRAME_MAX_HEIGHT {
+        if width <= 0
+            || height <= 0
+            || width as u32 > FRAME_MAX_WIDTH
+            || height as u32 > FRAME_MAX_HEIGHT
+        {
             return Err(CameraError::Unsupported {
                 device: format!("aravis:{name}"),
                 reason: format!("camera region is {width}x{height}"),
@@ -135,7 +139,9 @@ impl AravisSource {
         let fps = camera.frame_rate().unwrap_or(settings.fps);
         let exposure_us = camera.exposure_time().unwrap_or(0.0) as f32;
         let gain_db = camera.gain().unwrap_or(0.0) as f32;
-        let payload = camera.payload().map_err(|e| glib_err(&name, "payload size", e))?;
+        let payload = camera
+            .payload()
+            .map_err(|e| glib_err(&name, "payload size", e))?;
         let stream = camera
             .create_stream()
             .map_err(|e| glib_err(&name, "create stream", e))?;

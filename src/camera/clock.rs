@@ -42,6 +42,9 @@ mod tests {
         let real = realtime_now_ns();
         let converted = realtime_to_monotonic_ns(real - 5_000_000);
         let now = monotonic_now_ns();
-        assert!(converted <= now - 5_000_000, "a 5 ms old stamp is at least 5 ms old");
+        assert!(
+            converted <= now - 5_000_000,
+            "a 5 ms old stamp is at least 5 ms old"
+        );
     }
 }

@@ -23,7 +23,9 @@ impl PatternSource {
         if width > FRAME_MAX_WIDTH || height > FRAME_MAX_HEIGHT {
             return Err(CameraError::Unsupported {
                 device: format!("pattern:{width}x{height}"),
-                reason: format!("larger than the {FRAME_MAX_WIDTH}x{FRAME_MAX_HEIGHT} frame capacity"),
+                reason: format!(
+                    "larger than the {FRAME_MAX_WIDTH}x{FRAME_MAX_HEIGHT} frame capacity"
+                ),
             });
         }
         if !(fps.is_finite() && fps > 0.0) {

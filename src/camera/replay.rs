@@ -215,9 +215,15 @@ mod tests {
             stamps.push((view.header.dataset_stamp_ns, view.header.capture_ns));
         }
         assert_eq!(stamps[1].0, 100_010_000_000);
-        assert!(stamps[2].1 >= stamps[0].1 + 2_000_000, "paced at 10x: >= 2 ms apart");
+        assert!(
+            stamps[2].1 >= stamps[0].1 + 2_000_000,
+            "paced at 10x: >= 2 ms apart"
+        );
         let mut slot = FrameSlot::from_frame(&mut frame);
-        assert!(matches!(src.next_frame(&mut slot), Err(CameraError::EndOfStream)));
+        assert!(matches!(
+            src.next_frame(&mut slot),
+            Err(CameraError::EndOfStream)
+        ));
     }
 
     #[test]

@@ -72,12 +72,21 @@ fn sleep_unless_stopped(total: Duration, stop: &dyn Fn() -> bool) {
 
 /// Runs until `stop()` is true, the source ends, `max_frames` is reached,
 /// or a fatal error occurs. `open` is called again after every disconnect.
+/// Once `stop()` has returned true the loop stops, even if later calls would
+/// return false (signal checks consume the signal).
 pub fn run_camera(
     mut open: impl FnMut() -> Result<Box<dyn FrameSource>, CameraError>,
     publisher: &mut FramePublisher,
     stop: &dyn Fn() -> bool,
     settings: &RunnerSettings,
 ) -> Result<RunSummary, RunError> {
+    let stopped = std::cell::Cell::new(false);
+    let stop = &|| {
+        if !stopped.get() && stop() {
+            stopped.set(true);
+        }
+        stopped.get()
+    };
     let mut summary = RunSummary {
         stats: publisher.stats(),
         opens: 0,
@@ -106,7 +115,10 @@ pub fn run_camera(
             match publisher.publish_with(|slot| source.next_frame(slot)) {
                 Ok(sequence) => {
                     debug!(sequence, "frame published");
-                    if settings.max_frames.is_some_and(|n| publisher.stats().published >= n) {
+                    if settings
+                        .max_frames
+                        .is_some_and(|n| publisher.stats().published >= n)
+                    {
                         break 'reopen;
                     }
                 }
@@ -136,7 +148,12 @@ pub fn run_camera(
             }
             if last_log.elapsed() >= settings.stats_interval {
                 let s = publisher.stats();
-                info!(published = s.published, rejected = s.rejected, source_errors = s.source_errors, "camera stats");
+                info!(
+                    published = s.published,
+                    rejected = s.rejected,
+                    source_errors = s.source_errors,
+                    "camera stats"
+                );
                 last_log = Instant::now();
             }
         }

@@ -39,18 +39,22 @@ impl SourceUri {
         };
         match scheme {
             "v4l2" if rest.starts_with('/') => Ok(Self::V4l2(PathBuf::from(rest))),
-            "v4l2" => Err(invalid("expected an absolute device path, e.g. v4l2:/dev/video0")),
+            "v4l2" => Err(invalid(
+                "expected an absolute device path, e.g. v4l2:/dev/video0",
+            )),
             "aravis" => Ok(Self::Aravis(rest.to_string())),
             "replay" if !rest.is_empty() => Ok(Self::Replay(PathBuf::from(rest))),
             "replay" => Err(invalid("expected a dataset folder, e.g. replay:/data/seq1")),
             "pattern" => {
-                let (w, h) = rest
-                    .split_once('x')
-                    .ok_or_else(|| invalid("expected pattern:WIDTHxHEIGHT, e.g. pattern:640x512"))?;
+                let (w, h) = rest.split_once('x').ok_or_else(|| {
+                    invalid("expected pattern:WIDTHxHEIGHT, e.g. pattern:640x512")
+                })?;
                 let parse = |s: &str| s.parse::<u32>().ok().filter(|v| *v > 0);
                 match (parse(w), parse(h)) {
                     (Some(width), Some(height)) => Ok(Self::Pattern { width, height }),
-                    _ => Err(invalid("expected positive integers in pattern:WIDTHxHEIGHT")),
+                    _ => Err(invalid(
+                        "expected positive integers in pattern:WIDTHxHEIGHT",
+                    )),
                 }
             }
             _ => Err(invalid(
@@ -89,13 +93,23 @@ mod tests {
         }
         assert_eq!(
             SourceUri::parse("pattern:8x4").expect("pattern"),
-            SourceUri::Pattern { width: 8, height: 4 }
+            SourceUri::Pattern {
+                width: 8,
+                height: 4
+            }
         );
     }
 
     #[test]
     fn rejects_malformed_uris_with_the_uri_in_the_message() {
-        for text in ["video0", "v4l2:video0", "replay:", "pattern:0x4", "pattern:8", "usb:1"] {
+        for text in [
+            "video0",
+            "v4l2:video0",
+            "replay:",
+            "pattern:0x4",
+            "pattern:8",
+            "usb:1",
+        ] {
             let err = SourceUri::parse(text).expect_err(text);
             assert!(err.to_string().contains(text), "{err}");
         }

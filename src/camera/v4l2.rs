@@ -92,20 +92,27 @@ impl V4l2Source {
         let offered = device
             .enum_formats()
             .map_err(|e| open_err(path, "VIDIOC_ENUM_FMT", e))?;
-        let format = [CaptureFormat::Grey, CaptureFormat::Yuyv, CaptureFormat::Mjpg]
-            .into_iter()
-            .find(|want| {
+        let format = [
+            CaptureFormat::Grey,
+            CaptureFormat::Yuyv,
+            CaptureFormat::Mjpg,
+        ]
+        .into_iter()
+        .find(|want| {
+            offered
+                .iter()
+                .any(|d| CaptureFormat::from_fourcc(&d.fourcc.repr) == Some(*want))
+        })
+        .ok_or_else(|| CameraError::Unsupported {
+            device: path.display().to_string(),
+            reason: format!(
+                "offers {:?}, none of GREY/Y8, YUYV, MJPG",
                 offered
                     .iter()
-                    .any(|d| CaptureFormat::from_fourcc(&d.fourcc.repr) == Some(*want))
-            })
-            .ok_or_else(|| CameraError::Unsupported {
-                device: path.display().to_string(),
-                reason: format!(
-                    "offers {:?}, none of GREY/Y8, YUYV, MJPG",
-                    offered.iter().map(|d| d.fourcc.to_string()).collect::<Vec<_>>()
-                ),
-            })?;
+                    .map(|d| d.fourcc.to_string())
+                    .collect::<Vec<_>>()
+            ),
+        })?;
         let requested = Format::new(settings.width, settings.height, format.fourcc());
         let actual = device
             .set_format(&requested)
@@ -113,7 +120,11 @@ impl V4l2Source {
         if CaptureFormat::from_fourcc(&actual.fourcc.repr) != Some(format) {
             return Err(CameraError::Unsupported {
                 device: path.display().to_string(),
-                reason: format!("asked for {}, driver chose {}", format.fourcc(), actual.fourcc),
+                reason: format!(
+                    "asked for {}, driver chose {}",
+                    format.fourcc(),
+                    actual.fourcc
+                ),
             });
         }
         if actual.width > FRAME_MAX_WIDTH || actual.height > FRAME_MAX_HEIGHT {
@@ -147,8 +158,9 @@ impl V4l2Source {
         } else {
             settings.fps
         };
-        let mut stream = MmapStream::with_buffers(&device, Type::VideoCapture, settings.buffers.max(2))
-            .map_err(|e| open_err(path, "VIDIOC_REQBUFS/mmap", e))?;
+        let mut stream =
+            MmapStream::with_buffers(&device, Type::VideoCapture, settings.buffers.max(2))
+                .map_err(|e| open_err(path, "VIDIOC_REQBUFS/mmap", e))?;
         stream.set_timeout(Duration::from_millis(settings.frame_timeout_ms.max(1)));
         let stride = if format == CaptureFormat::Mjpg {
             actual.width
@@ -207,7 +219,11 @@ impl FrameSource for V4l2Source {
         }
         let used = (meta.bytesused as usize).min(buf.len());
         let data = &buf[..used];
-        let (w, h, stride) = (self.width as usize, self.height as usize, self.stride as usize);
+        let (w, h, stride) = (
+            self.width as usize,
+            self.height as usize,
+            self.stride as usize,
+        );
         let result = match self.format {
             CaptureFormat::Grey => gray_from_grey(data, stride, w, h, &mut slot.pixels[..]),
             CaptureFormat::Yuyv => gray_from_yuyv(data, stride, w, h, &mut slot.pixels[..]),
@@ -215,12 +231,14 @@ impl FrameSource for V4l2Source {
         };
         result.map_err(|e| bad(e.to_string()))?;
         *slot.header = FrameHeader::gray8(0, self.width, self.height);
-        slot.header.capture_ns = kernel_timestamp_ns(
+        // time_t is i32 on 32-bit targets, i64 here.
+        #[allow(clippy::useless_conversion)]
+        let kernel_ns = kernel_timestamp_ns(
             meta.flags,
-            meta.timestamp.sec as i64,
-            meta.timestamp.usec as i64,
-        )
-        .unwrap_or(dequeued_ns);
+            i64::from(meta.timestamp.sec),
+            i64::from(meta.timestamp.usec),
+        );
+        slot.header.capture_ns = kernel_ns.unwrap_or(dequeued_ns);
         Ok(())
     }
 }
@@ -231,10 +249,22 @@ mod tests {
 
     #[test]
     fn formats_map_from_fourcc() {
-        assert_eq!(CaptureFormat::from_fourcc(b"GREY"), Some(CaptureFormat::Grey));
-        assert_eq!(CaptureFormat::from_fourcc(b"Y800"), Some(CaptureFormat::Grey));
-        assert_eq!(CaptureFormat::from_fourcc(b"YUYV"), Some(CaptureFormat::Yuyv));
-        assert_eq!(CaptureFormat::from_fourcc(b"MJPG"), Some(CaptureFormat::Mjpg));
+        assert_eq!(
+            CaptureFormat::from_fourcc(b"GREY"),
+            Some(CaptureFormat::Grey)
+        );
+        assert_eq!(
+            CaptureFormat::from_fourcc(b"Y800"),
+            Some(CaptureFormat::Grey)
+        );
+        assert_eq!(
+            CaptureFormat::from_fourcc(b"YUYV"),
+            Some(CaptureFormat::Yuyv)
+        );
+        assert_eq!(
+            CaptureFormat::from_fourcc(b"MJPG"),
+            Some(CaptureFormat::Mjpg)
+        );
         assert_eq!(CaptureFormat::from_fourcc(b"RGB3"), None);
     }
 

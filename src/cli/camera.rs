@@ -49,12 +49,15 @@ pub fn run(args: &CameraArgs) -> Result<()> {
     let uri = SourceUri::parse(source_text).context("camera source")?;
     let mut settings = config.camera.source_settings();
     if let Some(speed) = args.speed {
-        anyhow::ensure!(speed.is_finite() && speed > 0.0, "--speed must be positive, found {speed}");
+        anyhow::ensure!(
+            speed.is_finite() && speed > 0.0,
+            "--speed must be positive, found {speed}"
+        );
         settings.replay_speed = speed;
     }
     settings.replay_loop |= args.looping;
-    let iox = load_iceoryx_config(&config.ipc.iceoryx2_config, None)
-        .context("iceoryx2 configuration")?;
+    let iox =
+        load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
     let node = create_node("star-camera", &iox).context("iceoryx2 node")?;
     let mut publisher = FramePublisher::new(&node).context("frame publisher")?;
     info!(source = %uri, "camera process started");
@@ -63,8 +66,13 @@ pub fn run(args: &CameraArgs) -> Result<()> {
         max_frames: args.frames,
         ..RunnerSettings::default()
     };
-    let summary = run_camera(|| open_source(&uri, &settings), &mut publisher, &stop, &runner)
-        .with_context(|| format!("camera {uri}"))?;
+    let summary = run_camera(
+        || open_source(&uri, &settings),
+        &mut publisher,
+        &stop,
+        &runner,
+    )
+    .with_context(|| format!("camera {uri}"))?;
     info!(
         published = summary.stats.published,
         rejected = summary.stats.rejected,

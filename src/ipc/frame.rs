@@ -153,10 +153,11 @@ impl FrameHeader {
                 height: self.height,
             });
         }
-        let format = PixelFormat::from_fourcc(self.pixel_format).ok_or(FrameError::UnknownFormat {
-            sequence,
-            fourcc: self.pixel_format,
-        })?;
+        let format =
+            PixelFormat::from_fourcc(self.pixel_format).ok_or(FrameError::UnknownFormat {
+                sequence,
+                fourcc: self.pixel_format,
+            })?;
         let row_bytes = u64::from(self.width) * u64::from(format.bytes_per_pixel());
         if u64::from(self.stride) < row_bytes {
             return Err(FrameError::StrideTooSmall {
@@ -206,10 +207,19 @@ impl std::fmt::Debug for Frame {
 impl Frame {
     /// A zeroed frame on the heap (tests, benchmarks, copies).
     pub fn boxed_zeroed() -> Box<Frame> {
-        let boxed = Box::<Frame>::new_zeroed();
-        // SAFETY: every field is an integer, float or byte array, for which
-        // all-zero bytes are a valid value.
-        unsafe { boxed.assume_init() }
+        let layout = std::alloc::Layout::new::<Frame>();
+        // SAFETY: `layout` has a non-zero size. Every field of `Frame` is an
+        // integer, float or byte array, for which all-zero bytes are a valid
+        // value, so the zeroed allocation is an initialized `Frame`, and it
+        // was allocated by the global allocator with `Frame`'s layout as
+        // `Box::from_raw` requires.
+        unsafe {
+            let ptr = std::alloc::alloc_zeroed(layout).cast::<Frame>();
+            if ptr.is_null() {
+                std::alloc::handle_alloc_error(layout);
+            }
+            Box::from_raw(ptr)
+        }
     }
 
     /// Validates the header and borrows the frame as a view.
@@ -362,6 +372,9 @@ mod tests {
     fn header_layout_is_stable() {
         assert_eq!(std::mem::size_of::<FrameHeader>(), 48);
         assert_eq!(std::mem::offset_of!(Frame, pixels), 48);
-        assert_eq!(PixelFormat::from_fourcc(PixelFormat::Gray8.fourcc()), Some(PixelFormat::Gray8));
+        assert_eq!(
+            PixelFormat::from_fourcc(PixelFormat::Gray8.fourcc()),
+            Some(PixelFormat::Gray8)
+        );
     }
 }

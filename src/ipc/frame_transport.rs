@@ -11,12 +11,12 @@
 use std::ops::ControlFlow;
 use std::time::Duration;
 
+use iceoryx2::identifiers::UniquePublisherId;
 use iceoryx2::node::Node;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::identifiers::UniquePublisherId;
 use iceoryx2::sample::Sample;
 use iceoryx2::service::ipc;
 use tracing::{debug, info, warn};

@@ -43,12 +43,11 @@ pub fn load_iceoryx_config(
     prefix: Option<&str>,
 ) -> Result<iceoryx2::config::Config, IpcError> {
     let mut config = if path.exists() {
-        let file = FilePath::new(path.as_os_str().as_encoded_bytes()).map_err(|e| {
-            IpcError::Config {
+        let file =
+            FilePath::new(path.as_os_str().as_encoded_bytes()).map_err(|e| IpcError::Config {
                 path: path.to_owned(),
                 reason: format!("not a valid iceoryx2 file path: {e:?}"),
-            }
-        })?;
+            })?;
         iceoryx2::config::Config::from_file(&file).map_err(|e| IpcError::Config {
             path: path.to_owned(),
             reason: format!("{e:?}"),
@@ -169,8 +168,8 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/iceoryx2.toml");
         let config = load_iceoryx_config(&path, Some("startest_cfg_")).expect("shipped config");
         assert_eq!(config.global.prefix.as_bytes(), b"startest_cfg_");
-        let default = load_iceoryx_config(Path::new("/nonexistent/iceoryx2.toml"), None)
-            .expect("defaults");
+        let default =
+            load_iceoryx_config(Path::new("/nonexistent/iceoryx2.toml"), None).expect("defaults");
         assert_eq!(
             default.global.prefix,
             iceoryx2::config::Config::default().global.prefix
