@@ -6,6 +6,8 @@
 //!
 //! Run: `cargo bench --bench render_cpu`.
 
+#![allow(clippy::expect_used, clippy::unwrap_used)]
+
 use std::hint::black_box;
 use std::sync::Arc;
 

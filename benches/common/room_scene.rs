@@ -62,10 +62,7 @@ fn add_box(mesh: &mut Mesh, lo: [f32; 3], hi: [f32; 3], n: usize, gray: f32, tex
 /// (`wall_cells^2` quads a side) and eight pieces of furniture
 /// (`box_cells^2` quads a side).
 pub fn room(wall_cells: usize, box_cells: usize) -> Mesh {
-    let size: u32 = std::env::var("TEXSIZE")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(256);
+    let size = 256u32;
     let texels = (0..size * size)
         .map(|i| {
             let (x, y) = ((i % size) as f32, (i / size) as f32);

@@ -42,7 +42,7 @@ pub(super) const CLIP_PLANES: usize = 5;
 /// A mesh vertex's outcode and, when it lies in front of the near plane and
 /// inside the guard band, its projection. (16 bytes: the setup stage reads
 /// three per triangle; the rare clipped triangle recomputes the camera-frame
-/// positions with [`View::to_camera`].)
+/// positions with [`View::camera_point`].)
 #[derive(Debug, Clone, Copy, Default)]
 pub(super) struct CamVertex {
     /// Fixed-point screen x (`SUBPIXEL_BITS` fraction bits).
@@ -132,7 +132,7 @@ impl View {
 
     /// A world point in the camera frame (f32, bit-identical on every call).
     #[inline]
-    pub fn to_camera(&self, p_world: [f32; 3]) -> [f32; 3] {
+    pub fn camera_point(&self, p_world: [f32; 3]) -> [f32; 3] {
         let r = &self.rot;
         [
             r[0][0] * p_world[0] + r[0][1] * p_world[1] + r[0][2] * p_world[2] + self.trans[0],
@@ -144,7 +144,7 @@ impl View {
     /// Transforms a world point into the camera frame and classifies it.
     #[inline]
     pub fn vertex(&self, p_world: [f32; 3]) -> CamVertex {
-        let p = self.to_camera(p_world);
+        let p = self.camera_point(p_world);
         if !(p[0].is_finite() && p[1].is_finite() && p[2].is_finite()) {
             return CamVertex {
                 code: OUT_INVALID,
