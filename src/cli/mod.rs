@@ -13,6 +13,7 @@ mod check_config;
 mod eval;
 pub mod localize;
 mod pose_arg;
+mod render;
 mod replay;
 
 /// STAR: monocular localization against a colored mesh map.
@@ -38,6 +39,8 @@ pub enum Command {
     },
     /// Localize a recorded dataset against its map and write the trajectory.
     Localize(localize::LocalizeArgs),
+    /// Render the map at a pose (CPU rasterizer) to a gray PNG and a depth PNG.
+    Render(render::RenderArgs),
     /// Absolute trajectory error (no alignment) and relative pose error of
     /// an estimated TUM trajectory against ground truth.
     Eval {
@@ -77,6 +80,7 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::CheckConfig { config } => check_config::run(&config),
         Command::Localize(args) => localize::run(&args),
+        Command::Render(args) => render::run(&args),
         Command::Eval {
             gt,
             est,

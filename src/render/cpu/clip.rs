@@ -55,7 +55,7 @@ impl Polygon {
 
     /// Clips against every plane `i < CLIP_PLANES` whose bit is set in
     /// `mask` (plane 0 is the near plane). The polygon may become empty.
-    pub fn clip(&mut self, view: &View, mask: u16) {
+    pub fn clip(&mut self, view: &View, mask: u32) {
         for plane in 0..CLIP_PLANES {
             if mask & (1 << plane) != 0 && self.len >= 3 {
                 self.clip_plane(view, plane);

@@ -10,7 +10,7 @@
 //! is finished by turning it into metric depth.
 
 use super::setup::{Chunk, ScreenTri, NO_TEXTURE};
-use super::view::{floor_i64, SUBPIXEL};
+use super::view::SUBPIXEL;
 use crate::map::GrayTexture;
 use crate::render::NO_DEPTH;
 
@@ -105,37 +105,55 @@ impl Band<'_> {
         let y_hi = self.y0 + self.rows - 1;
         let (y0, width) = (self.y0, self.width);
         let (gray, inv_z_buf) = (&mut *self.gray, &mut *self.inv_z);
-        for_each_covered(tri, y0, y_hi, |col, row_y, w1, w2| {
-            let inv_z = iz.0 + w1 * iz.1 + w2 * iz.2;
-            let idx = (row_y - y0) * width + col;
-            let (Some(d), Some(g_out)) = (inv_z_buf.get_mut(idx), gray.get_mut(idx)) else {
+        for_each_span(tri, y0, y_hi, |span, dw1, dw2| {
+            let start = (span.y - y0) * width + span.x_start;
+            let end = (span.y - y0) * width + span.x_end;
+            let (Some(depth_run), Some(gray_run)) =
+                (inv_z_buf.get_mut(start..=end), gray.get_mut(start..=end))
+            else {
                 return;
             };
-            if (inv_z as f32) > *d {
-                *d = inv_z as f32;
-                let z = 1.0 / inv_z;
-                let mut g = (gz.0 + w1 * gz.1 + w2 * gz.2) * z;
-                if let Some(tex) = texture {
-                    let u = (uz.0 + w1 * uz.1 + w2 * uz.2) * z;
-                    let v = (vz.0 + w1 * vz.1 + w2 * vz.2) * z;
-                    g *= sample_repeat(tex, u, v) * (1.0 / 255.0);
+            let (mut w1, mut w2) = (span.w1, span.w2);
+            for (d, g_out) in depth_run.iter_mut().zip(gray_run) {
+                let inv_z = iz.0 + w1 * iz.1 + w2 * iz.2;
+                if (inv_z as f32) > *d {
+                    *d = inv_z as f32;
+                    let z = 1.0 / inv_z;
+                    let mut g = (gz.0 + w1 * gz.1 + w2 * gz.2) * z;
+                    if let Some(tex) = texture {
+                        let u = (uz.0 + w1 * uz.1 + w2 * uz.2) * z;
+                        let v = (vz.0 + w1 * vz.1 + w2 * vz.2) * z;
+                        g *= sample_repeat(tex, u, v) * (1.0 / 255.0);
+                    }
+                    *g_out = g.clamp(0.0, 255.0) as f32;
                 }
-                *g_out = g.clamp(0.0, 255.0) as f32;
+                w1 += dw1;
+                w2 += dw2;
             }
         });
     }
 }
 
-/// Calls `f(x, y, w1, w2)` for every pixel center of rows `y_lo..=y_hi`
-/// covered by `tri` under the top-left rule, with the barycentric weights of
-/// vertices 1 and 2 at that center.
+/// A run of covered pixel centers in one row, with the barycentric weights
+/// of vertices 1 and 2 at its first pixel.
+struct Span {
+    y: usize,
+    x_start: usize,
+    /// Last covered column (inclusive).
+    x_end: usize,
+    w1: f64,
+    w2: f64,
+}
+
+/// Bounding boxes at most this wide are scanned pixel by pixel; wider ones
+/// get their spans from the edge equations (three divisions per row).
+const SCAN_MAX_WIDTH_PX: usize = 12;
+
+/// Calls `f(span, dw1, dw2)` for every row of `y_lo..=y_hi` where `tri`
+/// covers pixel centers (top-left rule); `dw1, dw2` are the barycentric
+/// steps per pixel along x. Triangles are convex, so each row is one span.
 #[inline(always)]
-fn for_each_covered(
-    tri: &ScreenTri,
-    y_lo: usize,
-    y_hi: usize,
-    mut f: impl FnMut(usize, usize, f64, f64),
-) {
+fn for_each_span(tri: &ScreenTri, y_lo: usize, y_hi: usize, mut f: impl FnMut(&Span, f64, f64)) {
     let [bx0, bx1, by0, by1] = tri.bbox.map(usize::from);
     let (y_lo, y_hi) = (by0.max(y_lo), by1.min(y_hi));
     if y_lo > y_hi {
@@ -156,16 +174,26 @@ fn for_each_covered(
         Edge::new(x[2], y[2], x[0], y[0], px, py),
         Edge::new(x[0], y[0], x[1], y[1], px, py),
     ];
-    let [b0, b1, b2] = [e[0].bias, e[1].bias, e[2].bias];
+    let (dw1, dw2) = (e[1].step_x as f64 * inv_area, e[2].step_x as f64 * inv_area);
+    let last = (bx1 - bx0) as i64;
+    let narrow = bx1 - bx0 < SCAN_MAX_WIDTH_PX;
     for row_y in y_lo..=y_hi {
-        let (mut e0, mut e1, mut e2) = (e[0].row, e[1].row, e[2].row);
-        for col in bx0..=bx1 {
-            if ((e0 - b0) | (e1 - b1) | (e2 - b2)) >= 0 {
-                f(col, row_y, e1 as f64 * inv_area, e2 as f64 * inv_area);
-            }
-            e0 += e[0].step_x;
-            e1 += e[1].step_x;
-            e2 += e[2].step_x;
+        let run = if narrow {
+            scan_row(&e, last)
+        } else {
+            solve_row(&e, last)
+        };
+        if let Some((k0, k1)) = run {
+            let e1 = e[1].row + e[1].step_x * k0;
+            let e2 = e[2].row + e[2].step_x * k0;
+            let span = Span {
+                y: row_y,
+                x_start: bx0 + k0 as usize,
+                x_end: bx0 + k1 as usize,
+                w1: e1 as f64 * inv_area,
+                w2: e2 as f64 * inv_area,
+            };
+            f(&span, dw1, dw2);
         }
         for edge in &mut e {
             edge.row += edge.step_y;
@@ -173,25 +201,90 @@ fn for_each_covered(
     }
 }
 
+/// The covered offsets `k0..=k1` (from the row start, `0..=last`) found by
+/// testing every pixel center.
+#[inline(always)]
+fn scan_row(e: &[Edge; 3], last: i64) -> Option<(i64, i64)> {
+    let mut v = e.map(|edge| edge.row - edge.bias);
+    let mut first = None;
+    for k in 0..=last {
+        if (v[0] | v[1] | v[2]) >= 0 {
+            first.get_or_insert(k);
+        } else if let Some(k0) = first {
+            return Some((k0, k - 1));
+        }
+        for (value, edge) in v.iter_mut().zip(e) {
+            *value += edge.step_x;
+        }
+    }
+    first.map(|k0| (k0, last))
+}
+
+/// The covered offsets `k0..=k1` (from the row start, `0..=last`) solved
+/// from the edge equations: `row - bias + step_x * k >= 0` for all edges.
+/// Exactly the pixels [`scan_row`] finds.
+#[inline(always)]
+fn solve_row(e: &[Edge; 3], last: i64) -> Option<(i64, i64)> {
+    let (mut lo, mut hi) = (0i64, last);
+    for edge in e {
+        let r = edge.row - edge.bias;
+        let s = edge.step_x;
+        if s > 0 {
+            if r < 0 {
+                // k >= ceil(-r / s)
+                lo = lo.max((-r + s - 1) / s);
+            }
+        } else if s < 0 {
+            if r < 0 {
+                return None;
+            }
+            // k <= floor(r / -s)
+            hi = hi.min(r / -s);
+        } else if r < 0 {
+            return None;
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
+}
+
 /// Bilinear sample of `tex` at texture coordinates `(u, v)` with repeat
 /// addressing. Texel `(i, j)` has its center at `((i + 0.5) / width,
 /// (j + 0.5) / height)`, as GPU samplers do.
 #[inline]
 pub(super) fn sample_repeat(tex: &GrayTexture, u: f64, v: f64) -> f64 {
-    let (w, h) = (i64::from(tex.width), i64::from(tex.height));
-    let tx = u * w as f64 - 0.5;
-    let ty = v * h as f64 - 0.5;
-    let (fx0, fy0) = (floor_i64(tx), floor_i64(ty));
-    let (ax, ay) = (tx - fx0 as f64, ty - fy0 as f64);
-    let x0 = fx0.rem_euclid(w) as usize;
-    let y0 = fy0.rem_euclid(h) as usize;
-    let x1 = if x0 + 1 == w as usize { 0 } else { x0 + 1 };
-    let y1 = if y0 + 1 == h as usize { 0 } else { y0 + 1 };
-    let wu = w as usize;
-    let t = |x: usize, y: usize| f64::from(tex.texels.get(y * wu + x).copied().unwrap_or(0.0));
+    let (x0, x1, ax) = wrap_axis(u, tex.width);
+    let (y0, y1, ay) = wrap_axis(v, tex.height);
+    let w = tex.width as usize;
+    let t = |x: usize, y: usize| f64::from(tex.texels.get(y * w + x).copied().unwrap_or(0.0));
     let top = t(x0, y0) + ax * (t(x1, y0) - t(x0, y0));
     let bottom = t(x0, y1) + ax * (t(x1, y1) - t(x0, y1));
     top + ay * (bottom - top)
+}
+
+/// The two texels (repeat addressing) around texture coordinate `t` on an
+/// axis of `n` texels, and the weight of the second. Branch-free apart
+/// from selects: this runs once per textured pixel.
+#[inline(always)]
+fn wrap_axis(t: f64, n: u32) -> (usize, usize, f64) {
+    // Into one period [0, 1): truncation, then a select for negatives.
+    // (Saturating casts keep absurd coordinates in range; they sample
+    // some texel instead of panicking.)
+    let mut frac = t - (t as i64) as f64;
+    if frac < 0.0 {
+        frac += 1.0;
+    }
+    // x + 1 is in [0.5, n + 0.5): positive, so truncation is floor.
+    let x1 = frac * f64::from(n) + 0.5;
+    let k = x1 as i64;
+    let a = x1 - k as f64;
+    let last = n as usize - 1;
+    let i0 = if k == 0 {
+        last
+    } else {
+        (k as usize - 1).min(last)
+    };
+    let i1 = if i0 == last { 0 } else { i0 + 1 };
+    (i0, i1, a)
 }
 
 #[cfg(test)]
@@ -235,41 +328,82 @@ mod tests {
 
     /// A jittered grid whose vertices often sit exactly on pixel centers and
     /// whose edges pass exactly through pixel centers (horizontal, vertical
-    /// and diagonal): every pixel must be covered exactly once.
+    /// and diagonal): every pixel must be covered exactly once, with cells
+    /// narrow enough to be scanned and wide enough to be solved.
     #[test]
     fn shared_edges_cover_each_pixel_exactly_once() {
-        let n = 8;
-        let mut state = 12345u64;
-        let mut rnd = || {
+        for (n, spacing) in [(8usize, 9.0f64), (4, 21.0)] {
+            let mut state = 12345u64;
+            let mut rnd = || {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((state >> 33) % 5) as f64 * 0.5 - 1.0
+            };
+            let mut grid = vec![[0.0f64; 2]; (n + 1) * (n + 1)];
+            for j in 0..=n {
+                for i in 0..=n {
+                    let inner = i > 0 && i < n && j > 0 && j < n;
+                    let (jx, jy) = if inner { (rnd(), rnd()) } else { (0.0, 0.0) };
+                    grid[j * (n + 1) + i] = [
+                        -4.0 + i as f64 * spacing + jx,
+                        -4.0 + j as f64 * spacing + jy,
+                    ];
+                }
+            }
+            let mut count = vec![0u32; 64 * 64];
+            let mut draw = |p: [[f64; 2]; 3]| {
+                if let Some(t) = tri(p) {
+                    for_each_span(&t, 0, 63, |span, _, _| {
+                        for x in span.x_start..=span.x_end {
+                            count[span.y * 64 + x] += 1;
+                        }
+                    });
+                }
+            };
+            for j in 0..n {
+                for i in 0..n {
+                    let g = |a: usize, b: usize| grid[(j + b) * (n + 1) + i + a];
+                    draw([g(0, 0), g(1, 0), g(1, 1)]);
+                    draw([g(0, 0), g(1, 1), g(0, 1)]);
+                }
+            }
+            // The grid covers the whole 64x64 image.
+            for (i, &c) in count.iter().enumerate() {
+                assert_eq!(
+                    c,
+                    1,
+                    "spacing {spacing}: pixel ({}, {}) covered {c} times",
+                    i % 64,
+                    i / 64
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn solved_spans_match_scanned_spans() {
+        let mut state = 99u64;
+        let mut rnd = |m: i64| {
             state = state
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
-            ((state >> 33) % 5) as f64 * 0.5 - 1.0
+            ((state >> 33) as i64 % (2 * m + 1)) - m
         };
-        let mut grid = vec![[0.0f64; 2]; (n + 1) * (n + 1)];
-        for j in 0..=n {
-            for i in 0..=n {
-                let inner = i > 0 && i < n && j > 0 && j < n;
-                let (jx, jy) = if inner { (rnd(), rnd()) } else { (0.0, 0.0) };
-                grid[j * (n + 1) + i] = [-4.0 + i as f64 * 9.0 + jx, -4.0 + j as f64 * 9.0 + jy];
-            }
-        }
-        let mut count = vec![0u32; 64 * 64];
-        let mut draw = |p: [[f64; 2]; 3]| {
-            if let Some(t) = tri(p) {
-                for_each_covered(&t, 0, 63, |x, y, _, _| count[y * 64 + x] += 1);
-            }
-        };
-        for j in 0..n {
-            for i in 0..n {
-                let g = |a: usize, b: usize| grid[(j + b) * (n + 1) + i + a];
-                draw([g(0, 0), g(1, 0), g(1, 1)]);
-                draw([g(0, 0), g(1, 1), g(0, 1)]);
-            }
-        }
-        // The grid spans [-4, 68]: the whole 64x64 image.
-        for (i, &c) in count.iter().enumerate() {
-            assert_eq!(c, 1, "pixel ({}, {}) covered {c} times", i % 64, i / 64);
+        for _ in 0..20_000 {
+            let p = [0; 6].map(|_| rnd(40 * SUBPIXEL));
+            let (px, py) = (rnd(50) * SUBPIXEL, rnd(50) * SUBPIXEL);
+            let e = [
+                Edge::new(p[0], p[1], p[2], p[3], px, py),
+                Edge::new(p[2], p[3], p[4], p[5], px, py),
+                Edge::new(p[4], p[5], p[0], p[1], px, py),
+            ];
+            let last = rnd(60).abs();
+            assert_eq!(
+                scan_row(&e, last),
+                solve_row(&e, last),
+                "{p:?} {px} {py} {last}"
+            );
         }
     }
 

@@ -101,7 +101,7 @@ impl Chunk {
                 self.emit([p(0), p(1), p(2)], texture, view);
             } else {
                 let c = |k: usize| ClipVertex {
-                    p: cv[k].p,
+                    p: view.camera_point(mesh.positions[idx[k]]),
                     gray: mesh.gray[idx[k]],
                     uv: uv_at(idx[k]),
                 };

@@ -2,6 +2,8 @@
 //! thread counts, and depth on analytic planes. Scene tests (cube, occlusion,
 //! clipping, textures) are in `tests_scenes.rs`.
 
+#![allow(clippy::expect_used, clippy::unwrap_used)]
+
 use std::sync::Arc;
 
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};

@@ -2,6 +2,8 @@
 //! silhouettes and faces, occlusion, near-plane clipping inside a room, and
 //! texture mapping (texel centers, repeat, perspective correctness).
 
+#![allow(clippy::expect_used, clippy::unwrap_used)]
+
 use nalgebra::{Point3, Vector2, Vector3};
 
 use super::tests::{add_quad, camera, pose, ray, render};

@@ -25,26 +25,26 @@ pub(super) const SUBPIXEL: i64 = 1 << SUBPIXEL_BITS;
 const COORD_LIMIT_PX: f64 = 3.0 * GUARD_PX + 8192.0;
 
 /// Outcode bit: behind the near plane (plane 0).
-pub(super) const OUT_NEAR: u16 = 1;
+pub(super) const OUT_NEAR: u32 = 1;
 /// Outcode bits of the guard-band planes (planes 1..5).
-pub(super) const OUT_GUARD: u16 = 0b1_1110;
+pub(super) const OUT_GUARD: u32 = 0b1_1110;
 /// Outcode bits of the view planes (planes 5..9).
-pub(super) const OUT_VIEW: u16 = 0b1_1110_0000;
+pub(super) const OUT_VIEW: u32 = 0b1_1110_0000;
 /// Outcode bit: the vertex is not finite in the camera frame.
-pub(super) const OUT_INVALID: u16 = 1 << 9;
+pub(super) const OUT_INVALID: u32 = 1 << 9;
 /// A triangle needs clipping when any vertex has one of these bits.
-pub(super) const CLIP_MASK: u16 = OUT_NEAR | OUT_GUARD;
+pub(super) const CLIP_MASK: u32 = OUT_NEAR | OUT_GUARD;
 /// A triangle is culled when all its vertices share one of these bits.
-pub(super) const CULL_MASK: u16 = OUT_NEAR | OUT_VIEW;
+pub(super) const CULL_MASK: u32 = OUT_NEAR | OUT_VIEW;
 /// Number of planes the polygon clipper uses (near + guard band).
 pub(super) const CLIP_PLANES: usize = 5;
 
-/// A mesh vertex in the camera frame, with its outcode and, when it lies in
-/// front of the near plane and inside the guard band, its projection.
+/// A mesh vertex's outcode and, when it lies in front of the near plane and
+/// inside the guard band, its projection. (16 bytes: the setup stage reads
+/// three per triangle; the rare clipped triangle recomputes the camera-frame
+/// positions with [`View::camera_point`].)
 #[derive(Debug, Clone, Copy, Default)]
 pub(super) struct CamVertex {
-    /// Position in the camera optical frame, meters.
-    pub p: [f32; 3],
     /// Fixed-point screen x (`SUBPIXEL_BITS` fraction bits).
     pub sx: i32,
     /// Fixed-point screen y.
@@ -52,7 +52,7 @@ pub(super) struct CamVertex {
     /// `1 / z`, 1/meters.
     pub inv_z: f32,
     /// Outcode: bit `i` set when the vertex is outside plane `i`.
-    pub code: u16,
+    pub code: u32,
 }
 
 /// The world-to-camera transform and projection of one render.
@@ -73,6 +73,9 @@ pub(super) struct View {
     /// Clip planes `[a, b, c, d]`: near, guard left/right/top/bottom, view
     /// left/right/top/bottom.
     pub planes: [[f32; 4]; 9],
+    /// The planes 1..9 as pixel bounds for points in front of the near
+    /// plane: guard `u_min u_max v_min v_max`, then view likewise.
+    bounds: [f64; 8],
 }
 
 impl View {
@@ -116,6 +119,7 @@ impl View {
             planes: [
                 near, guard[0], guard[1], guard[2], guard[3], view[0], view[1], view[2], view[3],
             ],
+            bounds: [-g, w - 1.0 + g, -g, h - 1.0 + g, -1.0, w, -1.0, h],
         }
     }
 
@@ -126,35 +130,62 @@ impl View {
         q[0] * p[0] + q[1] * p[1] + q[2] * p[2] + q[3]
     }
 
-    /// Transforms a world point into the camera frame and classifies it.
+    /// A world point in the camera frame (f32, bit-identical on every call).
     #[inline]
-    pub fn vertex(&self, p_world: [f32; 3]) -> CamVertex {
+    pub fn camera_point(&self, p_world: [f32; 3]) -> [f32; 3] {
         let r = &self.rot;
-        let p = [
+        [
             r[0][0] * p_world[0] + r[0][1] * p_world[1] + r[0][2] * p_world[2] + self.trans[0],
             r[1][0] * p_world[0] + r[1][1] * p_world[1] + r[1][2] * p_world[2] + self.trans[1],
             r[2][0] * p_world[0] + r[2][1] * p_world[1] + r[2][2] * p_world[2] + self.trans[2],
-        ];
+        ]
+    }
+
+    /// Transforms a world point into the camera frame and classifies it.
+    #[inline]
+    pub fn vertex(&self, p_world: [f32; 3]) -> CamVertex {
+        let p = self.camera_point(p_world);
         if !(p[0].is_finite() && p[1].is_finite() && p[2].is_finite()) {
             return CamVertex {
                 code: OUT_INVALID,
                 ..CamVertex::default()
             };
         }
-        let mut code = 0u16;
-        for i in 0..self.planes.len() {
-            code |= u16::from(self.plane_value(i, p) < 0.0) << i;
+        if p[2] < NEAR_M {
+            // Behind the near plane: the plane tests, in homogeneous form,
+            // are valid for any z (also behind the camera).
+            let mut code = 0u32;
+            for i in 0..self.planes.len() {
+                code |= u32::from(self.plane_value(i, p) < 0.0) << i;
+            }
+            return CamVertex {
+                code,
+                ..CamVertex::default()
+            };
         }
-        let (sx, sy, inv_z) = if code & CLIP_MASK == 0 {
-            self.project(p)
+        // In front: the same tests on the projected pixel, which is needed
+        // anyway (cheaper than eight plane evaluations).
+        let inv_z = 1.0 / f64::from(p[2]);
+        let u = self.fx * f64::from(p[0]) * inv_z + self.cx;
+        let v = self.fy * f64::from(p[1]) * inv_z + self.cy;
+        let b = &self.bounds;
+        let code = u32::from(u < b[0]) << 1
+            | u32::from(u > b[1]) << 2
+            | u32::from(v < b[2]) << 3
+            | u32::from(v > b[3]) << 4
+            | u32::from(u < b[4]) << 5
+            | u32::from(u > b[5]) << 6
+            | u32::from(v < b[6]) << 7
+            | u32::from(v > b[7]) << 8;
+        let (sx, sy) = if code & CLIP_MASK == 0 {
+            (to_fixed(u), to_fixed(v))
         } else {
-            (0, 0, 0.0)
+            (0, 0)
         };
         CamVertex {
-            p,
             sx,
             sy,
-            inv_z,
+            inv_z: inv_z as f32,
             code,
         }
     }
@@ -165,35 +196,37 @@ impl View {
     #[inline]
     pub fn project(&self, p: [f32; 3]) -> (i32, i32, f32) {
         let inv_z = 1.0 / f64::from(p[2]);
-        let u =
-            (self.fx * f64::from(p[0]) * inv_z + self.cx).clamp(-COORD_LIMIT_PX, COORD_LIMIT_PX);
-        let v =
-            (self.fy * f64::from(p[1]) * inv_z + self.cy).clamp(-COORD_LIMIT_PX, COORD_LIMIT_PX);
-        let s = SUBPIXEL as f64;
-        (
-            floor_i64(u * s + 0.5) as i32,
-            floor_i64(v * s + 0.5) as i32,
-            inv_z as f32,
-        )
+        let u = self.fx * f64::from(p[0]) * inv_z + self.cx;
+        let v = self.fy * f64::from(p[1]) * inv_z + self.cy;
+        (to_fixed(u), to_fixed(v), inv_z as f32)
     }
 }
 
-/// `floor(x)` as an integer, without a libm call (saturating for huge `x`).
+/// A pixel coordinate in fixed point, rounded to nearest, clamped to
+/// `±COORD_LIMIT_PX` (only reached through float rounding at the guard band).
 #[inline]
-pub(super) fn floor_i64(x: f64) -> i64 {
-    let i = x as i64;
-    i - i64::from((i as f64) > x)
+fn to_fixed(coord_px: f64) -> i32 {
+    let c = coord_px.clamp(-COORD_LIMIT_PX, COORD_LIMIT_PX) * SUBPIXEL as f64;
+    // Shifted positive, truncation is floor: floor(c + 0.5) rounds.
+    ((c + (0.5 + FIXED_OFFSET)) as i64 - FIXED_OFFSET as i64) as i32
 }
+
+/// Offset making every clamped fixed-point coordinate positive.
+const FIXED_OFFSET: f64 = (1u64 << 32) as f64;
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn floor_matches_std() {
-        for x in [-2.5, -2.0, -0.1, 0.0, 0.3, 1.0, 7.9, 1e10, -1e10] {
-            assert_eq!(floor_i64(x), x.floor() as i64, "x = {x}");
+    fn fixed_point_rounds_to_nearest_and_clamps() {
+        let s = SUBPIXEL as f64;
+        for px in [-2.5, -2.0, -0.1, 0.0, 0.3, 1.0, 7.9, 1000.123] {
+            assert_eq!(to_fixed(px) as f64, (px * s).round(), "px = {px}");
         }
+        assert_eq!(to_fixed(-1.0 / s * 0.5), 0, "ties round up");
+        assert_eq!(to_fixed(1e12) as f64, COORD_LIMIT_PX * s);
+        assert_eq!(to_fixed(-1e12) as f64, -COORD_LIMIT_PX * s);
     }
 
     #[test]

@@ -1,0 +1,3 @@
+//! Scenes shared by the benchmarks.
+
+pub mod room_scene;
