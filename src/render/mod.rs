@@ -7,6 +7,8 @@
 //! view (distortion is removed from camera frames instead). Pixel centers are
 //! at integer coordinates, as everywhere in `star`.
 
+pub mod gpu;
+
 use crate::geometry::{PinholeCamera, Pose};
 use crate::imgproc::ImageF32;
 

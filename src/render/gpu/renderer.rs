@@ -1,0 +1,433 @@
+//! [`GpuRenderer`]: device set-up, the pipeline, and the per-keyframe
+//! render, copy and readback.
+//!
+//! Takes the mesh once and a pose plus intrinsics per render; gives out gray
+//! and metric depth. Per render it writes one uniform, records one render
+//! pass and two copies, and maps one staging buffer; every buffer and
+//! texture is allocated at construction or when the image size changes.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use super::adapter::{self, AdapterClass, AdapterPreference};
+use super::frame::{FrameTargets, MapStatus, COLOR_FORMAT, DEPTH_FORMAT};
+use super::projection::{clip_from_world_f32, NEAR_M};
+use super::upload::{self, GpuMesh, VERTEX_LAYOUT};
+use super::GpuError;
+use crate::geometry::{PinholeCamera, Pose};
+use crate::map::Mesh;
+use crate::render::{check_request, RenderError, RenderedView, Renderer};
+
+/// How long a render may take before it counts as a device failure.
+const RENDER_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// The WGSL source of the pipeline.
+const SHADER: &str = include_str!("../../../shaders/mesh.wgsl");
+
+/// The first error the device reported, shared with its error callbacks.
+type Fault = Arc<Mutex<Option<String>>>;
+
+fn record_fault(fault: &Fault, message: String) {
+    let mut slot = fault.lock().unwrap_or_else(|p| p.into_inner());
+    if slot.is_none() {
+        *slot = Some(message);
+    }
+}
+
+/// A render submitted with [`GpuRenderer::submit`], to be collected with
+/// [`GpuRenderer::collect`].
+#[must_use = "a submitted render holds a readback buffer until collected"]
+#[derive(Debug)]
+pub struct PendingRender {
+    slot: usize,
+    submission: wgpu::SubmissionIndex,
+}
+
+/// The wgpu renderer. See the [module docs](super).
+#[derive(Debug)]
+pub struct GpuRenderer {
+    info: wgpu::AdapterInfo,
+    class: AdapterClass,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    pipeline: wgpu::RenderPipeline,
+    view_uniform: wgpu::Buffer,
+    view_group: wgpu::BindGroup,
+    mesh: GpuMesh,
+    frame: Option<FrameTargets>,
+    max_dimension: u32,
+    fault: Fault,
+    renders: u64,
+    fail_at: Option<u64>,
+}
+
+impl GpuRenderer {
+    /// Opens a device on the best adapter of class `which`, uploads `mesh`
+    /// and builds the pipeline. Logs the adapter chosen.
+    pub fn new(mesh: Arc<Mesh>, which: AdapterPreference) -> Result<Self, GpuError> {
+        let mut seen = Vec::new();
+        // One backend at a time: GL (and its EGL probing) only when no
+        // Vulkan adapter of the class works.
+        let candidates = adapter::BACKEND_ORDER.into_iter().flat_map(|backends| {
+            adapter::candidates(&adapter::new_instance(backends), which)
+        });
+        for candidate in candidates {
+            let info = candidate.get_info();
+            match Self::on_adapter(&candidate, &mesh) {
+                Ok(renderer) => {
+                    tracing::info!(
+                        adapter = %info.name,
+                        backend = ?info.backend,
+                        device_type = ?info.device_type,
+                        driver = %info.driver,
+                        class = %which,
+                        "wgpu renderer ready"
+                    );
+                    return Ok(renderer);
+                }
+                // Invalid meshes fail on every adapter: report at once.
+                Err(e @ (GpuError::MeshAttributeLength { .. }
+                | GpuError::MeshIndexCount(_)
+                | GpuError::MeshIndexOutOfRange { .. }
+                | GpuError::MeshGroupRange { .. }
+                | GpuError::MeshTextureIndex { .. })) => return Err(e),
+                Err(e) => {
+                    tracing::warn!(adapter = %info.name, error = %e, "wgpu adapter unusable");
+                    seen.push(format!("{} ({:?}): {e}", info.name, info.backend));
+                }
+            }
+        }
+        // Name the adapters of the other class too, so the error shows what exists.
+        let other: Vec<String> = adapter::list_adapters()
+            .into_iter()
+            .filter(|a| !seen.iter().any(|s| s.starts_with(&a.name)))
+            .map(|a| format!("{a} [{:?}]", a.class))
+            .collect();
+        seen.extend(other);
+        Err(GpuError::NoAdapter {
+            preference: which,
+            seen: if seen.is_empty() {
+                "none".into()
+            } else {
+                seen.join("; ")
+            },
+        })
+    }
+
+    fn on_adapter(adapter: &wgpu::Adapter, mesh: &Mesh) -> Result<Self, GpuError> {
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        upload::validate(mesh, &limits)?;
+        let device_error = |message: String| GpuError::Device {
+            adapter: info.name.clone(),
+            message,
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("star keyframe renderer"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| device_error(e.to_string()))?;
+
+        let fault: Fault = Arc::default();
+        let on_error = Arc::clone(&fault);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            record_fault(&on_error, e.to_string());
+        }));
+        let on_lost = Arc::clone(&fault);
+        device.set_device_lost_callback(move |reason, message| {
+            record_fault(&on_lost, format!("device lost ({reason:?}): {message}"));
+        });
+
+        let view_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("star view"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::VERTEX,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: wgpu::BufferSize::new(64),
+                },
+                count: None,
+            }],
+        });
+        let texture_layout = upload::texture_layout(&device);
+        let view_uniform = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("star view uniform"),
+            size: 64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let view_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("star view"),
+            layout: &view_layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: view_uniform.as_entire_binding(),
+            }],
+        });
+        let pipeline = create_pipeline(&device, &view_layout, &texture_layout);
+        let gpu_mesh = upload::upload(&device, &queue, &texture_layout, mesh);
+        if let Some(message) = fault.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            return Err(device_error(message));
+        }
+        Ok(Self {
+            class: adapter::classify(&info),
+            max_dimension: limits.max_texture_dimension_2d,
+            info,
+            device,
+            queue,
+            pipeline,
+            view_uniform,
+            view_group,
+            mesh: gpu_mesh,
+            frame: None,
+            fault,
+            renders: 0,
+            fail_at: None,
+        })
+    }
+
+    /// What the driver reports about the adapter in use.
+    pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
+        &self.info
+    }
+
+    /// Whether the adapter is a hardware GPU or a software rasterizer.
+    pub fn class(&self) -> AdapterClass {
+        self.class
+    }
+
+    /// Test hook: the next `n` renders succeed, every later one fails with
+    /// [`GpuError::Injected`], as a lost device would.
+    #[doc(hidden)]
+    pub fn inject_failure_after(&mut self, n: u64) {
+        self.fail_at = Some(self.renders + n);
+    }
+
+    fn check_fault(&self) -> Result<(), GpuError> {
+        match self.fault.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
+            Some(message) => Err(GpuError::Device {
+                adapter: self.info.name.clone(),
+                message: message.clone(),
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// Records and submits a render of `camera` (distortion ignored) at
+    /// `world_from_camera`, and starts its readback. Up to two renders may be
+    /// pending; collect each with [`GpuRenderer::collect`].
+    pub fn submit(
+        &mut self,
+        world_from_camera: &Pose,
+        camera: &PinholeCamera,
+    ) -> Result<PendingRender, GpuError> {
+        self.check_fault()?;
+        if let Some(at) = self.fail_at {
+            if self.renders >= at {
+                return Err(GpuError::Injected {
+                    renders: self.renders,
+                });
+            }
+        }
+        let (w, h) = (camera.width, camera.height);
+        if w == 0 || h == 0 || w > self.max_dimension || h > self.max_dimension {
+            return Err(GpuError::TargetSize {
+                width: w,
+                height: h,
+                max_dimension: self.max_dimension,
+            });
+        }
+        let frame = match self.frame.take() {
+            Some(f) if f.size() == (w, h) => f,
+            Some(f) if f.any_busy() => {
+                self.frame = Some(f);
+                return Err(GpuError::Busy);
+            }
+            _ => FrameTargets::new(&self.device, w, h),
+        };
+        let frame = self.frame.insert(frame);
+        let slot = frame.free_slot().ok_or(GpuError::Busy)?;
+
+        let clip_from_world = clip_from_world_f32(world_from_camera, camera, NEAR_M);
+        self.queue
+            .write_buffer(&self.view_uniform, 0, bytemuck::cast_slice(&clip_from_world));
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("star keyframe"),
+            });
+        {
+            let clear = |view| {
+                Some(wgpu::RenderPassColorAttachment {
+                    view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })
+            };
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("star keyframe"),
+                color_attachments: &[clear(&frame.gray_view), clear(&frame.depth_view)],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &frame.zbuffer_view,
+                    // Reversed depth: 0 is infinitely far.
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(0.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
+                    stencil_ops: None,
+                }),
+                ..Default::default()
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &self.view_group, &[]);
+            pass.set_vertex_buffer(0, self.mesh.vertices.slice(..));
+            pass.set_index_buffer(self.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
+            for draw in &self.mesh.draws {
+                if let Some(group) = self.mesh.texture_groups.get(draw.texture) {
+                    pass.set_bind_group(1, group, &[]);
+                    pass.draw_indexed(draw.indices.clone(), 0, 0..1);
+                }
+            }
+        }
+        frame.record_copies(&mut encoder, slot);
+        let submission = self.queue.submit([encoder.finish()]);
+        frame.request_map(slot);
+        self.renders += 1;
+        Ok(PendingRender { slot, submission })
+    }
+
+    /// Waits for a submitted render and copies it into `out`, which must be
+    /// sized for the camera it was submitted with.
+    pub fn collect(
+        &mut self,
+        pending: PendingRender,
+        out: &mut RenderedView,
+    ) -> Result<(), GpuError> {
+        let adapter = || self.info.name.clone();
+        let Some(frame) = self.frame.as_mut() else {
+            return Err(GpuError::MapFailed { adapter: adapter() });
+        };
+        let (w, h) = frame.size();
+        if (out.gray.width(), out.gray.height()) != (w as usize, h as usize)
+            || (out.depth_m.width(), out.depth_m.height()) != (w as usize, h as usize)
+        {
+            frame.release(pending.slot);
+            return Err(GpuError::TargetSize {
+                width: out.gray.width() as u32,
+                height: out.gray.height() as u32,
+                max_dimension: self.max_dimension,
+            });
+        }
+        // The map callback runs inside poll once the copy has completed.
+        for _ in 0..2 {
+            match frame.status(pending.slot) {
+                MapStatus::Mapped => break,
+                MapStatus::Failed => {
+                    frame.release(pending.slot);
+                    return Err(GpuError::MapFailed { adapter: adapter() });
+                }
+                MapStatus::Pending => {}
+            }
+            let waited = self.device.poll(wgpu::PollType::Wait {
+                submission_index: Some(pending.submission.clone()),
+                timeout: Some(RENDER_TIMEOUT),
+            });
+            if waited.is_err() {
+                frame.release(pending.slot);
+                return Err(GpuError::Timeout {
+                    adapter: adapter(),
+                    waited_secs: RENDER_TIMEOUT.as_secs(),
+                });
+            }
+        }
+        if frame.status(pending.slot) != MapStatus::Mapped {
+            frame.release(pending.slot);
+            return Err(GpuError::MapFailed { adapter: adapter() });
+        }
+        let unpacked = frame.unpack(pending.slot, out);
+        self.check_fault()?;
+        if unpacked {
+            Ok(())
+        } else {
+            Err(GpuError::MapFailed { adapter: adapter() })
+        }
+    }
+}
+
+fn create_pipeline(
+    device: &wgpu::Device,
+    view_layout: &wgpu::BindGroupLayout,
+    texture_layout: &wgpu::BindGroupLayout,
+) -> wgpu::RenderPipeline {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("shaders/mesh.wgsl"),
+        source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+    });
+    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("star keyframe"),
+        bind_group_layouts: &[Some(view_layout), Some(texture_layout)],
+        immediate_size: 0,
+    });
+    let target = Some(wgpu::ColorTargetState {
+        format: COLOR_FORMAT,
+        blend: None,
+        write_mask: wgpu::ColorWrites::ALL,
+    });
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("star keyframe"),
+        layout: Some(&layout),
+        vertex: wgpu::VertexState {
+            module: &module,
+            entry_point: Some("vs_main"),
+            compilation_options: Default::default(),
+            buffers: &[Some(VERTEX_LAYOUT)],
+        },
+        primitive: wgpu::PrimitiveState {
+            topology: wgpu::PrimitiveTopology::TriangleList,
+            cull_mode: None,
+            ..Default::default()
+        },
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: DEPTH_FORMAT,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Greater),
+            stencil: wgpu::StencilState::default(),
+            bias: wgpu::DepthBiasState::default(),
+        }),
+        multisample: wgpu::MultisampleState::default(),
+        fragment: Some(wgpu::FragmentState {
+            module: &module,
+            entry_point: Some("fs_main"),
+            compilation_options: Default::default(),
+            targets: &[target.clone(), target],
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
+impl Renderer for GpuRenderer {
+    fn name(&self) -> String {
+        format!("wgpu: {} ({:?})", self.info.name, self.info.backend)
+    }
+
+    fn render(
+        &mut self,
+        world_from_camera: &Pose,
+        camera: &PinholeCamera,
+        out: &mut RenderedView,
+    ) -> Result<(), RenderError> {
+        check_request(world_from_camera, camera)?;
+        out.check_size(camera)?;
+        let pending = self.submit(world_from_camera, camera)?;
+        Ok(self.collect(pending, out)?)
+    }
+}

@@ -1,0 +1,288 @@
+//! Mesh upload for the wgpu renderer: done once, at construction.
+//!
+//! Takes a [`Mesh`] and a device; checks that the mesh is safe to draw
+//! (indices in range, attribute lengths, groups and textures consistent,
+//! sizes within the adapter's limits) and gives out [`GpuMesh`]: an
+//! interleaved vertex buffer, a `u32` index buffer, one R32Float texture and
+//! bind group per mesh texture, and the draw list (index range and bind
+//! group per group).
+
+use std::ops::Range;
+
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+use super::GpuError;
+use crate::map::Mesh;
+
+/// One vertex as the shader reads it (`VertexIn` in `shaders/mesh.wgsl`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct GpuVertex {
+    /// World position, meters.
+    pub position_m: [f32; 3],
+    /// Gray intensity, 0..=255.
+    pub gray: f32,
+    /// Texture coordinates, v down.
+    pub uv: [f32; 2],
+}
+
+/// The vertex buffer layout matching [`GpuVertex`].
+pub const VERTEX_LAYOUT: wgpu::VertexBufferLayout<'static> = wgpu::VertexBufferLayout {
+    array_stride: std::mem::size_of::<GpuVertex>() as wgpu::BufferAddress,
+    step_mode: wgpu::VertexStepMode::Vertex,
+    attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32, 2 => Float32x2],
+};
+
+/// One draw call: an index range and the texture bind group it samples.
+#[derive(Debug)]
+pub struct Draw {
+    /// Indices into the index buffer.
+    pub indices: Range<u32>,
+    /// Index of the bind group in [`GpuMesh::texture_groups`].
+    pub texture: usize,
+}
+
+/// The mesh as it lives on the device.
+#[derive(Debug)]
+pub struct GpuMesh {
+    /// Interleaved [`GpuVertex`] data.
+    pub vertices: wgpu::Buffer,
+    /// Triangle indices, `u32`.
+    pub indices: wgpu::Buffer,
+    /// Bind groups (group 1): one per mesh texture, then a 1x1 white texel
+    /// used by untextured groups.
+    pub texture_groups: Vec<wgpu::BindGroup>,
+    /// What to draw, in mesh group order.
+    pub draws: Vec<Draw>,
+    /// Kept alive for the bind groups.
+    _textures: Vec<wgpu::Texture>,
+}
+
+/// The layout of the texture bind group (group 1).
+pub fn texture_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
+    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("star gray texture"),
+        entries: &[wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        }],
+    })
+}
+
+/// Checks `mesh` for everything that would make a draw read out of bounds
+/// or exceed `limits`.
+pub fn validate(mesh: &Mesh, limits: &wgpu::Limits) -> Result<(), GpuError> {
+    let n = mesh.positions.len();
+    let attribute = |field: &'static str, found: usize| {
+        if found == n {
+            Ok(())
+        } else {
+            Err(GpuError::MeshAttributeLength {
+                field,
+                found,
+                expected: n,
+            })
+        }
+    };
+    attribute("gray", mesh.gray.len())?;
+    attribute("uvs", mesh.uvs.len())?;
+    if mesh.indices.len() % 3 != 0 {
+        return Err(GpuError::MeshIndexCount(mesh.indices.len()));
+    }
+    if let Some((at, &index)) = mesh
+        .indices
+        .iter()
+        .enumerate()
+        .find(|(_, &i)| i as usize >= n)
+    {
+        return Err(GpuError::MeshIndexOutOfRange {
+            at,
+            index,
+            vertex_count: n,
+        });
+    }
+    for (g, group) in mesh.groups.iter().enumerate() {
+        let end = u64::from(group.first_index) + u64::from(group.index_count);
+        if end > mesh.indices.len() as u64 {
+            return Err(GpuError::MeshGroupRange {
+                group: g,
+                end,
+                index_count: mesh.indices.len(),
+            });
+        }
+        if let Some(t) = group.texture {
+            if t as usize >= mesh.textures.len() {
+                return Err(GpuError::MeshTextureIndex {
+                    group: g,
+                    texture: t,
+                    texture_count: mesh.textures.len(),
+                });
+            }
+        }
+    }
+    for (t, texture) in mesh.textures.iter().enumerate() {
+        let max = limits.max_texture_dimension_2d;
+        let expected = texture.width as usize * texture.height as usize;
+        if texture.width == 0
+            || texture.height == 0
+            || texture.width > max
+            || texture.height > max
+            || texture.texels.len() != expected
+        {
+            return Err(GpuError::MeshTexture {
+                texture: t,
+                width: texture.width,
+                height: texture.height,
+                texels: texture.texels.len(),
+                max_dimension: max,
+            });
+        }
+    }
+    let vertex_bytes = (n * std::mem::size_of::<GpuVertex>()) as u64;
+    let index_bytes = (mesh.indices.len() * 4) as u64;
+    for bytes in [vertex_bytes, index_bytes] {
+        if bytes > limits.max_buffer_size {
+            return Err(GpuError::MeshTooLarge {
+                bytes,
+                max_bytes: limits.max_buffer_size,
+            });
+        }
+    }
+    Ok(())
+}
+
+fn upload_texture(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    width: u32,
+    height: u32,
+    texels: &[f32],
+) -> wgpu::Texture {
+    let size = wgpu::Extent3d {
+        width,
+        height,
+        depth_or_array_layers: 1,
+    };
+    let texture = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("star mesh texture"),
+        size,
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::R32Float,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    queue.write_texture(
+        wgpu::TexelCopyTextureInfo {
+            texture: &texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        bytemuck::cast_slice(texels),
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(width * 4),
+            rows_per_image: Some(height),
+        },
+        size,
+    );
+    texture
+}
+
+/// Uploads a mesh already checked by [`validate`].
+pub fn upload(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    layout: &wgpu::BindGroupLayout,
+    mesh: &Mesh,
+) -> GpuMesh {
+    let vertices: Vec<GpuVertex> = mesh
+        .positions
+        .iter()
+        .zip(&mesh.gray)
+        .zip(&mesh.uvs)
+        .map(|((&position_m, &gray), &uv)| GpuVertex {
+            position_m,
+            gray,
+            uv,
+        })
+        .collect();
+    // wgpu buffers may not be empty: pad an empty mesh with one dummy element.
+    let dummy_vertex = [GpuVertex::zeroed()];
+    let vertex_data: &[GpuVertex] = if vertices.is_empty() {
+        &dummy_vertex
+    } else {
+        &vertices
+    };
+    let index_data: &[u32] = if mesh.indices.is_empty() {
+        &[0, 0, 0]
+    } else {
+        &mesh.indices
+    };
+    let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("star mesh vertices"),
+        contents: bytemuck::cast_slice(vertex_data),
+        usage: wgpu::BufferUsages::VERTEX,
+    });
+    let index_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("star mesh indices"),
+        contents: bytemuck::cast_slice(index_data),
+        usage: wgpu::BufferUsages::INDEX,
+    });
+
+    let mut textures: Vec<wgpu::Texture> = mesh
+        .textures
+        .iter()
+        .map(|t| upload_texture(device, queue, t.width, t.height, &t.texels))
+        .collect();
+    let white = textures.len();
+    textures.push(upload_texture(device, queue, 1, 1, &[255.0]));
+    let texture_groups = textures
+        .iter()
+        .map(|texture| {
+            let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("star mesh texture"),
+                layout,
+                entries: &[wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: wgpu::BindingResource::TextureView(&view),
+                }],
+            })
+        })
+        .collect();
+
+    let draws = if mesh.groups.is_empty() {
+        // No groups: every triangle, untextured.
+        vec![Draw {
+            indices: 0..mesh.indices.len() as u32,
+            texture: white,
+        }]
+    } else {
+        mesh.groups
+            .iter()
+            .filter(|g| g.index_count > 0)
+            .map(|g| Draw {
+                indices: g.first_index..g.first_index + g.index_count,
+                texture: g.texture.map_or(white, |t| t as usize),
+            })
+            .collect()
+    };
+
+    GpuMesh {
+        vertices: vertex_buffer,
+        indices: index_buffer,
+        texture_groups,
+        draws,
+        _textures: textures,
+    }
+}
