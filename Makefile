@@ -11,13 +11,13 @@ deps:
 	scripts/setup.sh
 
 build: deps
-	$(CARGO) build --release --all-targets
+	$(CARGO) build --release
 
 demo: build
 	scripts/demo.sh
 
 test-rust: deps
-	$(CARGO) test --release --all-targets
+	$(CARGO) test --release
 
 test-python: build
 	@if ls hil_tests/test_*.py >/dev/null 2>&1; then \

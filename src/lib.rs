@@ -7,7 +7,9 @@
 
 pub mod cli;
 pub mod config;
+pub mod dataset;
 pub mod geometry;
 pub mod imgproc;
 pub mod map;
 pub mod render;
+pub mod track;

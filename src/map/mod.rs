@@ -5,6 +5,22 @@
 //! diffuse textures), validation, and bounds. Gives out a [`Mesh`] that every
 //! renderer consumes as-is: positions, per-vertex gray, per-vertex texture
 //! coordinates, triangle indices grouped by texture, and gray textures.
+//!
+//! - [`load_obj`] / [`write_obj`]: Wavefront OBJ + MTL + textures, to gray.
+//! - [`Mesh::validate`]: the structural checks every loader and renderer
+//!   relies on, with [`MapError`] / [`MeshProblem`] naming the defect.
+//! - [`subdivide`]: 1-to-4 subdivision for large benchmark meshes.
+
+mod error;
+mod obj;
+mod obj_write;
+mod subdivide;
+mod validate;
+
+pub use error::{MapError, MeshProblem, IN_MEMORY};
+pub use obj::{load_gray_texture, load_obj, luma601_255};
+pub use obj_write::write_obj;
+pub use subdivide::subdivide;
 
 /// A texture converted to gray intensity (0..=255 as f32), row-major,
 /// with `v = 0` at the top row (image convention, OBJ `vt` is flipped on load).

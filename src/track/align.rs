@@ -1,0 +1,396 @@
+//! Per-frame direct alignment of a camera image against a prepared keyframe.
+//!
+//! Inverse compositional Levenberg-Marquardt on SE(3) plus a photometric
+//! model, coarse to fine. Residual of keyframe point `i`:
+//! `r_i = I_cam(pi_dist(K T_ck p_i)) - (a * I_ref_i + b)` (affine model) or
+//! `r_i = I_cam(...) - I_ref_i - beta` with `beta` the median offset (the
+//! paper's model). Huber weights with a scale estimated once per level from
+//! the median absolute residual, and a hard cut for gross outliers
+//! (occluders, unmapped regions). The keyframe side is an ideal pinhole
+//! render; lens distortion is applied in the warp into the raw camera image,
+//! so frames are never undistorted.
+//!
+//! The Jacobian of each point is precomputed at keyframe preparation
+//! (inverse compositional); the update is `T_ck <- T_ck * exp(delta)^-1`.
+//! All buffers are allocated by [`Aligner::new`]; [`Aligner::align`] does not
+//! allocate.
+
+use nalgebra::Vector6;
+
+use crate::config::{IlluminationModel, TrackerConfig};
+use crate::geometry::{exp_se3, PinholeCamera, Pose};
+
+use super::keyframe::Keyframe;
+use super::normal_eq::{NormalEquations, MAX_DIM};
+use super::pyramid::Pyramid;
+
+/// Maximum number of pyramid levels.
+pub const MAX_LEVELS: usize = 6;
+
+/// Quality of one alignment, computed at the finest level.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct AlignQuality {
+    /// Fraction of visible points whose residual is below the inlier threshold.
+    pub inlier_ratio: f32,
+    /// Fraction of finest-level keyframe points that project into the image.
+    pub visible_ratio: f32,
+    /// RMS residual of the inliers, gray levels.
+    pub residual_rms: f32,
+    /// Points used (visible) per level, finest first.
+    pub points_used: [u32; MAX_LEVELS],
+    /// Total LM iterations over all levels.
+    pub iterations: u32,
+}
+
+/// Result of aligning one frame.
+#[derive(Debug, Clone, Copy)]
+pub struct Alignment {
+    /// Estimated pose of the camera relative to the keyframe.
+    pub camera_from_keyframe: Pose,
+    /// Photometric gain `a` (1 for the median model).
+    pub gain: f32,
+    /// Photometric bias `b`, or the median offset `beta`.
+    pub bias: f32,
+    /// Covariance of the final inverse-compositional increment `delta`
+    /// (`[v; w]`, keyframe frame), inverse Hessian scaled by the residual variance.
+    pub covariance_delta: [[f64; 6]; 6],
+    /// Quality figures.
+    pub quality: AlignQuality,
+    /// False when the finest level could not be evaluated or the solution is
+    /// degenerate (not finite, gain out of range).
+    pub valid: bool,
+}
+
+/// Reusable alignment state and scratch buffers.
+#[derive(Debug, Clone)]
+pub struct Aligner {
+    warped: Vec<f32>,
+    scratch: Vec<f32>,
+    config: TrackerConfig,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Eval {
+    ne: NormalEquations,
+    energy: f64,
+    visible: usize,
+    inliers: usize,
+    inlier_sq_sum: f64,
+    gain: f32,
+    bias: f32,
+}
+
+impl Aligner {
+    /// Allocates scratch for the configured maximum number of points.
+    pub fn new(config: &TrackerConfig) -> Self {
+        let cap = config.max_points_per_level(0);
+        Self {
+            warped: vec![0.0; cap],
+            scratch: vec![0.0; cap],
+            config: config.clone(),
+        }
+    }
+
+    /// Aligns `frame` (pyramid of the raw camera image, `camera` with its
+    /// distortion) against `keyframe`, starting from `camera_from_keyframe`.
+    /// The photometric parameters are re-estimated at every evaluation.
+    pub fn align(
+        &mut self,
+        keyframe: &Keyframe,
+        frame: &Pyramid,
+        camera: &PinholeCamera,
+        camera_from_keyframe: Pose,
+    ) -> Alignment {
+        let n_levels = keyframe.levels.len().min(frame.len()).min(MAX_LEVELS);
+        let mut pose = camera_from_keyframe;
+        let (mut a, mut b) = (1.0f32, 0.0f32);
+        let mut quality = AlignQuality::default();
+        let mut final_eval: Option<Eval> = None;
+        for level in (0..n_levels).rev() {
+            let n_points = keyframe.levels[level].points.len();
+            if n_points < self.config.min_points as usize {
+                continue;
+            }
+            let cam_l = camera.scaled_to_level(level as u32);
+            let Some(first) = self.evaluate(keyframe, frame, &cam_l, level, &pose, None) else {
+                continue;
+            };
+            let k = first.1;
+            let mut cur = first.0;
+            let mut lambda = 0.0f64;
+            for _ in 0..self.config.max_iterations {
+                quality.iterations += 1;
+                let Some(step) = cur.ne.solve(lambda) else {
+                    break;
+                };
+                if step.iter().any(|v| !v.is_finite()) {
+                    break;
+                }
+                let delta = Vector6::new(step[0], step[1], step[2], step[3], step[4], step[5]);
+                let cand_pose = pose * exp_se3(&delta).inverse();
+                let cand = self.evaluate(keyframe, frame, &cam_l, level, &cand_pose, Some(k));
+                match cand {
+                    Some((e, _)) if e.energy <= cur.energy => {
+                        pose = cand_pose;
+                        let rel = (cur.energy - e.energy) / cur.energy.max(1e-12);
+                        cur = e;
+                        lambda = if lambda > 0.0 { lambda * 0.25 } else { 0.0 };
+                        if lambda < 1e-4 {
+                            lambda = 0.0;
+                        }
+                        if delta.norm() < 1e-6 || rel < 1e-5 {
+                            break;
+                        }
+                    }
+                    _ => {
+                        lambda = if lambda == 0.0 { 1e-3 } else { lambda * 8.0 };
+                        if lambda > 1e3 {
+                            break;
+                        }
+                    }
+                }
+            }
+            quality.points_used[level] = cur.visible as u32;
+            a = cur.gain;
+            b = cur.bias;
+            if level == 0 {
+                final_eval = Some(cur);
+            }
+        }
+        let mut result = Alignment {
+            camera_from_keyframe: pose,
+            gain: a,
+            bias: b,
+            covariance_delta: [[0.0; 6]; 6],
+            quality,
+            valid: false,
+        };
+        let Some(e) = final_eval else {
+            return result;
+        };
+        let n0 = keyframe.levels[0].points.len().max(1);
+        result.quality.visible_ratio = e.visible as f32 / n0 as f32;
+        result.quality.inlier_ratio = e.inliers as f32 / e.visible.max(1) as f32;
+        result.quality.residual_rms = (e.inlier_sq_sum / e.inliers.max(1) as f64).sqrt() as f32;
+        let dof = (e.ne.count as f64 - e.ne.n as f64).max(1.0);
+        let sigma_sq = e.ne.weighted_sq_sum / dof;
+        if let Some(inv) = e.ne.inverse() {
+            for (r, row) in result.covariance_delta.iter_mut().enumerate() {
+                for (c, v) in row.iter_mut().enumerate() {
+                    *v = inv[r][c] * sigma_sq;
+                }
+            }
+        }
+        let t = pose.translation.vector;
+        let finite = t.iter().all(|v| v.is_finite())
+            && pose.rotation.coords.iter().all(|v| v.is_finite())
+            && a.is_finite()
+            && b.is_finite();
+        result.valid = finite && (0.2..=5.0).contains(&a) && e.visible > 0;
+        result
+    }
+
+    /// Warps, samples and accumulates one level. Returns the evaluation and
+    /// the Huber scale used (estimated when `huber_k` is `None`).
+    #[allow(clippy::too_many_arguments)]
+    fn evaluate(
+        &mut self,
+        keyframe: &Keyframe,
+        frame: &Pyramid,
+        camera: &PinholeCamera,
+        level: usize,
+        camera_from_keyframe: &Pose,
+        huber_k: Option<f32>,
+    ) -> Option<(Eval, f32)> {
+        let model = self.config.illumination;
+        let points = &keyframe.levels[level].points;
+        let image = frame.level(level);
+        let m = camera_from_keyframe.to_homogeneous();
+        let r = [
+            [m[(0, 0)] as f32, m[(0, 1)] as f32, m[(0, 2)] as f32],
+            [m[(1, 0)] as f32, m[(1, 1)] as f32, m[(1, 2)] as f32],
+            [m[(2, 0)] as f32, m[(2, 1)] as f32, m[(2, 2)] as f32],
+        ];
+        let t = [m[(0, 3)] as f32, m[(1, 3)] as f32, m[(2, 3)] as f32];
+        let (fx, fy, cx, cy) = (
+            camera.fx as f32,
+            camera.fy as f32,
+            camera.cx as f32,
+            camera.cy as f32,
+        );
+        let dist = camera.distortion;
+        let distorted = !dist.is_zero();
+        let (k1, k2, k3, p1, p2) = (
+            dist.k1 as f32,
+            dist.k2 as f32,
+            dist.k3 as f32,
+            dist.p1 as f32,
+            dist.p2 as f32,
+        );
+        let max_u = image.width() as f32 - 1.001;
+        let max_v = image.height() as f32 - 1.001;
+        let warped = &mut self.warped[..points.len()];
+        // Pass 1: warp and sample.
+        let mut visible = 0usize;
+        for (pt, out) in points.iter().zip(warped.iter_mut()) {
+            let p = pt.p_keyframe;
+            let z = r[2][0] * p[0] + r[2][1] * p[1] + r[2][2] * p[2] + t[2];
+            *out = f32::NAN;
+            if !(z > 1e-3) {
+                continue;
+            }
+            let inv_z = 1.0 / z;
+            let mut xn = (r[0][0] * p[0] + r[0][1] * p[1] + r[0][2] * p[2] + t[0]) * inv_z;
+            let mut yn = (r[1][0] * p[0] + r[1][1] * p[1] + r[1][2] * p[2] + t[1]) * inv_z;
+            if distorted {
+                let r2 = xn * xn + yn * yn;
+                let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+                let dx = 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn);
+                let dy = p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn;
+                xn = xn * radial + dx;
+                yn = yn * radial + dy;
+            }
+            let u = fx * xn + cx;
+            let v = fy * yn + cy;
+            if !(u >= 0.0 && v >= 0.0 && u < max_u && v < max_v) {
+                continue;
+            }
+            if let Some(val) = image.bilinear(u, v) {
+                *out = val;
+                visible += 1;
+            }
+        }
+        if visible < self.config.min_points as usize {
+            return None;
+        }
+        // Photometric model from the current correspondences: the median
+        // offset, or a robust moment match (median and MAD) for gain and
+        // bias. Moment matching does not shrink the gain under misalignment,
+        // which a joint least-squares fit of the gain does.
+        let (a, b) = self.photometric(points, model);
+        let warped = &self.warped[..points.len()];
+        let k = match huber_k {
+            Some(k) => k,
+            None => {
+                let s = &mut self.scratch[..];
+                let mut n = 0;
+                for (pt, &wv) in points.iter().zip(warped.iter()) {
+                    if !wv.is_nan() {
+                        s[n] = (wv - (a * pt.gray + b)).abs();
+                        n += 1;
+                    }
+                }
+                (1.345 * 1.4826 * median(&mut s[..n])).max(self.config.huber_min)
+            }
+        };
+        let cut = (4.0 * k).max(self.config.outlier_cut);
+        let rho_cut = k * (cut - 0.5 * k);
+        let mut ne = NormalEquations::new(6);
+        let mut energy = 0.0f64;
+        let mut inliers = 0usize;
+        let mut inlier_sq_sum = 0.0f64;
+        let inlier_th = self.config.inlier_threshold;
+        let mut j = [0.0f32; MAX_DIM];
+        for (pt, &wv) in points.iter().zip(warped.iter()) {
+            if wv.is_nan() {
+                energy += rho_cut as f64;
+                continue;
+            }
+            let res = wv - (a * pt.gray + b);
+            let ar = res.abs();
+            if ar < inlier_th {
+                inliers += 1;
+                inlier_sq_sum += (res * res) as f64;
+            }
+            if ar > cut {
+                energy += rho_cut as f64;
+                continue;
+            }
+            let (w, rho) = if ar <= k {
+                (1.0, 0.5 * res * res)
+            } else {
+                (k / ar, k * (ar - 0.5 * k))
+            };
+            energy += rho as f64;
+            for c in 0..6 {
+                j[c] = -a * pt.jacobian[c];
+            }
+            ne.add(&j, res, w);
+        }
+        ne.symmetrize();
+        Some((
+            Eval {
+                ne,
+                energy,
+                visible,
+                inliers,
+                inlier_sq_sum,
+                gain: a,
+                bias: b,
+            },
+            k,
+        ))
+    }
+}
+
+impl Aligner {
+    /// Gain and bias mapping keyframe intensities to camera intensities,
+    /// from the points sampled in pass 1 (`warped`, NaN = not visible).
+    fn photometric(&mut self, points: &[super::KeyPoint], model: IlluminationModel) -> (f32, f32) {
+        let warped = &self.warped[..points.len()];
+        let s = &mut self.scratch[..points.len()];
+        let mut n = 0;
+        match model {
+            IlluminationModel::Median => {
+                for (pt, &wv) in points.iter().zip(warped) {
+                    if !wv.is_nan() {
+                        s[n] = wv - pt.gray;
+                        n += 1;
+                    }
+                }
+                (1.0, median(&mut s[..n]))
+            }
+            IlluminationModel::Affine => {
+                for &wv in warped {
+                    if !wv.is_nan() {
+                        s[n] = wv;
+                        n += 1;
+                    }
+                }
+                let (med_cam, mad_cam) = median_mad(&mut s[..n]);
+                n = 0;
+                for (pt, &wv) in points.iter().zip(warped) {
+                    if !wv.is_nan() {
+                        s[n] = pt.gray;
+                        n += 1;
+                    }
+                }
+                let (med_ref, mad_ref) = median_mad(&mut s[..n]);
+                let gain = if mad_ref > 1e-3 {
+                    mad_cam / mad_ref
+                } else {
+                    1.0
+                };
+                (gain, med_cam - gain * med_ref)
+            }
+        }
+    }
+}
+
+/// Median and median absolute deviation; reorders `values`.
+fn median_mad(values: &mut [f32]) -> (f32, f32) {
+    let med = median(values);
+    for v in values.iter_mut() {
+        *v = (*v - med).abs();
+    }
+    (med, median(values))
+}
+
+/// Median by selection; reorders `values`. 0 for an empty slice.
+fn median(values: &mut [f32]) -> f32 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, f32::total_cmp).1
+}

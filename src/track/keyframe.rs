@@ -1,0 +1,344 @@
+//! Keyframe preparation: from a rendered view (gray + metric depth) to the
+//! per-level point sets the aligner consumes.
+//!
+//! Runs once per keyframe on the render thread. For each pyramid level it
+//! selects pixels with strong gradient and valid, continuous depth using a
+//! block-adaptive threshold (so texture-poor regions still contribute, as in
+//! DSO), keeps at most one pixel per grid cell (the strongest), back-projects
+//! them to 3D keyframe points and precomputes the inverse-compositional
+//! Jacobian of each. All storage is allocated at construction and reused.
+
+use crate::config::TrackerConfig;
+use crate::geometry::{PinholeCamera, Pose};
+use crate::imgproc::ImageF32;
+use crate::render::{RenderedView, NO_DEPTH};
+
+use super::pyramid::Pyramid;
+
+/// One selected keyframe pixel.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct KeyPoint {
+    /// The point in the keyframe camera frame, meters.
+    pub p_keyframe: [f32; 3],
+    /// Rendered intensity at the pixel (0..=255).
+    pub gray: f32,
+    /// `d I_ref(pi(K exp(delta) p)) / d delta` at `delta = 0`, `delta = [v; w]`.
+    pub jacobian: [f32; 6],
+}
+
+/// Points of one pyramid level.
+#[derive(Debug, Clone)]
+pub struct KeyframeLevel {
+    /// Selected points; capacity fixed at construction.
+    pub points: Vec<KeyPoint>,
+    /// Pinhole camera of this level.
+    pub camera: PinholeCamera,
+}
+
+/// A prepared keyframe.
+#[derive(Debug, Clone)]
+pub struct Keyframe {
+    /// Increasing id, for logs and statistics.
+    pub id: u64,
+    /// Pose of the keyframe camera.
+    pub world_from_keyframe: Pose,
+    /// Capture time of the frame whose pose estimate requested this keyframe.
+    pub requested_at_ns: u64,
+    /// Median depth of the finest-level points, meters (0 when none).
+    pub median_depth_m: f32,
+    /// Per level, finest first.
+    pub levels: Vec<KeyframeLevel>,
+    scratch: PrepScratch,
+}
+
+#[derive(Debug, Clone)]
+struct PrepScratch {
+    gray: Pyramid,
+    depth: Vec<ImageF32>,
+    grad: ImageF32,
+    hist: Vec<u32>,
+    depths: Vec<f32>,
+}
+
+/// Gradient magnitude histogram range (gray levels per pixel).
+const HIST_BINS: usize = 64;
+
+impl Keyframe {
+    /// Allocates a keyframe for `camera` (pinhole, level 0) and the
+    /// tracker's configuration.
+    pub fn new(camera: &PinholeCamera, config: &TrackerConfig) -> Self {
+        let n_levels = config.pyramid_levels as usize;
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let levels = (0..n_levels)
+            .map(|l| KeyframeLevel {
+                points: Vec::with_capacity(config.max_points_per_level(l)),
+                camera: camera.pinhole().scaled_to_level(l as u32),
+            })
+            .collect();
+        Self {
+            id: 0,
+            world_from_keyframe: Pose::identity(),
+            requested_at_ns: 0,
+            median_depth_m: 0.0,
+            levels,
+            scratch: PrepScratch {
+                gray: Pyramid::new(w, h, n_levels),
+                depth: (0..n_levels)
+                    .map(|l| ImageF32::new((w >> l).max(1), (h >> l).max(1), NO_DEPTH))
+                    .collect(),
+                grad: ImageF32::new(w, h, 0.0),
+                hist: vec![0; HIST_BINS],
+                depths: Vec::with_capacity(config.max_points_per_level(0)),
+            },
+        }
+    }
+
+    /// Number of points at level `l`.
+    pub fn point_count(&self, l: usize) -> usize {
+        self.levels.get(l).map_or(0, |lv| lv.points.len())
+    }
+
+    /// Fills this keyframe from a rendered `view` at `world_from_keyframe`.
+    pub fn prepare(
+        &mut self,
+        view: &RenderedView,
+        world_from_keyframe: Pose,
+        id: u64,
+        config: &TrackerConfig,
+    ) {
+        self.id = id;
+        self.world_from_keyframe = world_from_keyframe;
+        let s = &mut self.scratch;
+        s.gray.fill_from_f32(&view.gray);
+        s.depth[0].data_mut().copy_from_slice(view.depth_m.data());
+        for l in 1..s.depth.len() {
+            let (lower, upper) = s.depth.split_at_mut(l);
+            downsample_depth(&lower[l - 1], &mut upper[0]);
+        }
+        for (l, level) in self.levels.iter_mut().enumerate() {
+            level.points.clear();
+            select_level(
+                s.gray.level(l),
+                &s.depth[l],
+                &level.camera,
+                config,
+                l,
+                &mut s.grad,
+                &mut s.hist,
+                &mut level.points,
+            );
+        }
+        s.depths.clear();
+        s.depths
+            .extend(self.levels[0].points.iter().map(|p| p.p_keyframe[2]));
+        self.median_depth_m = if s.depths.is_empty() {
+            0.0
+        } else {
+            let mid = s.depths.len() / 2;
+            *s.depths.select_nth_unstable_by(mid, f32::total_cmp).1
+        };
+    }
+}
+
+/// Depth at level l+1: mean of the 2x2 children when all four are valid and
+/// continuous (max/min below 1.1), else no depth.
+fn downsample_depth(src: &ImageF32, dst: &mut ImageF32) {
+    let sw = src.width();
+    let s = src.data();
+    for y in 0..dst.height() {
+        let out = dst.row_mut(y);
+        for (x, o) in out.iter_mut().enumerate() {
+            let i = 2 * y * sw + 2 * x;
+            let d = [s[i], s[i + 1], s[i + sw], s[i + sw + 1]];
+            let lo = d.iter().copied().fold(f32::INFINITY, f32::min);
+            let hi = d.iter().copied().fold(0.0f32, f32::max);
+            *o = if RenderedView::is_hit(lo) && hi <= lo * 1.1 {
+                0.25 * (d[0] + d[1] + d[2] + d[3])
+            } else {
+                NO_DEPTH
+            };
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn select_level(
+    gray: &ImageF32,
+    depth: &ImageF32,
+    camera: &PinholeCamera,
+    config: &TrackerConfig,
+    level: usize,
+    grad: &mut ImageF32,
+    hist: &mut [u32],
+    out: &mut Vec<KeyPoint>,
+) {
+    let (w, h) = (gray.width(), gray.height());
+    if w < 8 || h < 8 {
+        return;
+    }
+    let g = gray.data();
+    let d = depth.data();
+    let gradm = &mut grad.data_mut()[..w * h];
+    // Gradient magnitude where the 3x3 depth neighbourhood is valid and
+    // continuous; 0 elsewhere (never selected).
+    let border = 2;
+    gradm.fill(0.0);
+    for y in border..h - border {
+        for x in border..w - border {
+            let i = y * w + x;
+            let mut lo = f32::INFINITY;
+            let mut hi = 0.0f32;
+            for dy in [-1isize, 0, 1] {
+                let r = (i as isize + dy * w as isize) as usize;
+                for v in [d[r - 1], d[r], d[r + 1]] {
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                }
+            }
+            if !(RenderedView::is_hit(lo) && hi <= lo * 1.15) {
+                continue;
+            }
+            let gx = 0.5 * (g[i + 1] - g[i - 1]);
+            let gy = 0.5 * (g[i + w] - g[i - w]);
+            gradm[i] = (gx * gx + gy * gy).sqrt();
+        }
+    }
+    // Block-adaptive threshold: block median of valid gradients + offset.
+    let block = (config.block_size_px as usize >> level).max(8);
+    let max_points = config.max_points_per_level(level);
+    let offset = config.gradient_threshold;
+    // Cell size grows until the selection fits the budget.
+    let mut cell = 2usize;
+    loop {
+        let n = select_cells(gradm, w, h, block, cell, offset, hist, None);
+        if n <= max_points || cell >= 16 {
+            break;
+        }
+        cell += 1;
+    }
+    select_cells(gradm, w, h, block, cell, offset, hist, Some(out));
+    out.truncate(max_points);
+    // Back-project and precompute Jacobians.
+    let (fx, fy, cx, cy) = (
+        camera.fx as f32,
+        camera.fy as f32,
+        camera.cx as f32,
+        camera.cy as f32,
+    );
+    for kp in out.iter_mut() {
+        // `select_cells` stores the pixel index in p_keyframe[0]'s bits.
+        let i = kp.p_keyframe[0].to_bits() as usize;
+        let (x, y) = (i % w, i / w);
+        let z = d[i];
+        let px = (x as f32 - cx) / fx * z;
+        let py = (y as f32 - cy) / fy * z;
+        let gx = 0.5 * (g[i + 1] - g[i - 1]);
+        let gy = 0.5 * (g[i + w] - g[i - w]);
+        let inv_z = 1.0 / z;
+        let ru = gx * fx * inv_z;
+        let rv = gy * fy * inv_z;
+        let rz = -(gx * fx * px + gy * fy * py) * inv_z * inv_z;
+        // J = r * [I | -[p]x], and r * (-[p]x) = p x r.
+        kp.p_keyframe = [px, py, z];
+        kp.gray = g[i];
+        kp.jacobian = [
+            ru,
+            rv,
+            rz,
+            py * rz - z * rv,
+            z * ru - px * rz,
+            px * rv - py * ru,
+        ];
+    }
+}
+
+/// Picks the strongest pixel above its block's threshold in each
+/// `cell x cell` cell; returns the count, and pushes them when `out` is given.
+#[allow(clippy::too_many_arguments)]
+fn select_cells(
+    gradm: &[f32],
+    w: usize,
+    h: usize,
+    block: usize,
+    cell: usize,
+    offset: f32,
+    hist: &mut [u32],
+    mut out: Option<&mut Vec<KeyPoint>>,
+) -> usize {
+    let mut count = 0;
+    let mut by = 0;
+    while by < h {
+        let bh = block.min(h - by);
+        let mut bx = 0;
+        while bx < w {
+            let bw = block.min(w - bx);
+            let thresh = block_median(gradm, w, bx, by, bw, bh, hist) + offset;
+            let mut cy = by;
+            while cy < by + bh {
+                let mut cx = bx;
+                while cx < bx + bw {
+                    let mut best_i = u32::MAX;
+                    let mut best_g = thresh;
+                    for y in cy..(cy + cell).min(by + bh) {
+                        for x in cx..(cx + cell).min(bx + bw) {
+                            let gv = gradm[y * w + x];
+                            if gv > best_g {
+                                best_g = gv;
+                                best_i = (y * w + x) as u32;
+                            }
+                        }
+                    }
+                    if best_i != u32::MAX {
+                        count += 1;
+                        if let Some(o) = out.as_deref_mut() {
+                            if o.len() < o.capacity() {
+                                o.push(KeyPoint {
+                                    p_keyframe: [f32::from_bits(best_i), 0.0, 0.0],
+                                    ..KeyPoint::default()
+                                });
+                            }
+                        }
+                    }
+                    cx += cell;
+                }
+                cy += cell;
+            }
+            bx += block;
+        }
+        by += block;
+    }
+    count
+}
+
+/// Median of the non-zero gradient magnitudes in a block, by histogram.
+fn block_median(
+    gradm: &[f32],
+    w: usize,
+    bx: usize,
+    by: usize,
+    bw: usize,
+    bh: usize,
+    hist: &mut [u32],
+) -> f32 {
+    hist.fill(0);
+    let mut n = 0u32;
+    for y in by..by + bh {
+        for &gv in &gradm[y * w + bx..y * w + bx + bw] {
+            if gv > 0.0 {
+                hist[(gv as usize).min(HIST_BINS - 1)] += 1;
+                n += 1;
+            }
+        }
+    }
+    if n == 0 {
+        return f32::INFINITY;
+    }
+    let mut acc = 0;
+    for (b, &c) in hist.iter().enumerate() {
+        acc += c;
+        if acc * 2 >= n {
+            return b as f32 + 0.5;
+        }
+    }
+    HIST_BINS as f32
+}
