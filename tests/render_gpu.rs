@@ -5,6 +5,8 @@
 //! These run for real on Mesa's lavapipe where it is installed; finding no
 //! adapter there is a failure, never a skip.
 
+#![allow(clippy::expect_used, clippy::unwrap_used)]
+
 use std::sync::Arc;
 
 use nalgebra::{Translation3, UnitQuaternion};
@@ -74,7 +76,9 @@ fn software_adapter_is_listed_when_lavapipe_is_installed() {
     }
     if gpu::lavapipe_installed() {
         assert!(
-            adapters.iter().any(|a| a.class == gpu::AdapterClass::Software),
+            adapters
+                .iter()
+                .any(|a| a.class == gpu::AdapterClass::Software),
             "lavapipe installed but not listed: {adapters:?}"
         );
         assert!(gpu::auto_choice(&adapters).is_some());
@@ -86,9 +90,16 @@ fn tilted_plane_depth_is_exact_everywhere() {
     // The plane z = 2 + 0.5 x, far wider than the view.
     let mut mesh = Mesh::default();
     let z = |x: f32| 2.0 + 0.5 * x;
-    let corners = [[-3.0, -9.0, z(-3.0)], [3.0, -9.0, z(3.0)], [3.0, 9.0, z(3.0)], [-3.0, 9.0, z(-3.0)]];
+    let corners = [
+        [-3.0, -9.0, z(-3.0)],
+        [3.0, -9.0, z(3.0)],
+        [3.0, 9.0, z(3.0)],
+        [-3.0, 9.0, z(-3.0)],
+    ];
     push_quad(&mut mesh, corners, 100.0, [[0.0, 0.0]; 4]);
-    let Some(mut r) = gpu_renderer(one_group(mesh)) else { return };
+    let Some(mut r) = gpu_renderer(one_group(mesh)) else {
+        return;
+    };
     let camera = PinholeCamera::new(96, 64, 80.0, 80.0, 47.5, 31.5);
     let out = render(&mut r, &Pose::identity(), &camera);
     let mut worst = 0.0f64;
@@ -115,7 +126,9 @@ fn silhouette_follows_integer_pixel_centers() {
     let y = ((5.7 - 31.5) / 100.0, (12.2 - 31.5) / 100.0);
     let mut mesh = Mesh::default();
     rect(&mut mesh, x, y, 1.0, 200.0);
-    let Some(mut r) = gpu_renderer(one_group(mesh)) else { return };
+    let Some(mut r) = gpu_renderer(one_group(mesh)) else {
+        return;
+    };
     let out = render(&mut r, &Pose::identity(), &camera);
     for v in 0..48 {
         for u in 0..64 {
@@ -146,7 +159,9 @@ fn nearer_surface_wins_in_either_draw_order() {
             far(&mut mesh);
             near(&mut mesh);
         }
-        let Some(mut r) = gpu_renderer(one_group(mesh)) else { return };
+        let Some(mut r) = gpu_renderer(one_group(mesh)) else {
+            return;
+        };
         let out = render(&mut r, &Pose::identity(), &camera);
         let center = (out.depth_m.get(20, 15), out.gray.get(20, 15));
         assert_eq!(center, (Some(1.0), Some(150.0)), "near_first {near_first}");
@@ -159,10 +174,15 @@ fn nearer_surface_wins_in_either_draw_order() {
 fn pose_moves_the_view_and_misses_give_no_depth() {
     let mut mesh = Mesh::default();
     rect(&mut mesh, (-1.0, 1.0), (-1.0, 1.0), 0.0, 80.0); // the plane z = 0 of the world
-    let Some(mut r) = gpu_renderer(one_group(mesh)) else { return };
+    let Some(mut r) = gpu_renderer(one_group(mesh)) else {
+        return;
+    };
     let camera = PinholeCamera::new(32, 32, 20.0, 20.0, 15.5, 15.5);
     // Camera 3 m behind the plane, looking along +z: depth 3 at the center.
-    let behind = Pose::from_parts(Translation3::new(0.0, 0.0, -3.0), UnitQuaternion::identity());
+    let behind = Pose::from_parts(
+        Translation3::new(0.0, 0.0, -3.0),
+        UnitQuaternion::identity(),
+    );
     let out = render(&mut r, &behind, &camera);
     let d = out.depth_m.get(15, 15).expect("center");
     assert!((d - 3.0).abs() < 1e-5, "depth {d}");
@@ -180,7 +200,9 @@ fn pose_moves_the_view_and_misses_give_no_depth() {
 fn surfaces_closer_than_the_near_plane_are_clipped() {
     let mut mesh = Mesh::default();
     rect(&mut mesh, (-1.0, 1.0), (-1.0, 1.0), 0.03, 90.0);
-    let Some(mut r) = gpu_renderer(one_group(mesh)) else { return };
+    let Some(mut r) = gpu_renderer(one_group(mesh)) else {
+        return;
+    };
     let camera = PinholeCamera::new(16, 16, 10.0, 10.0, 7.5, 7.5);
     let out = render(&mut r, &Pose::identity(), &camera);
     assert!(out.depth_m.data().iter().all(|&d| d == NO_DEPTH));
@@ -191,14 +213,29 @@ fn texture_is_bilinear_with_repeat_and_modulated_by_vertex_gray() {
     // A 4x2 texture on a plane at z = 1; u runs 0..2 across the quad so the
     // texture repeats twice; vertex gray 127.5 halves it.
     let texels = vec![0.0, 100.0, 200.0, 40.0, 255.0, 10.0, 60.0, 120.0];
-    let texture = GrayTexture { width: 4, height: 2, texels: texels.clone() };
+    let texture = GrayTexture {
+        width: 4,
+        height: 2,
+        texels: texels.clone(),
+    };
     let mut mesh = Mesh::default();
-    let c = [[-1.0, -1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]];
+    let c = [
+        [-1.0, -1.0, 1.0],
+        [1.0, -1.0, 1.0],
+        [1.0, 1.0, 1.0],
+        [-1.0, 1.0, 1.0],
+    ];
     let uv = [[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]];
     push_quad(&mut mesh, c, 127.5, uv);
-    mesh.groups = vec![MeshGroup { first_index: 0, index_count: 6, texture: Some(0) }];
+    mesh.groups = vec![MeshGroup {
+        first_index: 0,
+        index_count: 6,
+        texture: Some(0),
+    }];
     mesh.textures = vec![texture];
-    let Some(mut r) = gpu_renderer(mesh) else { return };
+    let Some(mut r) = gpu_renderer(mesh) else {
+        return;
+    };
     // x in [-1, 1] maps to u in [0, 64): camera fx = 32, cx = 31.5 puts
     // x = -1 at u = -0.5 (the left image edge) and x = 1 at 63.5.
     let camera = PinholeCamera::new(64, 32, 32.0, 32.0, 31.5, 15.5);
@@ -230,7 +267,9 @@ fn odd_sizes_read_back_without_row_padding() {
     // Width 37: 148 bytes per row, padded to 256 in staging.
     let mut mesh = Mesh::default();
     rect(&mut mesh, (0.0, 9.0), (-9.0, 9.0), 2.0, 30.0); // right half
-    let Some(mut r) = gpu_renderer(one_group(mesh)) else { return };
+    let Some(mut r) = gpu_renderer(one_group(mesh)) else {
+        return;
+    };
     let camera = PinholeCamera::new(37, 23, 20.0, 20.0, 18.0, 11.0);
     let out = render(&mut r, &Pose::identity(), &camera);
     for v in 0..23 {
@@ -249,14 +288,23 @@ fn pipelined_renders_match_single_renders() {
     let mut mesh = Mesh::default();
     rect(&mut mesh, (-2.0, 2.0), (-2.0, 2.0), 0.0, 120.0);
     rect(&mut mesh, (-0.5, 0.5), (-0.5, 0.5), -0.5, 220.0);
-    let Some(mut r) = gpu_renderer(one_group(mesh)) else { return };
+    let Some(mut r) = gpu_renderer(one_group(mesh)) else {
+        return;
+    };
     let camera = PinholeCamera::new(48, 40, 40.0, 40.0, 23.5, 19.5);
-    let pose = |x: f64| Pose::from_parts(Translation3::new(x, 0.1, -3.0), UnitQuaternion::identity());
-    let single: Vec<RenderedView> = [0.0, 0.3, -0.4].iter().map(|&x| render(&mut r, &pose(x), &camera)).collect();
+    let pose =
+        |x: f64| Pose::from_parts(Translation3::new(x, 0.1, -3.0), UnitQuaternion::identity());
+    let single: Vec<RenderedView> = [0.0, 0.3, -0.4]
+        .iter()
+        .map(|&x| render(&mut r, &pose(x), &camera))
+        .collect();
     // Two in flight at once; a third must wait for a free staging buffer.
     let a = r.submit(&pose(0.0), &camera).expect("submit a");
     let b = r.submit(&pose(0.3), &camera).expect("submit b");
-    assert!(matches!(r.submit(&pose(-0.4), &camera), Err(gpu::GpuError::Busy)));
+    assert!(matches!(
+        r.submit(&pose(-0.4), &camera),
+        Err(gpu::GpuError::Busy)
+    ));
     let mut out_a = RenderedView::for_camera(&camera);
     let mut out_b = RenderedView::for_camera(&camera);
     r.collect(a, &mut out_a).expect("collect a");
@@ -275,11 +323,15 @@ fn pipelined_renders_match_single_renders() {
 fn injected_failure_fails_the_render_not_the_process() {
     let mut mesh = Mesh::default();
     rect(&mut mesh, (-1.0, 1.0), (-1.0, 1.0), 2.0, 10.0);
-    let Some(mut r) = gpu_renderer(one_group(mesh)) else { return };
+    let Some(mut r) = gpu_renderer(one_group(mesh)) else {
+        return;
+    };
     let camera = PinholeCamera::new(16, 16, 10.0, 10.0, 7.5, 7.5);
     r.inject_failure_after(1);
     let mut out = RenderedView::for_camera(&camera);
     assert!(r.render(&Pose::identity(), &camera, &mut out).is_ok());
-    let err = r.render(&Pose::identity(), &camera, &mut out).expect_err("injected");
+    let err = r
+        .render(&Pose::identity(), &camera, &mut out)
+        .expect_err("injected");
     assert!(err.to_string().contains("injected"), "{err}");
 }

@@ -68,7 +68,13 @@ impl fmt::Display for AdapterSummary {
 pub const BACKENDS: wgpu::Backends = wgpu::Backends::VULKAN.union(wgpu::Backends::GL);
 
 /// Names of software implementations that may report another device type.
-const SOFTWARE_NAMES: [&str; 5] = ["llvmpipe", "lavapipe", "softpipe", "swiftshader", "software"];
+const SOFTWARE_NAMES: [&str; 5] = [
+    "llvmpipe",
+    "lavapipe",
+    "softpipe",
+    "swiftshader",
+    "software",
+];
 
 /// The backends in the order the renderer tries them.
 pub const BACKEND_ORDER: [wgpu::Backends; 2] = [wgpu::Backends::VULKAN, wgpu::Backends::GL];
@@ -84,12 +90,16 @@ pub fn new_instance(backends: wgpu::Backends) -> wgpu::Instance {
 
 /// Classifies an adapter from what its driver reports.
 pub fn classify(info: &wgpu::AdapterInfo) -> AdapterClass {
-    let name = info.name.to_lowercase();
-    let driver = info.driver.to_lowercase();
+    classify_parts(&info.name, &info.driver, info.device_type)
+}
+
+fn classify_parts(name: &str, driver: &str, device_type: wgpu::DeviceType) -> AdapterClass {
+    let name = name.to_lowercase();
+    let driver = driver.to_lowercase();
     let named_software = SOFTWARE_NAMES
         .iter()
         .any(|s| name.contains(s) || driver.contains(s));
-    if info.device_type == wgpu::DeviceType::Cpu || named_software {
+    if device_type == wgpu::DeviceType::Cpu || named_software {
         AdapterClass::Software
     } else {
         AdapterClass::Hardware
@@ -98,13 +108,13 @@ pub fn classify(info: &wgpu::AdapterInfo) -> AdapterClass {
 
 /// Sort key within a class: Vulkan before GL, then integrated (the target
 /// platform's Intel iGPU) before discrete, virtual and unknown.
-fn order_key(info: &wgpu::AdapterInfo) -> (u8, u8) {
-    let backend = match info.backend {
+fn order_key(backend: wgpu::Backend, device_type: wgpu::DeviceType) -> (u8, u8) {
+    let backend = match backend {
         wgpu::Backend::Vulkan => 0,
         wgpu::Backend::Gl => 1,
         _ => 2,
     };
-    let device = match info.device_type {
+    let device = match device_type {
         wgpu::DeviceType::IntegratedGpu => 0,
         wgpu::DeviceType::DiscreteGpu => 1,
         wgpu::DeviceType::VirtualGpu => 2,
@@ -117,7 +127,10 @@ fn order_key(info: &wgpu::AdapterInfo) -> (u8, u8) {
 /// Every adapter `instance` sees, each class in the order it would be tried.
 pub fn enumerate(instance: &wgpu::Instance) -> Vec<wgpu::Adapter> {
     let mut adapters = pollster::block_on(instance.enumerate_adapters(BACKENDS));
-    adapters.sort_by_key(|a| order_key(&a.get_info()));
+    adapters.sort_by_key(|a| {
+        let info = a.get_info();
+        order_key(info.backend, info.device_type)
+    });
     adapters
 }
 
@@ -172,56 +185,43 @@ pub fn auto_choice(adapters: &[AdapterSummary]) -> Option<&AdapterSummary> {
 /// True when Mesa's lavapipe Vulkan driver is installed, so a software
 /// adapter must exist (tests use this to refuse skipping the wgpu path).
 pub fn lavapipe_installed() -> bool {
-    ["/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d"].iter().any(|dir| {
-        std::fs::read_dir(dir).is_ok_and(|entries| {
-            entries.flatten().any(|e| {
-                let name = e.file_name();
-                let name = name.to_string_lossy();
-                name.starts_with("lvp_icd") && name.ends_with(".json")
+    ["/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d"]
+        .iter()
+        .any(|dir| {
+            std::fs::read_dir(dir).is_ok_and(|entries| {
+                entries.flatten().any(|e| {
+                    let name = e.file_name();
+                    let name = name.to_string_lossy();
+                    name.starts_with("lvp_icd") && name.ends_with(".json")
+                })
             })
         })
-    })
 }
 
 #[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used)]
 mod tests {
     use super::*;
 
-    fn info(name: &str, backend: wgpu::Backend, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
-        wgpu::AdapterInfo {
-            name: name.into(),
-            vendor: 0,
-            device: 0,
-            device_type,
-            device_pci_bus_id: String::new(),
-            driver: String::new(),
-            driver_info: String::new(),
-            backend,
-            subgroup_min_size: 4,
-            subgroup_max_size: 4,
-            transient_saves_memory: None,
-        }
-    }
-
     #[test]
     fn classifies_software_by_type_and_name() {
-        use wgpu::{Backend, DeviceType};
-        let lvp = info("llvmpipe (LLVM 15)", Backend::Vulkan, DeviceType::Cpu);
-        assert_eq!(classify(&lvp), AdapterClass::Software);
-        let gl_sw = info("llvmpipe (LLVM 15)", Backend::Gl, DeviceType::Other);
-        assert_eq!(classify(&gl_sw), AdapterClass::Software);
-        let igpu = info("Intel(R) UHD 620", Backend::Vulkan, DeviceType::IntegratedGpu);
-        assert_eq!(classify(&igpu), AdapterClass::Hardware);
-        let unknown = info("Some GPU", Backend::Gl, DeviceType::Other);
-        assert_eq!(classify(&unknown), AdapterClass::Hardware);
+        use wgpu::DeviceType;
+        let lvp = classify_parts("llvmpipe (LLVM 15)", "llvmpipe", DeviceType::Cpu);
+        assert_eq!(lvp, AdapterClass::Software);
+        let gl_sw = classify_parts("llvmpipe (LLVM 15)", "", DeviceType::Other);
+        assert_eq!(gl_sw, AdapterClass::Software);
+        let igpu = classify_parts("Intel(R) UHD 620", "Intel", DeviceType::IntegratedGpu);
+        assert_eq!(igpu, AdapterClass::Hardware);
+        let unknown = classify_parts("Some GPU", "", DeviceType::Other);
+        assert_eq!(unknown, AdapterClass::Hardware);
     }
 
     #[test]
     fn vulkan_before_gl_and_integrated_first() {
         use wgpu::{Backend, DeviceType};
-        let gl = order_key(&info("a", Backend::Gl, DeviceType::IntegratedGpu));
-        let vk = order_key(&info("b", Backend::Vulkan, DeviceType::DiscreteGpu));
-        let vk_i = order_key(&info("c", Backend::Vulkan, DeviceType::IntegratedGpu));
+        let gl = order_key(Backend::Gl, DeviceType::IntegratedGpu);
+        let vk = order_key(Backend::Vulkan, DeviceType::DiscreteGpu);
+        let vk_i = order_key(Backend::Vulkan, DeviceType::IntegratedGpu);
         assert!(vk < gl && vk_i < vk);
     }
 
@@ -241,7 +241,7 @@ mod tests {
             device_type: wgpu::DeviceType::IntegratedGpu,
             ..sw.clone()
         };
-        assert_eq!(auto_choice(&[sw.clone()]), Some(&sw));
+        assert_eq!(auto_choice(std::slice::from_ref(&sw)), Some(&sw));
         assert_eq!(auto_choice(&[sw.clone(), hw.clone()]), Some(&hw));
         assert_eq!(auto_choice(&[]), None);
     }

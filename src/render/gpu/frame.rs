@@ -69,7 +69,13 @@ pub fn padded_row_bytes(width: u32) -> u32 {
     (width * 4).div_ceil(align) * align
 }
 
-fn target(device: &wgpu::Device, label: &str, w: u32, h: u32, format: wgpu::TextureFormat) -> wgpu::Texture {
+fn target(
+    device: &wgpu::Device,
+    label: &str,
+    w: u32,
+    h: u32,
+    format: wgpu::TextureFormat,
+) -> wgpu::Texture {
     let mut usage = wgpu::TextureUsages::RENDER_ATTACHMENT;
     if format == COLOR_FORMAT {
         usage |= wgpu::TextureUsages::COPY_SRC;
@@ -187,7 +193,11 @@ impl FrameTargets {
 
     /// The map state of slot `slot`.
     pub fn status(&self, slot: usize) -> MapStatus {
-        match self.slots.get(slot).map(|s| s.state.load(Ordering::Acquire)) {
+        match self
+            .slots
+            .get(slot)
+            .map(|s| s.state.load(Ordering::Acquire))
+        {
             Some(MAPPED) => MapStatus::Mapped,
             Some(PENDING) => MapStatus::Pending,
             _ => MapStatus::Failed,
@@ -242,6 +252,7 @@ impl FrameTargets {
 }
 
 #[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used)]
 mod tests {
     use super::*;
 
@@ -250,6 +261,9 @@ mod tests {
         assert_eq!(padded_row_bytes(640), 2560);
         assert_eq!(padded_row_bytes(1), 256);
         assert_eq!(padded_row_bytes(65), 512);
-        assert_eq!(padded_row_bytes(100) % wgpu::COPY_BYTES_PER_ROW_ALIGNMENT, 0);
+        assert_eq!(
+            padded_row_bytes(100) % wgpu::COPY_BYTES_PER_ROW_ALIGNMENT,
+            0
+        );
     }
 }

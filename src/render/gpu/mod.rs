@@ -27,8 +27,7 @@ mod renderer;
 mod upload;
 
 pub use adapter::{
-    auto_choice, lavapipe_installed, list_adapters, AdapterClass, AdapterPreference,
-    AdapterSummary,
+    auto_choice, lavapipe_installed, list_adapters, AdapterClass, AdapterPreference, AdapterSummary,
 };
 pub use renderer::{GpuRenderer, PendingRender};
 
@@ -46,63 +45,21 @@ pub enum GpuError {
         /// Every adapter seen, with why each was not used.
         seen: String,
     },
-    /// A mesh attribute array does not have one entry per vertex.
-    #[error("mesh field `{field}` has {found} entries, expected {expected} (one per vertex)")]
-    MeshAttributeLength {
-        /// `gray` or `uvs`.
-        field: &'static str,
-        /// Entries found.
-        found: usize,
-        /// Number of vertex positions.
-        expected: usize,
-    },
-    /// The index count is not a multiple of 3.
-    #[error("mesh has {0} indices, expected a multiple of 3")]
-    MeshIndexCount(usize),
-    /// A triangle index points past the vertex array.
-    #[error("mesh index {at} is {index}, expected < {vertex_count} (the vertex count)")]
-    MeshIndexOutOfRange {
-        /// Position in `Mesh::indices`.
-        at: usize,
-        /// The index found.
-        index: u32,
-        /// Number of vertices.
-        vertex_count: usize,
-    },
-    /// A group's index range runs past the index array.
-    #[error("mesh group {group} ends at index {end}, expected <= {index_count}")]
-    MeshGroupRange {
-        /// Group number.
-        group: usize,
-        /// One past its last index.
-        end: u64,
-        /// Length of `Mesh::indices`.
-        index_count: usize,
-    },
-    /// A group names a texture that does not exist.
-    #[error("mesh group {group} uses texture {texture}, expected < {texture_count}")]
-    MeshTextureIndex {
-        /// Group number.
-        group: usize,
-        /// The texture index found.
-        texture: u32,
-        /// Number of textures.
-        texture_count: usize,
-    },
-    /// A texture is empty, too large for the adapter, or its texel count is wrong.
+    /// The mesh is not renderable (see [`crate::map::Mesh::validate`]).
+    #[error("mesh rejected by the wgpu renderer: {0}")]
+    Mesh(#[from] crate::map::MapError),
+    /// A texture is larger than the adapter allows.
     #[error(
-        "mesh texture {texture} is {width}x{height} with {texels} texels; expected a non-empty \
-         texture of at most {max_dimension} texels a side with width*height texels"
+        "mesh texture {texture} is {width}x{height}, the adapter allows at most \
+         {max_dimension} texels a side"
     )]
-    MeshTexture {
+    TextureTooLarge {
         /// Texture number.
         texture: usize,
         /// Width found.
         width: u32,
         /// Height found.
         height: u32,
-        /// Texel count found.
-        texels: usize,
         /// The adapter's `max_texture_dimension_2d`.
         max_dimension: u32,
     },

@@ -54,6 +54,7 @@ pub fn clip_from_world_f32(
 }
 
 #[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used)]
 mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion, Vector3, Vector4};
@@ -102,10 +103,19 @@ mod tests {
         let m = clip_from_camera(&camera, NEAR_M);
         let near = m * Vector4::new(0.0, 0.0, NEAR_M, 1.0);
         let far = m * Vector4::new(0.0, 0.0, 1e6, 1.0);
-        assert!((near.z / near.w - 1.0).abs() < 1e-12, "near plane at depth 1");
-        assert!(far.z / far.w > 0.0 && far.z / far.w < 1e-6, "far tends to 0");
+        assert!(
+            (near.z / near.w - 1.0).abs() < 1e-12,
+            "near plane at depth 1"
+        );
+        assert!(
+            far.z / far.w > 0.0 && far.z / far.w < 1e-6,
+            "far tends to 0"
+        );
         let behind = m * Vector4::new(0.0, 0.0, NEAR_M * 0.5, 1.0);
-        assert!(behind.z > behind.w, "closer than near is clipped (z_clip > w_clip)");
+        assert!(
+            behind.z > behind.w,
+            "closer than near is clipped (z_clip > w_clip)"
+        );
     }
 
     #[test]

@@ -68,9 +68,9 @@ impl GpuRenderer {
         let mut seen = Vec::new();
         // One backend at a time: GL (and its EGL probing) only when no
         // Vulkan adapter of the class works.
-        let candidates = adapter::BACKEND_ORDER.into_iter().flat_map(|backends| {
-            adapter::candidates(&adapter::new_instance(backends), which)
-        });
+        let candidates = adapter::BACKEND_ORDER
+            .into_iter()
+            .flat_map(|backends| adapter::candidates(&adapter::new_instance(backends), which));
         for candidate in candidates {
             let info = candidate.get_info();
             match Self::on_adapter(&candidate, &mesh) {
@@ -86,11 +86,7 @@ impl GpuRenderer {
                     return Ok(renderer);
                 }
                 // Invalid meshes fail on every adapter: report at once.
-                Err(e @ (GpuError::MeshAttributeLength { .. }
-                | GpuError::MeshIndexCount(_)
-                | GpuError::MeshIndexOutOfRange { .. }
-                | GpuError::MeshGroupRange { .. }
-                | GpuError::MeshTextureIndex { .. })) => return Err(e),
+                Err(e @ GpuError::Mesh(_)) => return Err(e),
                 Err(e) => {
                     tracing::warn!(adapter = %info.name, error = %e, "wgpu adapter unusable");
                     seen.push(format!("{} ({:?}): {e}", info.name, info.backend));
@@ -208,7 +204,12 @@ impl GpuRenderer {
     }
 
     fn check_fault(&self) -> Result<(), GpuError> {
-        match self.fault.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
+        match self
+            .fault
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_ref()
+        {
             Some(message) => Err(GpuError::Device {
                 adapter: self.info.name.clone(),
                 message: message.clone(),
@@ -253,8 +254,11 @@ impl GpuRenderer {
         let slot = frame.free_slot().ok_or(GpuError::Busy)?;
 
         let clip_from_world = clip_from_world_f32(world_from_camera, camera, NEAR_M);
-        self.queue
-            .write_buffer(&self.view_uniform, 0, bytemuck::cast_slice(&clip_from_world));
+        self.queue.write_buffer(
+            &self.view_uniform,
+            0,
+            bytemuck::cast_slice(&clip_from_world),
+        );
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {

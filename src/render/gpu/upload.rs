@@ -1,8 +1,7 @@
 //! Mesh upload for the wgpu renderer: done once, at construction.
 //!
 //! Takes a [`Mesh`] and a device; checks that the mesh is safe to draw
-//! (indices in range, attribute lengths, groups and textures consistent,
-//! sizes within the adapter's limits) and gives out [`GpuMesh`]: an
+//! ([`Mesh::validate`], and sizes within the adapter's limits) and gives out [`GpuMesh`]: an
 //! interleaved vertex buffer, a `u32` index buffer, one R32Float texture and
 //! bind group per mesh texture, and the draw list (index range and bind
 //! group per group).
@@ -76,76 +75,22 @@ pub fn texture_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     })
 }
 
-/// Checks `mesh` for everything that would make a draw read out of bounds
-/// or exceed `limits`.
+/// Checks `mesh` with [`Mesh::validate`] (indices in range, attributes,
+/// groups, textures) and against the adapter's `limits`.
 pub fn validate(mesh: &Mesh, limits: &wgpu::Limits) -> Result<(), GpuError> {
-    let n = mesh.positions.len();
-    let attribute = |field: &'static str, found: usize| {
-        if found == n {
-            Ok(())
-        } else {
-            Err(GpuError::MeshAttributeLength {
-                field,
-                found,
-                expected: n,
-            })
-        }
-    };
-    attribute("gray", mesh.gray.len())?;
-    attribute("uvs", mesh.uvs.len())?;
-    if mesh.indices.len() % 3 != 0 {
-        return Err(GpuError::MeshIndexCount(mesh.indices.len()));
-    }
-    if let Some((at, &index)) = mesh
-        .indices
-        .iter()
-        .enumerate()
-        .find(|(_, &i)| i as usize >= n)
-    {
-        return Err(GpuError::MeshIndexOutOfRange {
-            at,
-            index,
-            vertex_count: n,
-        });
-    }
-    for (g, group) in mesh.groups.iter().enumerate() {
-        let end = u64::from(group.first_index) + u64::from(group.index_count);
-        if end > mesh.indices.len() as u64 {
-            return Err(GpuError::MeshGroupRange {
-                group: g,
-                end,
-                index_count: mesh.indices.len(),
-            });
-        }
-        if let Some(t) = group.texture {
-            if t as usize >= mesh.textures.len() {
-                return Err(GpuError::MeshTextureIndex {
-                    group: g,
-                    texture: t,
-                    texture_count: mesh.textures.len(),
-                });
-            }
-        }
-    }
+    mesh.validate()?;
+    let max = limits.max_texture_dimension_2d;
     for (t, texture) in mesh.textures.iter().enumerate() {
-        let max = limits.max_texture_dimension_2d;
-        let expected = texture.width as usize * texture.height as usize;
-        if texture.width == 0
-            || texture.height == 0
-            || texture.width > max
-            || texture.height > max
-            || texture.texels.len() != expected
-        {
-            return Err(GpuError::MeshTexture {
+        if texture.width > max || texture.height > max {
+            return Err(GpuError::TextureTooLarge {
                 texture: t,
                 width: texture.width,
                 height: texture.height,
-                texels: texture.texels.len(),
                 max_dimension: max,
             });
         }
     }
-    let vertex_bytes = (n * std::mem::size_of::<GpuVertex>()) as u64;
+    let vertex_bytes = (mesh.positions.len() * std::mem::size_of::<GpuVertex>()) as u64;
     let index_bytes = (mesh.indices.len() * 4) as u64;
     for bytes in [vertex_bytes, index_bytes] {
         if bytes > limits.max_buffer_size {
@@ -284,5 +229,56 @@ pub fn upload(
         texture_groups,
         draws,
         _textures: textures,
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::map::{GrayTexture, MeshGroup};
+
+    fn triangle() -> Mesh {
+        Mesh {
+            positions: vec![[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]],
+            gray: vec![1.0; 3],
+            uvs: vec![[0.0, 0.0]; 3],
+            indices: vec![0, 1, 2],
+            groups: vec![MeshGroup {
+                first_index: 0,
+                index_count: 3,
+                texture: None,
+            }],
+            textures: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn rejects_bad_meshes_without_panicking() {
+        let limits = wgpu::Limits::default();
+        assert!(validate(&triangle(), &limits).is_ok());
+        let mut bad = triangle();
+        bad.indices[2] = 7;
+        let err = validate(&bad, &limits).expect_err("index out of range");
+        assert!(err.to_string().contains('7'), "{err}");
+        let mut big = triangle();
+        big.textures = vec![GrayTexture {
+            width: limits.max_texture_dimension_2d + 1,
+            height: 1,
+            texels: vec![0.0; limits.max_texture_dimension_2d as usize + 1],
+        }];
+        big.groups[0].texture = Some(0);
+        assert!(matches!(
+            validate(&big, &limits),
+            Err(GpuError::TextureTooLarge { .. })
+        ));
+        let tiny = wgpu::Limits {
+            max_buffer_size: 16,
+            ..wgpu::Limits::default()
+        };
+        assert!(matches!(
+            validate(&triangle(), &tiny),
+            Err(GpuError::MeshTooLarge { .. })
+        ));
     }
 }
