@@ -8,8 +8,12 @@
 pub mod cli;
 pub mod config;
 pub mod dataset;
+pub mod eval;
 pub mod geometry;
 pub mod imgproc;
+pub mod localizer;
 pub mod map;
+pub mod mavlink_io;
 pub mod render;
+pub mod service;
 pub mod track;
