@@ -40,7 +40,9 @@ fn accept(listener: &TcpListener) -> TcpStream {
     });
     let stream = stream.unwrap();
     stream.set_nonblocking(false).unwrap();
-    stream.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
     stream
 }
 
@@ -94,7 +96,10 @@ fn tcp_link_reconnects_and_sends_only_fresh_poses() {
     // The first pose after the outage is fresh (within max_pose_age_ms of now).
     let usec = next_pose_usec(&mut reader);
     let age_ms = (monotonic_now_ns() / 1000).saturating_sub(usec) as f64 / 1000.0;
-    assert!(age_ms <= f64::from(config.max_pose_age_ms) + 50.0, "first pose after reconnect is {age_ms} ms old");
+    assert!(
+        age_ms <= f64::from(config.max_pose_age_ms) + 50.0,
+        "first pose after reconnect is {age_ms} ms old"
+    );
     next_pose_usec(&mut reader);
 
     stop.store(true, Ordering::Relaxed);
@@ -109,7 +114,8 @@ fn tcp_link_reconnects_and_sends_only_fresh_poses() {
 
 fn udp_peer() -> (UdpSocket, MavlinkConfig) {
     let peer = UdpSocket::bind("127.0.0.1:0").unwrap();
-    peer.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+    peer.set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
     let config = MavlinkConfig {
         connection: format!("udpout:{}", peer.local_addr().unwrap()),
         ..MavlinkConfig::default()
@@ -125,7 +131,11 @@ fn drain(peer: &UdpSocket, window: Duration) -> Vec<(MavHeader, MavMessage)> {
     while Instant::now() < end {
         if let Ok((n, _)) = peer.recv_from(&mut buf) {
             let mut reader = MavlinkReader::new(&buf[..n]);
-            out.push(reader.read_message::<MavMessage>(MavlinkVersion::V2).unwrap());
+            out.push(
+                reader
+                    .read_message::<MavMessage>(MavlinkVersion::V2)
+                    .unwrap(),
+            );
         }
     }
     out
@@ -143,7 +153,9 @@ fn stale_and_lost_samples_are_not_sent_and_timesync_is_answered() {
     link.publish(sample(monotonic_now_ns(), false));
     wait_for("lost drop", || link.stats().poses_dropped_lost == 1);
     let got = drain(&peer, Duration::from_millis(100));
-    assert!(got.iter().all(|(_, m)| !matches!(m, MavMessage::VISION_POSITION_ESTIMATE(_))));
+    assert!(got
+        .iter()
+        .all(|(_, m)| !matches!(m, MavMessage::VISION_POSITION_ESTIMATE(_))));
     // Learn the link's address from what it sent, then ask for the time.
     let mut buf = [0u8; 512];
     let mut link_addr = None;
@@ -174,7 +186,10 @@ fn stale_and_lost_samples_are_not_sent_and_timesync_is_answered() {
             _ => None,
         })
         .expect("TIMESYNC answered");
-    assert_eq!((reply.ts1, reply.target_system, reply.target_component), (123_456_789, 1, 1));
+    assert_eq!(
+        (reply.ts1, reply.target_system, reply.target_component),
+        (123_456_789, 1, 1)
+    );
     // The shared shutdown flag stops the threads.
     shutdown.store(true, Ordering::Relaxed);
     assert!(link.shutdown());

@@ -62,16 +62,27 @@ fn publish_does_not_allocate() {
         let _ = link.stats();
     }
     let after = ALLOCATIONS.with(Cell::get);
-    assert_eq!(after - before, 0, "publish/stats allocated {} times", after - before);
+    assert_eq!(
+        after - before,
+        0,
+        "publish/stats allocated {} times",
+        after - before
+    );
     // The link did take samples from the mailbox.
     let end = std::time::Instant::now() + std::time::Duration::from_secs(5);
     loop {
         let s = link.stats();
-        let taken = s.vision_position_estimate_sent + s.poses_dropped_rate + s.poses_dropped_link + s.poses_dropped_lost;
+        let taken = s.vision_position_estimate_sent
+            + s.poses_dropped_rate
+            + s.poses_dropped_link
+            + s.poses_dropped_lost;
         if taken > 0 {
             break;
         }
-        assert!(std::time::Instant::now() < end, "the link never took a sample: {s:?}");
+        assert!(
+            std::time::Instant::now() < end,
+            "the link never took a sample: {s:?}"
+        );
         std::thread::sleep(std::time::Duration::from_millis(5));
     }
     assert!(link.shutdown());

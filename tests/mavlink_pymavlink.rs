@@ -18,7 +18,8 @@ use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion};
 use serde_json::Value;
 use star::geometry::Pose;
 use star::mavlink_io::{
-    monotonic_now_ns, LinkStats, MavlinkConfig, MavlinkLink, PoseMessage, PoseSample, TransformConfig,
+    monotonic_now_ns, LinkStats, MavlinkConfig, MavlinkLink, PoseMessage, PoseSample,
+    TransformConfig,
 };
 
 /// The autopilot clock of the receiver runs this far ahead of ours.
@@ -33,7 +34,8 @@ fn venv_python() -> Option<PathBuf> {
     if python.exists() {
         return Some(python);
     }
-    let required = std::env::var_os("CI").is_some() || std::env::var_os("STAR_REQUIRE_VENV").is_some();
+    let required =
+        std::env::var_os("CI").is_some() || std::env::var_os("STAR_REQUIRE_VENV").is_some();
     assert!(
         !required,
         "Python venv missing at {} (CI / STAR_REQUIRE_VENV set): run scripts/setup.sh",
@@ -80,7 +82,11 @@ fn start_receiver(python: &Path, port: u16, duration_s: f64) -> Receiver {
         .read_line(&mut line)
         .unwrap();
     assert_eq!(line.trim(), "ready", "receiver did not start");
-    Receiver { child, out, _dir: dir }
+    Receiver {
+        child,
+        out,
+        _dir: dir,
+    }
 }
 
 /// Waits for the receiver and returns its records.
@@ -88,7 +94,9 @@ fn finish(mut receiver: Receiver) -> Vec<Value> {
     let status = receiver.child.wait().unwrap();
     assert!(status.success(), "receiver failed: {status}");
     let text = std::fs::read_to_string(&receiver.out).unwrap();
-    text.lines().map(|l| serde_json::from_str(l).unwrap()).collect()
+    text.lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
 }
 
 fn of_type<'a>(records: &'a [Value], name: &str) -> Vec<&'a Value> {
@@ -104,14 +112,21 @@ fn f(v: &Value) -> f64 {
 
 /// Checks what every received message must satisfy; returns the summary.
 fn check_common(records: &[Value]) {
-    let summary = records.iter().find(|r| r["kind"] == "summary").expect("summary");
+    let summary = records
+        .iter()
+        .find(|r| r["kind"] == "summary")
+        .expect("summary");
     assert_eq!(summary["bad_data"], 0, "frames failed to decode: {summary}");
     assert_eq!(summary["v1"], 0, "MAVLink 1 frames: {summary}");
     let rx: Vec<_> = records.iter().filter(|r| r["kind"] == "rx").collect();
     assert!(!rx.is_empty());
     for r in &rx {
         assert_eq!(r["mavlink2"], true, "{r}");
-        assert_eq!((r["sysid"].as_u64(), r["compid"].as_u64()), (Some(1), Some(197)), "{r}");
+        assert_eq!(
+            (r["sysid"].as_u64(), r["compid"].as_u64()),
+            (Some(1), Some(197)),
+            "{r}"
+        );
     }
     let heartbeats = of_type(records, "HEARTBEAT");
     assert!(heartbeats.len() >= 2, "{} heartbeats", heartbeats.len());
@@ -134,20 +149,35 @@ fn check_timesync_answers(records: &[Value]) {
         .filter(|r| r["fields"]["tc1"] != 0)
         .collect();
     assert!(requests.len() >= 4, "{} requests", requests.len());
-    assert!(answers.len() >= requests.len() - 2, "{} of {} answered", answers.len(), requests.len());
+    assert!(
+        answers.len() >= requests.len() - 2,
+        "{} of {} answered",
+        answers.len(),
+        requests.len()
+    );
     for a in &answers {
-        assert!(requests.contains(&a["fields"]["ts1"].as_i64().unwrap()), "{a}");
+        assert!(
+            requests.contains(&a["fields"]["ts1"].as_i64().unwrap()),
+            "{a}"
+        );
     }
     let last = answers.last().unwrap();
     let (tc1, ts1) = (f(&last["fields"]["tc1"]), f(&last["fields"]["ts1"]));
     let now = f(&last["clock_ns"]);
     let apparent_offset_ms = (tc1 - (ts1 + now) / 2.0) * 1e-6;
-    assert!(apparent_offset_ms.abs() < 20.0, "our public clock is off by {apparent_offset_ms} ms");
+    assert!(
+        apparent_offset_ms.abs() < 20.0,
+        "our public clock is off by {apparent_offset_ms} ms"
+    );
 }
 
 fn columns(x: [f64; 3], y: [f64; 3], z: [f64; 3], t: [f64; 3]) -> Pose {
-    let r = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x.into(), y.into(), z.into()]));
-    Pose::from_parts(Translation3::new(t[0], t[1], t[2]), UnitQuaternion::from_rotation_matrix(&r))
+    let r =
+        Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x.into(), y.into(), z.into()]));
+    Pose::from_parts(
+        Translation3::new(t[0], t[1], t[2]),
+        UnitQuaternion::from_rotation_matrix(&r),
+    )
 }
 
 /// Publishes `pose` at about 200 Hz for `duration`, stamped now.
@@ -185,7 +215,12 @@ fn vision_position_estimate_to_pymavlink() {
     // (2.9, 2.0, -1.55), level, yaw 0 (the frames worked example).
     let tracked = PoseSample {
         capture_ns: 0,
-        world_from_camera: columns([1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [2.0, 3.0, 1.5]),
+        world_from_camera: columns(
+            [1.0, 0.0, 0.0],
+            [0.0, 0.0, -1.0],
+            [0.0, 1.0, 0.0],
+            [2.0, 3.0, 1.5],
+        ),
         // World east 0.04, north 0.01, up 0.09 m^2; rotation 1e-4 rad^2 about world up.
         covariance_6x6: diag([0.04, 0.01, 0.09, 0.0, 0.0, 1e-4]),
         reset_counter: 0,
@@ -199,8 +234,22 @@ fn vision_position_estimate_to_pymavlink() {
     };
     publish_for(&link, Duration::from_millis(1200), tracked);
     publish_for(&link, Duration::from_millis(500), lost);
-    publish_for(&link, Duration::from_millis(800), PoseSample { reset_counter: 1, ..tracked });
-    publish_for(&link, Duration::from_millis(600), PoseSample { reset_counter: 2, ..tracked });
+    publish_for(
+        &link,
+        Duration::from_millis(800),
+        PoseSample {
+            reset_counter: 1,
+            ..tracked
+        },
+    );
+    publish_for(
+        &link,
+        Duration::from_millis(600),
+        PoseSample {
+            reset_counter: 2,
+            ..tracked
+        },
+    );
     let stats: LinkStats = link.stats();
     assert!(link.shutdown(), "link threads stop within the timeout");
     let records = finish(receiver);
@@ -209,15 +258,32 @@ fn vision_position_estimate_to_pymavlink() {
     check_timesync_answers(&records);
     let vision = of_type(&records, "VISION_POSITION_ESTIMATE");
     assert!(vision.len() >= 20, "{} messages", vision.len());
-    assert_eq!(vision.len() as u64, stats.vision_position_estimate_sent, "{stats:?}");
-    assert!(stats.poses_dropped_rate > 0 && stats.poses_dropped_lost > 0, "{stats:?}");
-    assert!(stats.timesync_samples > 0 && stats.timesync_offset_ns.is_some(), "{stats:?}");
+    assert_eq!(
+        vision.len() as u64,
+        stats.vision_position_estimate_sent,
+        "{stats:?}"
+    );
+    assert!(
+        stats.poses_dropped_rate > 0 && stats.poses_dropped_lost > 0,
+        "{stats:?}"
+    );
+    assert!(
+        stats.timesync_samples > 0 && stats.timesync_offset_ns.is_some(),
+        "{stats:?}"
+    );
     let mut last_usec = 0u64;
     let mut counters = Vec::new();
     for v in &vision {
         let d = &v["fields"];
         // Nothing from the lost phase (its pose is at 99 m).
-        let got = [f(&d["x"]), f(&d["y"]), f(&d["z"]), f(&d["roll"]), f(&d["pitch"]), f(&d["yaw"])];
+        let got = [
+            f(&d["x"]),
+            f(&d["y"]),
+            f(&d["z"]),
+            f(&d["roll"]),
+            f(&d["pitch"]),
+            f(&d["yaw"]),
+        ];
         let want = [2.9, 2.0, -1.55, 0.0, 0.0, 0.0];
         for (g, w) in got.iter().zip(want) {
             assert!((g - w).abs() < 1e-5, "pose {got:?}, want {want:?}");
@@ -245,14 +311,22 @@ fn vision_position_estimate_to_pymavlink() {
     // same sample), then +1 (tracker reset 1->2).
     assert_eq!(counters.first(), Some(&0));
     assert_eq!(counters.last(), Some(&2));
-    assert!(counters.windows(2).all(|w| w[1] == w[0] || w[1] == w[0] + 1), "{counters:?}");
+    assert!(
+        counters
+            .windows(2)
+            .all(|w| w[1] == w[0] || w[1] == w[0] + 1),
+        "{counters:?}"
+    );
     assert!(counters.contains(&1));
     // Once synchronized, usec is in the receiver's clock: the last messages
     // were captured shortly before they arrived.
     for v in &vision[vision.len() - 10..] {
         let usec_ns = v["fields"]["usec"].as_i64().unwrap() * 1000;
         let latency_ms = (v["clock_ns"].as_i64().unwrap() - usec_ns) as f64 * 1e-6;
-        assert!((-5.0..150.0).contains(&latency_ms), "usec is {latency_ms} ms before arrival");
+        assert!(
+            (-5.0..150.0).contains(&latency_ms),
+            "usec is {latency_ms} ms before arrival"
+        );
     }
 }
 
@@ -272,7 +346,12 @@ fn odometry_to_pymavlink() {
     // Downward camera, vehicle at NED (1, -2, -3) heading east (worked example).
     let sample = PoseSample {
         capture_ns: 0,
-        world_from_camera: columns([0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [-2.0, 1.0, 2.9]),
+        world_from_camera: columns(
+            [0.0, -1.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.0, 0.0, -1.0],
+            [-2.0, 1.0, 2.9],
+        ),
         covariance_6x6: diag([0.01, 0.01, 0.01, 0.0, 0.0, 0.0]),
         reset_counter: 0,
         quality_percent: 80,
@@ -307,7 +386,10 @@ fn odometry_to_pymavlink() {
         assert!((f(&cov[0]) - 0.01).abs() < 1e-7 && (f(&cov[11]) - 0.01).abs() < 1e-7);
         let usec = d["time_usec"].as_u64().unwrap();
         if last_usec != 0 {
-            assert!(usec >= last_usec + 32_000, "30 Hz cap: {last_usec} -> {usec}");
+            assert!(
+                usec >= last_usec + 32_000,
+                "30 Hz cap: {last_usec} -> {usec}"
+            );
         }
         last_usec = usec;
     }

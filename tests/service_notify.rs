@@ -26,7 +26,10 @@ fn collect(socket: &UnixDatagram, window: Duration, mut during: impl FnMut()) ->
 }
 
 fn pings(messages: &[String]) -> usize {
-    messages.iter().filter(|m| m.lines().any(|l| l == "WATCHDOG=1")).count()
+    messages
+        .iter()
+        .filter(|m| m.lines().any(|l| l == "WATCHDOG=1"))
+        .count()
 }
 
 #[test]
@@ -34,7 +37,9 @@ fn notify_ready_status_and_progress_gated_watchdog() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("notify.sock");
     let socket = UnixDatagram::bind(&path).unwrap();
-    socket.set_read_timeout(Some(Duration::from_millis(10))).unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_millis(10)))
+        .unwrap();
     std::env::set_var("NOTIFY_SOCKET", &path);
     // WatchdogSec=0.2s: pings every 100 ms while fed.
     std::env::set_var("WATCHDOG_USEC", "200000");
@@ -44,7 +49,10 @@ fn notify_ready_status_and_progress_gated_watchdog() {
     let svc = Service::start(shutdown.clone()).unwrap();
     svc.ready();
     let first = collect(&socket, Duration::from_millis(100), || {});
-    let ready = first.iter().find(|m| m.contains("READY=1")).expect("READY=1 sent");
+    let ready = first
+        .iter()
+        .find(|m| m.contains("READY=1"))
+        .expect("READY=1 sent");
     assert!(ready.contains("STATUS=waiting"), "{ready}");
 
     // Fed: pings come.

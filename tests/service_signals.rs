@@ -8,9 +8,15 @@ fn sigterm_sets_the_shutdown_flag() {
     let flag = star::service::signals::install_shutdown_handler().unwrap();
     assert!(!flag.load(Ordering::SeqCst));
     let again = star::service::signals::install_shutdown_handler().unwrap();
-    assert!(std::sync::Arc::ptr_eq(&flag, &again), "one process-wide flag");
+    assert!(
+        std::sync::Arc::ptr_eq(&flag, &again),
+        "one process-wide flag"
+    );
     // SAFETY: raise() sends the signal to this thread; the handler only sets atomics.
     let rc = unsafe { libc::raise(libc::SIGTERM) };
     assert_eq!(rc, 0);
-    assert!(flag.load(Ordering::SeqCst), "SIGTERM sets the flag and the process lives on");
+    assert!(
+        flag.load(Ordering::SeqCst),
+        "SIGTERM sets the flag and the process lives on"
+    );
 }

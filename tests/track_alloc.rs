@@ -57,7 +57,12 @@ fn wall() -> Mesh {
         }
     }
     Mesh {
-        positions: vec![[-3.0, -3.0, 3.0], [3.0, -3.0, 3.0], [3.0, 3.0, 3.0], [-3.0, 3.0, 3.0]],
+        positions: vec![
+            [-3.0, -3.0, 3.0],
+            [3.0, -3.0, 3.0],
+            [3.0, 3.0, 3.0],
+            [-3.0, 3.0, 3.0],
+        ],
         gray: vec![255.0; 4],
         uvs: vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
         indices: vec![0, 1, 2, 0, 2, 3],
@@ -113,7 +118,13 @@ fn steady_state_tracking_does_not_allocate() {
     // of the channels, the first keyframe swap).
     for (i, img) in images.iter().enumerate().take(20) {
         let out = localizer
-            .process_frame(img.data(), 320, 256, 320, 1_000_000 + (i as u64 + 1) * period_ns)
+            .process_frame(
+                img.data(),
+                320,
+                256,
+                320,
+                1_000_000 + (i as u64 + 1) * period_ns,
+            )
             .expect("frame");
         assert_eq!(out.state, TrackState::Tracking, "frame {i}");
     }
@@ -122,7 +133,13 @@ fn steady_state_tracking_does_not_allocate() {
     let mut max_err_m: f64 = 0.0;
     for (i, img) in images.iter().enumerate().skip(20) {
         let out = localizer
-            .process_frame(img.data(), 320, 256, 320, 1_000_000 + (i as u64 + 1) * period_ns)
+            .process_frame(
+                img.data(),
+                320,
+                256,
+                320,
+                1_000_000 + (i as u64 + 1) * period_ns,
+            )
             .expect("frame");
         if let Some(p) = out.world_from_camera {
             max_err_m = max_err_m.max((pose_at(i).inverse() * p).translation.vector.norm());
@@ -134,7 +151,13 @@ fn steady_state_tracking_does_not_allocate() {
     COUNTING.with(|c| c.set(false));
     let allocations = ALLOCATIONS.load(Ordering::Relaxed);
     let swaps = localizer.stats().keyframes - keyframes_before;
-    assert!(swaps >= 3, "only {swaps} keyframe swaps during the counted frames");
+    assert!(
+        swaps >= 3,
+        "only {swaps} keyframe swaps during the counted frames"
+    );
     assert!(max_err_m < 0.01, "tracking error {max_err_m} m");
-    assert_eq!(allocations, 0, "{allocations} allocations in 240 tracked frames");
+    assert_eq!(
+        allocations, 0,
+        "{allocations} allocations in 240 tracked frames"
+    );
 }

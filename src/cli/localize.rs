@@ -59,12 +59,16 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         max_frames: args.max_frames,
         realtime: args.realtime,
     };
-    let n = options.max_frames.map_or(dataset.len(), |m| m.min(dataset.len()));
+    let n = options
+        .max_frames
+        .map_or(dataset.len(), |m| m.min(dataset.len()));
     let bar = ProgressBar::new(n as u64);
     bar.set_style(
-        ProgressStyle::with_template("{spinner} localize [{bar:40}] {pos}/{len} frames {per_sec} eta {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
+        ProgressStyle::with_template(
+            "{spinner} localize [{bar:40}] {pos}/{len} frames {per_sec} eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
     );
     let report = localize_dataset(&dataset, renderer, &config, &options, |_| bar.inc(1))?;
     bar.finish_and_clear();
@@ -80,16 +84,19 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
 pub fn make_renderer(map_path: &Path, config: &Config) -> Result<Box<dyn crate::render::Renderer>> {
     let mesh = crate::map::load_obj(map_path)
         .with_context(|| format!("loading map {}", map_path.display()))?;
-    let _ = config;
-    let renderer = crate::render::cpu::CpuRenderer::new(Arc::new(mesh))
-        .context("building the CPU renderer")?;
-    Ok(Box::new(renderer))
+    let kind = config.render.renderer;
+    crate::render::select::make_renderer(kind, Arc::new(mesh))
+        .with_context(|| format!("starting the `{kind:?}` renderer"))
 }
 
 /// Prints the end-of-run summary.
 pub fn print_summary(report: &OfflineReport, output: &Path) {
     let (median_ms, p99_ms) = median_p99(&report.track_ms);
-    println!("localize: wrote {} poses to {}", report.estimate.len(), output.display());
+    println!(
+        "localize: wrote {} poses to {}",
+        report.estimate.len(),
+        output.display()
+    );
     println!(
         "  frames {}  tracked {}  lost {}  bad {}  renderer {}",
         report.frames,

@@ -9,9 +9,10 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod check_config;
+mod doctor;
+mod eval;
 pub mod localize;
 mod pose_arg;
-mod eval;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]
@@ -50,6 +51,13 @@ pub enum Command {
         #[arg(long, default_value_t = crate::eval::DEFAULT_MAX_DT_S)]
         max_dt: f64,
     },
+    /// Check this machine: wgpu adapters, the renderer `auto` would choose,
+    /// and a test render.
+    Doctor {
+        /// A config file whose `render.renderer` to test (default: `auto`).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
 }
 
 fn init_tracing(filter: Option<&str>) {
@@ -77,6 +85,7 @@ pub fn main() -> ExitCode {
             delta,
             max_dt,
         } => eval::run(&gt, &est, delta, max_dt),
+        Command::Doctor { config } => doctor::run(config.as_deref()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

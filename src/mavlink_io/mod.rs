@@ -255,7 +255,10 @@ impl MavlinkHandle {
         let mut finished = 0;
         while finished < self.threads.len() {
             let left = deadline.saturating_duration_since(Instant::now());
-            let done_rx = self.done_rx.get_mut().unwrap_or_else(PoisonError::into_inner);
+            let done_rx = self
+                .done_rx
+                .get_mut()
+                .unwrap_or_else(PoisonError::into_inner);
             match done_rx.recv_timeout(left) {
                 Ok(()) => finished += 1,
                 Err(_) => break,

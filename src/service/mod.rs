@@ -101,7 +101,8 @@ impl Service {
     /// loaded and the renderer is running.
     pub fn ready(&self) {
         self.status.set_state(ServiceState::Waiting);
-        self.notifier.ready(&self.status.line(0.0, monotonic_now_ns()));
+        self.notifier
+            .ready(&self.status.line(0.0, monotonic_now_ns()));
         tracing::info!("service ready");
     }
 

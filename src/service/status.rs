@@ -120,7 +120,10 @@ mod tests {
             board.frame_done();
         }
         let rate = fps(0, board.frames(), 1.0);
-        assert_eq!(board.line(rate, 1_420_000_000), "tracking, 50.0 fps, keyframe age 0.42 s");
+        assert_eq!(
+            board.line(rate, 1_420_000_000),
+            "tracking, 50.0 fps, keyframe age 0.42 s"
+        );
         board.set_state(ServiceState::Lost);
         assert_eq!(board.state(), ServiceState::Lost);
         assert_eq!(fps(10, 5, 1.0), 0.0);

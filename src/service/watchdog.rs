@@ -74,7 +74,10 @@ mod tests {
         assert!(!gate.should_ping(dog.progress()), "no feed yet");
         dog.feed();
         assert!(gate.should_ping(dog.progress()));
-        assert!(!gate.should_ping(dog.progress()), "no feed since the last ping");
+        assert!(
+            !gate.should_ping(dog.progress()),
+            "no feed since the last ping"
+        );
         let clone = dog.clone();
         clone.feed();
         clone.feed();
