@@ -22,6 +22,7 @@
 
 pub mod adapter;
 mod frame;
+mod pipeline;
 pub mod projection;
 mod renderer;
 mod upload;

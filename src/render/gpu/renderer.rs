@@ -10,9 +10,10 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::adapter::{self, AdapterClass, AdapterPreference};
-use super::frame::{FrameTargets, MapStatus, COLOR_FORMAT, DEPTH_FORMAT};
+use super::frame::{FrameTargets, MapStatus};
+use super::pipeline;
 use super::projection::{clip_from_world_f32, NEAR_M};
-use super::upload::{self, GpuMesh, VERTEX_LAYOUT};
+use super::upload::{self, GpuMesh};
 use super::GpuError;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
@@ -20,9 +21,6 @@ use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
 /// How long a render may take before it counts as a device failure.
 const RENDER_TIMEOUT: Duration = Duration::from_secs(20);
-
-/// The WGSL source of the pipeline.
-const SHADER: &str = include_str!("../../../shaders/mesh.wgsl");
 
 /// The first error the device reported, shared with its error callbacks.
 type Fault = Arc<Mutex<Option<String>>>;
@@ -65,12 +63,23 @@ impl GpuRenderer {
     /// Opens a device on the best adapter of class `which`, uploads `mesh`
     /// and builds the pipeline. Logs the adapter chosen.
     pub fn new(mesh: Arc<Mesh>, which: AdapterPreference) -> Result<Self, GpuError> {
+        Self::new_on(mesh, which, adapter::BACKENDS)
+    }
+
+    /// As [`GpuRenderer::new`], restricted to `backends` (e.g. to compare
+    /// lavapipe through Vulkan with llvmpipe through GL).
+    pub fn new_on(
+        mesh: Arc<Mesh>,
+        which: AdapterPreference,
+        backends: wgpu::Backends,
+    ) -> Result<Self, GpuError> {
         let mut seen = Vec::new();
         // One backend at a time: GL (and its EGL probing) only when no
         // Vulkan adapter of the class works.
         let candidates = adapter::BACKEND_ORDER
             .into_iter()
-            .flat_map(|backends| adapter::candidates(&adapter::new_instance(backends), which));
+            .filter(|b| backends.contains(*b))
+            .flat_map(|b| adapter::candidates(&adapter::new_instance(b), which));
         for candidate in candidates {
             let info = candidate.get_info();
             match Self::on_adapter(&candidate, &mesh) {
@@ -136,19 +145,7 @@ impl GpuRenderer {
             record_fault(&on_lost, format!("device lost ({reason:?}): {message}"));
         });
 
-        let view_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("star view"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::VERTEX,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: false,
-                    min_binding_size: wgpu::BufferSize::new(64),
-                },
-                count: None,
-            }],
-        });
+        let view_layout = pipeline::view_layout(&device);
         let texture_layout = upload::texture_layout(&device);
         let view_uniform = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("star view uniform"),
@@ -164,7 +161,7 @@ impl GpuRenderer {
                 resource: view_uniform.as_entire_binding(),
             }],
         });
-        let pipeline = create_pipeline(&device, &view_layout, &texture_layout);
+        let pipeline = pipeline::create(&device, &view_layout, &texture_layout);
         let gpu_mesh = upload::upload(&device, &queue, &texture_layout, mesh);
         if let Some(message) = fault.lock().unwrap_or_else(|p| p.into_inner()).take() {
             return Err(device_error(message));
@@ -364,58 +361,6 @@ impl GpuRenderer {
             Err(GpuError::MapFailed { adapter: adapter() })
         }
     }
-}
-
-fn create_pipeline(
-    device: &wgpu::Device,
-    view_layout: &wgpu::BindGroupLayout,
-    texture_layout: &wgpu::BindGroupLayout,
-) -> wgpu::RenderPipeline {
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("shaders/mesh.wgsl"),
-        source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-    });
-    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some("star keyframe"),
-        bind_group_layouts: &[Some(view_layout), Some(texture_layout)],
-        immediate_size: 0,
-    });
-    let target = Some(wgpu::ColorTargetState {
-        format: COLOR_FORMAT,
-        blend: None,
-        write_mask: wgpu::ColorWrites::ALL,
-    });
-    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some("star keyframe"),
-        layout: Some(&layout),
-        vertex: wgpu::VertexState {
-            module: &module,
-            entry_point: Some("vs_main"),
-            compilation_options: Default::default(),
-            buffers: &[Some(VERTEX_LAYOUT)],
-        },
-        primitive: wgpu::PrimitiveState {
-            topology: wgpu::PrimitiveTopology::TriangleList,
-            cull_mode: None,
-            ..Default::default()
-        },
-        depth_stencil: Some(wgpu::DepthStencilState {
-            format: DEPTH_FORMAT,
-            depth_write_enabled: Some(true),
-            depth_compare: Some(wgpu::CompareFunction::Greater),
-            stencil: wgpu::StencilState::default(),
-            bias: wgpu::DepthBiasState::default(),
-        }),
-        multisample: wgpu::MultisampleState::default(),
-        fragment: Some(wgpu::FragmentState {
-            module: &module,
-            entry_point: Some("fs_main"),
-            compilation_options: Default::default(),
-            targets: &[target.clone(), target],
-        }),
-        multiview_mask: None,
-        cache: None,
-    })
 }
 
 impl Renderer for GpuRenderer {
