@@ -19,6 +19,16 @@ pub enum AdapterPreference {
     Software,
 }
 
+impl AdapterPreference {
+    /// The adapter class this preference asks for.
+    pub fn class(self) -> AdapterClass {
+        match self {
+            Self::Hardware => AdapterClass::Hardware,
+            Self::Software => AdapterClass::Software,
+        }
+    }
+}
+
 impl fmt::Display for AdapterPreference {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
@@ -132,18 +142,6 @@ pub fn enumerate(instance: &wgpu::Instance) -> Vec<wgpu::Adapter> {
         order_key(info.backend, info.device_type)
     });
     adapters
-}
-
-/// The adapters of class `preference`, best first.
-pub fn candidates(instance: &wgpu::Instance, preference: AdapterPreference) -> Vec<wgpu::Adapter> {
-    let want = match preference {
-        AdapterPreference::Hardware => AdapterClass::Hardware,
-        AdapterPreference::Software => AdapterClass::Software,
-    };
-    enumerate(instance)
-        .into_iter()
-        .filter(|a| classify(&a.get_info()) == want)
-        .collect()
 }
 
 /// Lists every adapter wgpu sees (Vulkan and GL), with its class and its

@@ -76,39 +76,38 @@ impl GpuRenderer {
         let mut seen = Vec::new();
         // One backend at a time: GL (and its EGL probing) only when no
         // Vulkan adapter of the class works.
-        let candidates = adapter::BACKEND_ORDER
-            .into_iter()
-            .filter(|b| backends.contains(*b))
-            .flat_map(|b| adapter::candidates(&adapter::new_instance(b), which));
-        for candidate in candidates {
-            let info = candidate.get_info();
-            match Self::on_adapter(&candidate, &mesh) {
-                Ok(renderer) => {
-                    tracing::info!(
-                        adapter = %info.name,
-                        backend = ?info.backend,
-                        device_type = ?info.device_type,
-                        driver = %info.driver,
-                        class = %which,
-                        "wgpu renderer ready"
-                    );
-                    return Ok(renderer);
+        for backend in adapter::BACKEND_ORDER {
+            if !backends.contains(backend) {
+                continue;
+            }
+            for candidate in adapter::enumerate(&adapter::new_instance(backend)) {
+                let info = candidate.get_info();
+                let class = adapter::classify(&info);
+                if class != which.class() {
+                    seen.push(format!("{} ({:?}): {class:?}", info.name, info.backend));
+                    continue;
                 }
-                // Invalid meshes fail on every adapter: report at once.
-                Err(e @ GpuError::Mesh(_)) => return Err(e),
-                Err(e) => {
-                    tracing::warn!(adapter = %info.name, error = %e, "wgpu adapter unusable");
-                    seen.push(format!("{} ({:?}): {e}", info.name, info.backend));
+                match Self::on_adapter(&candidate, &mesh) {
+                    Ok(renderer) => {
+                        tracing::info!(
+                            adapter = %info.name,
+                            backend = ?info.backend,
+                            device_type = ?info.device_type,
+                            driver = %info.driver,
+                            class = %which,
+                            "wgpu renderer ready"
+                        );
+                        return Ok(renderer);
+                    }
+                    // Invalid meshes fail on every adapter: report at once.
+                    Err(e @ GpuError::Mesh(_)) => return Err(e),
+                    Err(e) => {
+                        tracing::warn!(adapter = %info.name, error = %e, "wgpu adapter unusable");
+                        seen.push(format!("{} ({:?}): {e}", info.name, info.backend));
+                    }
                 }
             }
         }
-        // Name the adapters of the other class too, so the error shows what exists.
-        let other: Vec<String> = adapter::list_adapters()
-            .into_iter()
-            .filter(|a| !seen.iter().any(|s| s.starts_with(&a.name)))
-            .map(|a| format!("{a} [{:?}]", a.class))
-            .collect();
-        seen.extend(other);
         Err(GpuError::NoAdapter {
             preference: which,
             seen: if seen.is_empty() {
