@@ -3,17 +3,15 @@
 // In:  vertex buffer (world position in meters, gray 0..=255, texture uv
 //      with v down), `View` uniform (clip_from_world, built on the CPU from
 //      the pinhole intrinsics and the pose, see src/render/gpu/projection.rs),
-//      one R32Float gray texture per mesh group (a 1x1 texel of 255 for
-//      groups without a texture).
-// Out: location 0: gray intensity 0..=255 (R32Float);
+//      per mesh group one gray texture holding intensity / 255 (R32Float
+//      where the adapter filters it, else R8Unorm; a 1x1 texel of 1.0 for
+//      groups without a texture) and a bilinear, repeat-addressed sampler
+//      without mipmaps: texel centers at (i + 0.5) / size, as the CPU
+//      rasterizer samples.
+// Out: location 0: gray intensity 0..=255, texel * vertex gray (R32Float);
 //      location 1: metric depth, the z coordinate in the camera optical frame
 //      (R32Float). The z-buffer (Depth32Float, reversed: greater is nearer)
 //      resolves occlusion only.
-//
-// Texture sampling is bilinear with repeat addressing, done by hand with
-// textureLoad: R32Float is not filterable on every adapter, and doing it by
-// hand fixes the convention to the CPU rasterizer's (texel centers at
-// (i + 0.5) / size in uv).
 
 struct View {
     clip_from_world: mat4x4<f32>,
@@ -21,6 +19,7 @@ struct View {
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(1) @binding(0) var gray_texture: texture_2d<f32>;
+@group(1) @binding(1) var gray_sampler: sampler;
 
 struct VertexIn {
     @location(0) position_m: vec3<f32>,
@@ -52,28 +51,12 @@ struct FragmentOut {
     @location(1) depth_m: f32,
 };
 
-// Repeat addressing: i modulo n, non-negative.
-fn wrap(i: i32, n: i32) -> i32 {
-    let r = i % n;
-    return select(r, r + n, r < 0);
-}
-
-fn texel(x: i32, y: i32, size: vec2<i32>) -> f32 {
-    return textureLoad(gray_texture, vec2<i32>(wrap(x, size.x), wrap(y, size.y)), 0).r;
-}
-
 @fragment
 fn fs_main(in: VertexOut) -> FragmentOut {
-    let size = vec2<i32>(textureDimensions(gray_texture));
-    let p = in.uv * vec2<f32>(size) - vec2<f32>(0.5, 0.5);
-    let p0 = floor(p);
-    let f = p - p0;
-    let i = vec2<i32>(p0);
-    let top = mix(texel(i.x, i.y, size), texel(i.x + 1, i.y, size), f.x);
-    let bottom = mix(texel(i.x, i.y + 1, size), texel(i.x + 1, i.y + 1, size), f.x);
-    let tex = mix(top, bottom, f.y);
+    // Level 0 always: no mipmaps, and valid in non-uniform control flow.
+    let texel = textureSampleLevel(gray_texture, gray_sampler, in.uv, 0.0).r;
     var out: FragmentOut;
-    out.gray = tex * in.gray / 255.0;
+    out.gray = texel * in.gray;
     out.depth_m = in.depth_m;
     return out;
 }

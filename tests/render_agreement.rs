@@ -136,10 +136,15 @@ fn compare(gpu: &RenderedView, cpu: &RenderedView) -> Agreement {
 }
 
 /// Both renderers of `mesh`; panics if lavapipe is installed but unusable.
-fn renderers(mesh: Arc<Mesh>) -> Option<(GpuRenderer, CpuRenderer)> {
+fn renderers(mesh: Arc<Mesh>, unorm8: bool) -> Option<(GpuRenderer, CpuRenderer)> {
     let cpu = CpuRenderer::new(Arc::clone(&mesh)).expect("cpu renderer");
-    let software = GpuRenderer::new(Arc::clone(&mesh), AdapterPreference::Software);
-    match software.or_else(|_| GpuRenderer::new(mesh, AdapterPreference::Hardware)) {
+    let gpu = if unorm8 {
+        GpuRenderer::new_with_unorm8_textures(mesh, AdapterPreference::Software)
+    } else {
+        GpuRenderer::new(Arc::clone(&mesh), AdapterPreference::Software)
+            .or_else(|_| GpuRenderer::new(mesh, AdapterPreference::Hardware))
+    };
+    match gpu {
         Ok(g) => Some((g, cpu)),
         Err(e) if gpu::lavapipe_installed() => panic!("lavapipe installed but unusable: {e}"),
         Err(e) => {
@@ -192,8 +197,8 @@ fn assert_agreement(label: &str, total: Agreement) {
     assert_eq!(total.silhouette_far, 0, "{label}: silhouettes {total:?}");
 }
 
-fn run_views(label: &str, mesh: Arc<Mesh>, poses: &[Pose]) {
-    let Some((mut gpu, mut cpu)) = renderers(mesh) else {
+fn run_views(label: &str, mesh: Arc<Mesh>, poses: &[Pose], unorm8: bool) {
+    let Some((mut gpu, mut cpu)) = renderers(mesh, unorm8) else {
         return;
     };
     let camera: PinholeCamera = CameraConfig::default().intrinsics;
@@ -205,7 +210,10 @@ fn run_views(label: &str, mesh: Arc<Mesh>, poses: &[Pose]) {
         cpu.render(pose, &camera, &mut out_cpu).expect("cpu render");
         total.add(compare(&out_gpu, &out_cpu));
     }
-    assert_agreement(label, total);
+    assert_agreement(
+        &format!("{label} [{:?} textures]", gpu.texture_format()),
+        total,
+    );
 }
 
 /// A deterministic texture: stripes, blobs and fine noise.
@@ -340,5 +348,20 @@ fn room_poses() -> Vec<Pose> {
 
 #[test]
 fn textured_room_agrees_with_cpu_rasterizer() {
-    run_views("textured room", Arc::new(textured_room()), &room_poses());
+    run_views(
+        "textured room",
+        Arc::new(textured_room()),
+        &room_poses(),
+        false,
+    );
+}
+
+#[test]
+fn textured_room_agrees_with_unorm8_textures() {
+    run_views(
+        "textured room",
+        Arc::new(textured_room()),
+        &room_poses(),
+        true,
+    );
 }

@@ -2,7 +2,8 @@
 //!
 //! Owns a wgpu device on one adapter (hardware, or Mesa's software
 //! lavapipe/llvmpipe), the mesh uploaded once (vertex and index buffers,
-//! gray textures), the pipeline built from `shaders/mesh.wgsl`, and the
+//! gray textures sampled bilinearly with repeat addressing), the pipeline
+//! built from `shaders/mesh.wgsl`, and the
 //! offscreen targets: gray and linear metric depth (both `R32Float`, written
 //! by the shader) plus a `Depth32Float` z-buffer for occlusion. Takes a pose
 //! and pinhole intrinsics per render; gives out a [`RenderedView`] through
@@ -31,6 +32,7 @@ pub use adapter::{
     auto_choice, lavapipe_installed, list_adapters, AdapterClass, AdapterPreference, AdapterSummary,
 };
 pub use renderer::{GpuRenderer, PendingRender};
+pub use upload::TextureFormat;
 
 #[cfg(doc)]
 use crate::render::{RenderedView, Renderer};

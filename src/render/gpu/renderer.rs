@@ -13,7 +13,7 @@ use super::adapter::{self, AdapterClass, AdapterPreference};
 use super::frame::{FrameTargets, MapStatus};
 use super::pipeline;
 use super::projection::{clip_from_world_f32, NEAR_M};
-use super::upload::{self, GpuMesh};
+use super::upload::{self, GpuMesh, TextureFormat};
 use super::GpuError;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
@@ -45,6 +45,7 @@ pub struct PendingRender {
 #[derive(Debug)]
 pub struct GpuRenderer {
     info: wgpu::AdapterInfo,
+    texture_format: TextureFormat,
     class: AdapterClass,
     device: wgpu::Device,
     queue: wgpu::Queue,
@@ -73,6 +74,25 @@ impl GpuRenderer {
         which: AdapterPreference,
         backends: wgpu::Backends,
     ) -> Result<Self, GpuError> {
+        Self::build(mesh, which, backends, false)
+    }
+
+    /// Test hook: as [`GpuRenderer::new`], but stores textures as `R8Unorm`
+    /// even where `R32Float` is filterable, to test the fallback format.
+    #[doc(hidden)]
+    pub fn new_with_unorm8_textures(
+        mesh: Arc<Mesh>,
+        which: AdapterPreference,
+    ) -> Result<Self, GpuError> {
+        Self::build(mesh, which, adapter::BACKENDS, true)
+    }
+
+    fn build(
+        mesh: Arc<Mesh>,
+        which: AdapterPreference,
+        backends: wgpu::Backends,
+        force_unorm8: bool,
+    ) -> Result<Self, GpuError> {
         let mut seen = Vec::new();
         // One backend at a time: GL (and its EGL probing) only when no
         // Vulkan adapter of the class works.
@@ -87,7 +107,7 @@ impl GpuRenderer {
                     seen.push(format!("{} ({:?}): {class:?}", info.name, info.backend));
                     continue;
                 }
-                match Self::on_adapter(&candidate, &mesh) {
+                match Self::on_adapter(&candidate, &mesh, force_unorm8) {
                     Ok(renderer) => {
                         tracing::info!(
                             adapter = %info.name,
@@ -118,9 +138,22 @@ impl GpuRenderer {
         })
     }
 
-    fn on_adapter(adapter: &wgpu::Adapter, mesh: &Mesh) -> Result<Self, GpuError> {
+    fn on_adapter(
+        adapter: &wgpu::Adapter,
+        mesh: &Mesh,
+        force_unorm8: bool,
+    ) -> Result<Self, GpuError> {
         let info = adapter.get_info();
         let limits = adapter.limits();
+        let texture_format = if force_unorm8 {
+            TextureFormat::Unorm8
+        } else {
+            TextureFormat::for_features(adapter.features())
+        };
+        let required_features = match texture_format {
+            TextureFormat::Float32 => wgpu::Features::FLOAT32_FILTERABLE,
+            TextureFormat::Unorm8 => wgpu::Features::empty(),
+        };
         upload::validate(mesh, &limits)?;
         let device_error = |message: String| GpuError::Device {
             adapter: info.name.clone(),
@@ -128,7 +161,7 @@ impl GpuRenderer {
         };
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("star keyframe renderer"),
-            required_features: wgpu::Features::empty(),
+            required_features,
             required_limits: limits.clone(),
             ..Default::default()
         }))
@@ -161,11 +194,13 @@ impl GpuRenderer {
             }],
         });
         let pipeline = pipeline::create(&device, &view_layout, &texture_layout);
-        let gpu_mesh = upload::upload(&device, &queue, &texture_layout, mesh);
+        let gpu_mesh = upload::upload(&device, &queue, &texture_layout, texture_format, mesh);
         if let Some(message) = fault.lock().unwrap_or_else(|p| p.into_inner()).take() {
             return Err(device_error(message));
         }
+        tracing::debug!(adapter = %info.name, ?texture_format, "mesh uploaded");
         Ok(Self {
+            texture_format,
             class: adapter::classify(&info),
             max_dimension: limits.max_texture_dimension_2d,
             info,
@@ -185,6 +220,11 @@ impl GpuRenderer {
     /// What the driver reports about the adapter in use.
     pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
         &self.info
+    }
+
+    /// How mesh textures are stored on this adapter.
+    pub fn texture_format(&self) -> TextureFormat {
+        self.texture_format
     }
 
     /// Whether the adapter is a hardware GPU or a software rasterizer.

@@ -2,8 +2,9 @@
 //!
 //! Takes a [`Mesh`] and a device; checks that the mesh is safe to draw
 //! ([`Mesh::validate`], and sizes within the adapter's limits) and gives out [`GpuMesh`]: an
-//! interleaved vertex buffer, a `u32` index buffer, one R32Float texture and
-//! bind group per mesh texture, and the draw list (index range and bind
+//! interleaved vertex buffer, a `u32` index buffer, one texture (see
+//! [`TextureFormat`]) and bind group per mesh texture, a bilinear repeat
+//! sampler, and the draw list (index range and bind
 //! group per group).
 
 use std::ops::Range;
@@ -62,16 +63,24 @@ pub struct GpuMesh {
 pub fn texture_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("star gray texture"),
-        entries: &[wgpu::BindGroupLayoutEntry {
-            binding: 0,
-            visibility: wgpu::ShaderStages::FRAGMENT,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                view_dimension: wgpu::TextureViewDimension::D2,
-                multisampled: false,
+        entries: &[
+            wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                    multisampled: false,
+                },
+                count: None,
             },
-            count: None,
-        }],
+            wgpu::BindGroupLayoutEntry {
+                binding: 1,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                count: None,
+            },
+        ],
     })
 }
 
@@ -103,9 +112,54 @@ pub fn validate(mesh: &Mesh, limits: &wgpu::Limits) -> Result<(), GpuError> {
     Ok(())
 }
 
+/// How mesh textures are stored. Both are sampled by the hardware sampler
+/// (bilinear, repeat) and hold intensity / 255, so the shader multiplies by
+/// the vertex gray (0..=255).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TextureFormat {
+    /// `R32Float`, exact; needs `Features::FLOAT32_FILTERABLE`.
+    Float32,
+    /// `R8Unorm`, filterable everywhere; texels rounded to whole gray levels.
+    Unorm8,
+}
+
+impl TextureFormat {
+    /// `Float32` where the adapter can filter it, else `Unorm8`.
+    pub fn for_features(features: wgpu::Features) -> Self {
+        if features.contains(wgpu::Features::FLOAT32_FILTERABLE) {
+            Self::Float32
+        } else {
+            Self::Unorm8
+        }
+    }
+
+    fn wgpu(self) -> wgpu::TextureFormat {
+        match self {
+            Self::Float32 => wgpu::TextureFormat::R32Float,
+            Self::Unorm8 => wgpu::TextureFormat::R8Unorm,
+        }
+    }
+}
+
+/// Texel bytes for `format`: intensity (0..=255) / 255 as f32, or rounded
+/// to u8.
+fn texel_bytes(format: TextureFormat, texels: &[f32]) -> Vec<u8> {
+    match format {
+        TextureFormat::Float32 => texels
+            .iter()
+            .flat_map(|t| (t / 255.0).to_ne_bytes())
+            .collect(),
+        TextureFormat::Unorm8 => texels
+            .iter()
+            .map(|t| t.round().clamp(0.0, 255.0) as u8)
+            .collect(),
+    }
+}
+
 fn upload_texture(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
+    format: TextureFormat,
     width: u32,
     height: u32,
     texels: &[f32],
@@ -121,10 +175,14 @@ fn upload_texture(
         mip_level_count: 1,
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
-        format: wgpu::TextureFormat::R32Float,
+        format: format.wgpu(),
         usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
     });
+    let bytes_per_texel = match format {
+        TextureFormat::Float32 => 4,
+        TextureFormat::Unorm8 => 1,
+    };
     queue.write_texture(
         wgpu::TexelCopyTextureInfo {
             texture: &texture,
@@ -132,10 +190,10 @@ fn upload_texture(
             origin: wgpu::Origin3d::ZERO,
             aspect: wgpu::TextureAspect::All,
         },
-        bytemuck::cast_slice(texels),
+        &texel_bytes(format, texels),
         wgpu::TexelCopyBufferLayout {
             offset: 0,
-            bytes_per_row: Some(width * 4),
+            bytes_per_row: Some(width * bytes_per_texel),
             rows_per_image: Some(height),
         },
         size,
@@ -148,6 +206,7 @@ pub fn upload(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     layout: &wgpu::BindGroupLayout,
+    format: TextureFormat,
     mesh: &Mesh,
 ) -> GpuMesh {
     let vertices: Vec<GpuVertex> = mesh
@@ -187,10 +246,19 @@ pub fn upload(
     let mut textures: Vec<wgpu::Texture> = mesh
         .textures
         .iter()
-        .map(|t| upload_texture(device, queue, t.width, t.height, &t.texels))
+        .map(|t| upload_texture(device, queue, format, t.width, t.height, &t.texels))
         .collect();
     let white = textures.len();
-    textures.push(upload_texture(device, queue, 1, 1, &[255.0]));
+    // Bilinear with repeat addressing and no mipmaps, as the CPU rasterizer.
+    let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+        label: Some("star mesh texture"),
+        address_mode_u: wgpu::AddressMode::Repeat,
+        address_mode_v: wgpu::AddressMode::Repeat,
+        mag_filter: wgpu::FilterMode::Linear,
+        min_filter: wgpu::FilterMode::Linear,
+        ..Default::default()
+    });
+    textures.push(upload_texture(device, queue, format, 1, 1, &[255.0]));
     let texture_groups = textures
         .iter()
         .map(|texture| {
@@ -198,10 +266,16 @@ pub fn upload(
             device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("star mesh texture"),
                 layout,
-                entries: &[wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: wgpu::BindingResource::TextureView(&view),
-                }],
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: wgpu::BindingResource::TextureView(&view),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::Sampler(&sampler),
+                    },
+                ],
             })
         })
         .collect();
@@ -251,6 +325,26 @@ mod tests {
             }],
             textures: Vec::new(),
         }
+    }
+
+    #[test]
+    fn texels_are_stored_as_fraction_of_255() {
+        let f = texel_bytes(TextureFormat::Float32, &[0.0, 127.5, 255.0]);
+        let back: Vec<f32> = f
+            .chunks_exact(4)
+            .map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        assert_eq!(back, vec![0.0, 0.5, 1.0]);
+        let u = texel_bytes(TextureFormat::Unorm8, &[-3.0, 12.4, 12.6, 300.0]);
+        assert_eq!(u, vec![0, 12, 13, 255]);
+        assert_eq!(
+            TextureFormat::for_features(wgpu::Features::empty()),
+            TextureFormat::Unorm8
+        );
+        assert_eq!(
+            TextureFormat::for_features(wgpu::Features::FLOAT32_FILTERABLE),
+            TextureFormat::Float32
+        );
     }
 
     #[test]
