@@ -6,14 +6,17 @@
 //! from the map, and the pose goes to the autopilot over MAVLink.
 
 pub mod cli;
+pub mod camera;
 pub mod config;
 pub mod dataset;
 pub mod eval;
 pub mod geometry;
 pub mod imgproc;
 pub mod localizer;
+pub mod ipc;
 pub mod map;
 pub mod mavlink_io;
 pub mod render;
 pub mod service;
+pub mod synth;
 pub mod track;

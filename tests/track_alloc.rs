@@ -144,7 +144,14 @@ fn steady_state_tracking_does_not_allocate() {
         if let Some(p) = out.world_from_camera {
             max_err_m = max_err_m.max((pose_at(i).inverse() * p).translation.vector.norm());
         }
-        assert_eq!(out.state, TrackState::Tracking, "frame {i}");
+        assert_eq!(
+            out.state,
+            TrackState::Tracking,
+            "frame {i}: {:?} kf {} age {}",
+            out.quality,
+            out.keyframe_id,
+            out.keyframe_age_s
+        );
         // Give the render thread time so keyframes really swap during the run.
         std::thread::sleep(std::time::Duration::from_millis(2));
     }

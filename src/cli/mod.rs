@@ -8,11 +8,13 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod camera;
 mod check_config;
 mod doctor;
 mod eval;
 pub mod localize;
 mod pose_arg;
+mod replay;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]
@@ -51,6 +53,10 @@ pub enum Command {
         #[arg(long, default_value_t = crate::eval::DEFAULT_MAX_DT_S)]
         max_dt: f64,
     },
+    /// Run the camera process: read a camera and publish frames over iceoryx2.
+    Camera(camera::CameraArgs),
+    /// Play a dataset into a v4l2loopback device (virtual camera) or onto iceoryx2.
+    Replay(replay::ReplayArgs),
     /// Check this machine: wgpu adapters, the renderer `auto` would choose,
     /// and a test render.
     Doctor {
@@ -85,6 +91,8 @@ pub fn main() -> ExitCode {
             delta,
             max_dt,
         } => eval::run(&gt, &est, delta, max_dt),
+        Command::Camera(args) => camera::run(&args),
+        Command::Replay(args) => replay::run(&args),
         Command::Doctor { config } => doctor::run(config.as_deref()),
     };
     match result {

@@ -18,7 +18,7 @@ pub mod worker;
 use nalgebra::Matrix6;
 
 use crate::config::{KeyframeConfig, TrackerConfig};
-use crate::geometry::{exp_se3, log_se3, PinholeCamera, Pose};
+use crate::geometry::{exp_se3, log_se3, renormalized, PinholeCamera, Pose};
 use crate::render::Renderer;
 use crate::track::{AlignQuality, Aligner, Keyframe, Pyramid};
 
@@ -248,7 +248,7 @@ impl Localizer {
             .last
             .unwrap_or((capture_ns, self.keyframe.world_from_keyframe));
         let dt_s = (capture_ns.saturating_sub(prev_ns)) as f64 * 1e-9;
-        let predicted = prev_pose * exp_se3(&(self.velocity * dt_s.min(0.2)));
+        let predicted = renormalized(prev_pose * exp_se3(&(self.velocity * dt_s.min(0.2))));
         let camera_from_keyframe = predicted.inverse() * self.keyframe.world_from_keyframe;
 
         let result = self.aligner.align(
