@@ -365,3 +365,48 @@ fn textured_room_agrees_with_unorm8_textures() {
         true,
     );
 }
+
+/// Up to ten free-space poses of `scene`, looking around the room.
+fn scene_poses(scene: &star::synth::Scene) -> Vec<Pose> {
+    let (lo, hi) = (scene.free_min_m, scene.free_max_m);
+    (0..40)
+        .map(|i| {
+            let f = |k: usize, a: f64| lo[k] + (hi[k] - lo[k]) * ((i as f64 * a).fract());
+            [f(0, 0.37), f(1, 0.61), f(2, 0.23)]
+        })
+        .enumerate()
+        .filter(|(_, p)| scene.is_free(*p, 0.3))
+        .take(10)
+        .map(|(i, p)| look(p, i as f64 * 0.9, -0.3 + 0.12 * (i % 5) as f64))
+        .collect()
+}
+
+#[test]
+fn default_scene_agrees_with_cpu_rasterizer() {
+    let scene = star::synth::default_scene();
+    let poses = scene_poses(&scene);
+    assert!(poses.len() >= 5, "only {} free poses", poses.len());
+    // The map has holes (unmapped space renders as no depth); the truth has
+    // occluders: both must agree.
+    run_views(
+        "default scene map",
+        Arc::new(scene.map.clone()),
+        &poses,
+        false,
+    );
+    run_views(
+        "default scene truth",
+        Arc::new(scene.truth.clone()),
+        &poses,
+        false,
+    );
+}
+
+#[test]
+fn subdivided_default_scene_agrees_with_cpu_rasterizer() {
+    let scene = star::synth::default_scene();
+    let poses = scene_poses(&scene);
+    let mesh = star::map::subdivide(&scene.map, 200_000);
+    let label = format!("default scene map, {} triangles", mesh.triangle_count());
+    run_views(&label, Arc::new(mesh), &poses[..3], false);
+}
