@@ -49,9 +49,11 @@ pub enum RendererKind {
     /// Hardware adapter, then software adapter, then the CPU rasterizer.
     #[default]
     Auto,
-    /// A hardware wgpu adapter only.
+    /// A hardware wgpu adapter, which must exist at start; on a runtime
+    /// failure, the software adapter, then the CPU rasterizer.
     Gpu,
-    /// wgpu's software adapter (Mesa lavapipe/llvmpipe) only.
+    /// wgpu's software adapter (Mesa lavapipe/llvmpipe), which must exist at
+    /// start; on a runtime failure, the CPU rasterizer.
     Software,
     /// The built-in CPU rasterizer.
     Cpu,

@@ -84,10 +84,9 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
 pub fn make_renderer(map_path: &Path, config: &Config) -> Result<Box<dyn crate::render::Renderer>> {
     let mesh = crate::map::load_obj(map_path)
         .with_context(|| format!("loading map {}", map_path.display()))?;
-    let _ = config;
-    let renderer = crate::render::cpu::CpuRenderer::new(Arc::new(mesh))
-        .context("building the CPU renderer")?;
-    Ok(Box::new(renderer))
+    let kind = config.render.renderer;
+    crate::render::select::make_renderer(kind, Arc::new(mesh))
+        .with_context(|| format!("starting the `{kind:?}` renderer"))
 }
 
 /// Prints the end-of-run summary.

@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 
 mod camera;
 mod check_config;
+mod doctor;
 mod eval;
 pub mod localize;
 mod pose_arg;
@@ -59,6 +60,13 @@ pub enum Command {
     Camera(camera::CameraArgs),
     /// Play a dataset into a v4l2loopback device (virtual camera) or onto iceoryx2.
     Replay(replay::ReplayArgs),
+    /// Check this machine: wgpu adapters, the renderer `auto` would choose,
+    /// and a test render.
+    Doctor {
+        /// A config file whose `render.renderer` to test (default: `auto`).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
 }
 
 fn init_tracing(filter: Option<&str>) {
@@ -89,6 +97,7 @@ pub fn main() -> ExitCode {
         } => eval::run(&gt, &est, delta, max_dt),
         Command::Camera(args) => camera::run(&args),
         Command::Replay(args) => replay::run(&args),
+        Command::Doctor { config } => doctor::run(config.as_deref()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

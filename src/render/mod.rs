@@ -3,6 +3,8 @@
 //!
 //! Implementations: `cpu` (the tiled software rasterizer, the last fallback
 //! and the reference the GPU output is tested against) and `gpu` (wgpu).
+//! `select` turns `render.renderer` from the config into a renderer that
+//! falls back down the chain (hardware GPU, software GPU, CPU) on failure.
 //! Renderers take the mesh once at construction and render an ideal pinhole
 //! view (distortion is removed from camera frames instead). Pixel centers are
 //! at integer coordinates, as everywhere in `star`.
@@ -11,6 +13,8 @@ use crate::geometry::{PinholeCamera, Pose};
 use crate::imgproc::ImageF32;
 
 pub mod cpu;
+pub mod gpu;
+pub mod select;
 
 /// Depth value of a pixel that sees no surface (unmapped space or a hole).
 pub const NO_DEPTH: f32 = 0.0;

@@ -1,0 +1,421 @@
+//! [`GpuRenderer`]: device set-up, the pipeline, and the per-keyframe
+//! render, copy and readback.
+//!
+//! Takes the mesh once and a pose plus intrinsics per render; gives out gray
+//! and metric depth. Per render it writes one uniform, records one render
+//! pass and two copies, and maps one staging buffer; every buffer and
+//! texture is allocated at construction or when the image size changes.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use super::adapter::{self, AdapterClass, AdapterPreference};
+use super::frame::{FrameTargets, MapStatus};
+use super::pipeline;
+use super::projection::{clip_from_world_f32, NEAR_M};
+use super::upload::{self, GpuMesh, TextureFormat};
+use super::GpuError;
+use crate::geometry::{PinholeCamera, Pose};
+use crate::map::Mesh;
+use crate::render::{check_request, RenderError, RenderedView, Renderer};
+
+/// How long a render may take before it counts as a device failure.
+const RENDER_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// The first error the device reported, shared with its error callbacks.
+type Fault = Arc<Mutex<Option<String>>>;
+
+fn record_fault(fault: &Fault, message: String) {
+    let mut slot = fault.lock().unwrap_or_else(|p| p.into_inner());
+    if slot.is_none() {
+        *slot = Some(message);
+    }
+}
+
+/// A render submitted with [`GpuRenderer::submit`], to be collected with
+/// [`GpuRenderer::collect`].
+#[must_use = "a submitted render holds a readback buffer until collected"]
+#[derive(Debug)]
+pub struct PendingRender {
+    slot: usize,
+    submission: wgpu::SubmissionIndex,
+}
+
+/// The wgpu renderer. See the [module docs](super).
+#[derive(Debug)]
+pub struct GpuRenderer {
+    info: wgpu::AdapterInfo,
+    texture_format: TextureFormat,
+    class: AdapterClass,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    pipeline: wgpu::RenderPipeline,
+    view_uniform: wgpu::Buffer,
+    view_group: wgpu::BindGroup,
+    mesh: GpuMesh,
+    frame: Option<FrameTargets>,
+    max_dimension: u32,
+    fault: Fault,
+    renders: u64,
+    fail_at: Option<u64>,
+}
+
+impl GpuRenderer {
+    /// Opens a device on the best adapter of class `which`, uploads `mesh`
+    /// and builds the pipeline. Logs the adapter chosen.
+    pub fn new(mesh: Arc<Mesh>, which: AdapterPreference) -> Result<Self, GpuError> {
+        Self::new_on(mesh, which, adapter::BACKENDS)
+    }
+
+    /// As [`GpuRenderer::new`], restricted to `backends` (e.g. to compare
+    /// lavapipe through Vulkan with llvmpipe through GL).
+    pub fn new_on(
+        mesh: Arc<Mesh>,
+        which: AdapterPreference,
+        backends: wgpu::Backends,
+    ) -> Result<Self, GpuError> {
+        Self::build(mesh, which, backends, false)
+    }
+
+    /// Test hook: as [`GpuRenderer::new`], but stores textures as `R8Unorm`
+    /// even where `R32Float` is filterable, to test the fallback format.
+    #[doc(hidden)]
+    pub fn new_with_unorm8_textures(
+        mesh: Arc<Mesh>,
+        which: AdapterPreference,
+    ) -> Result<Self, GpuError> {
+        Self::build(mesh, which, adapter::BACKENDS, true)
+    }
+
+    fn build(
+        mesh: Arc<Mesh>,
+        which: AdapterPreference,
+        backends: wgpu::Backends,
+        force_unorm8: bool,
+    ) -> Result<Self, GpuError> {
+        let mut seen = Vec::new();
+        // One backend at a time: GL (and its EGL probing) only when no
+        // Vulkan adapter of the class works.
+        for backend in adapter::BACKEND_ORDER {
+            if !backends.contains(backend) {
+                continue;
+            }
+            for candidate in adapter::enumerate(&adapter::new_instance(backend)) {
+                let info = candidate.get_info();
+                let class = adapter::classify(&info);
+                if class != which.class() {
+                    seen.push(format!("{} ({:?}): {class:?}", info.name, info.backend));
+                    continue;
+                }
+                match Self::on_adapter(&candidate, &mesh, force_unorm8) {
+                    Ok(renderer) => {
+                        tracing::info!(
+                            adapter = %info.name,
+                            backend = ?info.backend,
+                            device_type = ?info.device_type,
+                            driver = %info.driver,
+                            class = %which,
+                            "wgpu renderer ready"
+                        );
+                        return Ok(renderer);
+                    }
+                    // Invalid meshes fail on every adapter: report at once.
+                    Err(e @ GpuError::Mesh(_)) => return Err(e),
+                    Err(e) => {
+                        tracing::warn!(adapter = %info.name, error = %e, "wgpu adapter unusable");
+                        seen.push(format!("{} ({:?}): {e}", info.name, info.backend));
+                    }
+                }
+            }
+        }
+        Err(GpuError::NoAdapter {
+            preference: which,
+            seen: if seen.is_empty() {
+                "none".into()
+            } else {
+                seen.join("; ")
+            },
+        })
+    }
+
+    fn on_adapter(
+        adapter: &wgpu::Adapter,
+        mesh: &Mesh,
+        force_unorm8: bool,
+    ) -> Result<Self, GpuError> {
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let texture_format = if force_unorm8 {
+            TextureFormat::Unorm8
+        } else {
+            TextureFormat::for_features(adapter.features())
+        };
+        let required_features = match texture_format {
+            TextureFormat::Float32 => wgpu::Features::FLOAT32_FILTERABLE,
+            TextureFormat::Unorm8 => wgpu::Features::empty(),
+        };
+        upload::validate(mesh, &limits)?;
+        let device_error = |message: String| GpuError::Device {
+            adapter: info.name.clone(),
+            message,
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("star keyframe renderer"),
+            required_features,
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| device_error(e.to_string()))?;
+
+        let fault: Fault = Arc::default();
+        let on_error = Arc::clone(&fault);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            record_fault(&on_error, e.to_string());
+        }));
+        let on_lost = Arc::clone(&fault);
+        device.set_device_lost_callback(move |reason, message| {
+            record_fault(&on_lost, format!("device lost ({reason:?}): {message}"));
+        });
+
+        let view_layout = pipeline::view_layout(&device);
+        let texture_layout = upload::texture_layout(&device);
+        let view_uniform = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("star view uniform"),
+            size: 64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let view_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("star view"),
+            layout: &view_layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: view_uniform.as_entire_binding(),
+            }],
+        });
+        let pipeline = pipeline::create(&device, &view_layout, &texture_layout);
+        let gpu_mesh = upload::upload(&device, &queue, &texture_layout, texture_format, mesh);
+        if let Some(message) = fault.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            return Err(device_error(message));
+        }
+        tracing::debug!(adapter = %info.name, ?texture_format, "mesh uploaded");
+        Ok(Self {
+            texture_format,
+            class: adapter::classify(&info),
+            max_dimension: limits.max_texture_dimension_2d,
+            info,
+            device,
+            queue,
+            pipeline,
+            view_uniform,
+            view_group,
+            mesh: gpu_mesh,
+            frame: None,
+            fault,
+            renders: 0,
+            fail_at: None,
+        })
+    }
+
+    /// What the driver reports about the adapter in use.
+    pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
+        &self.info
+    }
+
+    /// How mesh textures are stored on this adapter.
+    pub fn texture_format(&self) -> TextureFormat {
+        self.texture_format
+    }
+
+    /// Whether the adapter is a hardware GPU or a software rasterizer.
+    pub fn class(&self) -> AdapterClass {
+        self.class
+    }
+
+    /// Test hook: the next `n` renders succeed, every later one fails with
+    /// [`GpuError::Injected`], as a lost device would.
+    #[doc(hidden)]
+    pub fn inject_failure_after(&mut self, n: u64) {
+        self.fail_at = Some(self.renders + n);
+    }
+
+    fn check_fault(&self) -> Result<(), GpuError> {
+        match self
+            .fault
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_ref()
+        {
+            Some(message) => Err(GpuError::Device {
+                adapter: self.info.name.clone(),
+                message: message.clone(),
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// Records and submits a render of `camera` (distortion ignored) at
+    /// `world_from_camera`, and starts its readback. Up to two renders may be
+    /// pending; collect each with [`GpuRenderer::collect`].
+    pub fn submit(
+        &mut self,
+        world_from_camera: &Pose,
+        camera: &PinholeCamera,
+    ) -> Result<PendingRender, GpuError> {
+        self.check_fault()?;
+        if let Some(at) = self.fail_at {
+            if self.renders >= at {
+                return Err(GpuError::Injected {
+                    renders: self.renders,
+                });
+            }
+        }
+        let (w, h) = (camera.width, camera.height);
+        if w == 0 || h == 0 || w > self.max_dimension || h > self.max_dimension {
+            return Err(GpuError::TargetSize {
+                width: w,
+                height: h,
+                max_dimension: self.max_dimension,
+            });
+        }
+        let frame = match self.frame.take() {
+            Some(f) if f.size() == (w, h) => f,
+            Some(f) if f.any_busy() => {
+                self.frame = Some(f);
+                return Err(GpuError::Busy);
+            }
+            _ => FrameTargets::new(&self.device, w, h),
+        };
+        let frame = self.frame.insert(frame);
+        let slot = frame.free_slot().ok_or(GpuError::Busy)?;
+
+        let clip_from_world = clip_from_world_f32(world_from_camera, camera, NEAR_M);
+        self.queue.write_buffer(
+            &self.view_uniform,
+            0,
+            bytemuck::cast_slice(&clip_from_world),
+        );
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("star keyframe"),
+            });
+        {
+            let clear = |view| {
+                Some(wgpu::RenderPassColorAttachment {
+                    view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })
+            };
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("star keyframe"),
+                color_attachments: &[clear(&frame.gray_view), clear(&frame.depth_view)],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &frame.zbuffer_view,
+                    // Reversed depth: 0 is infinitely far.
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(0.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
+                    stencil_ops: None,
+                }),
+                ..Default::default()
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &self.view_group, &[]);
+            pass.set_vertex_buffer(0, self.mesh.vertices.slice(..));
+            pass.set_index_buffer(self.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
+            for draw in &self.mesh.draws {
+                if let Some(group) = self.mesh.texture_groups.get(draw.texture) {
+                    pass.set_bind_group(1, group, &[]);
+                    pass.draw_indexed(draw.indices.clone(), 0, 0..1);
+                }
+            }
+        }
+        frame.record_copies(&mut encoder, slot);
+        let submission = self.queue.submit([encoder.finish()]);
+        frame.request_map(slot);
+        self.renders += 1;
+        Ok(PendingRender { slot, submission })
+    }
+
+    /// Waits for a submitted render and copies it into `out`, which must be
+    /// sized for the camera it was submitted with.
+    pub fn collect(
+        &mut self,
+        pending: PendingRender,
+        out: &mut RenderedView,
+    ) -> Result<(), GpuError> {
+        let adapter = || self.info.name.clone();
+        let Some(frame) = self.frame.as_mut() else {
+            return Err(GpuError::MapFailed { adapter: adapter() });
+        };
+        let (w, h) = frame.size();
+        if (out.gray.width(), out.gray.height()) != (w as usize, h as usize)
+            || (out.depth_m.width(), out.depth_m.height()) != (w as usize, h as usize)
+        {
+            frame.release(pending.slot);
+            return Err(GpuError::TargetSize {
+                width: out.gray.width() as u32,
+                height: out.gray.height() as u32,
+                max_dimension: self.max_dimension,
+            });
+        }
+        // The map callback runs inside poll once the copy has completed.
+        for _ in 0..2 {
+            match frame.status(pending.slot) {
+                MapStatus::Mapped => break,
+                MapStatus::Failed => {
+                    frame.release(pending.slot);
+                    return Err(GpuError::MapFailed { adapter: adapter() });
+                }
+                MapStatus::Pending => {}
+            }
+            let waited = self.device.poll(wgpu::PollType::Wait {
+                submission_index: Some(pending.submission.clone()),
+                timeout: Some(RENDER_TIMEOUT),
+            });
+            if waited.is_err() {
+                frame.release(pending.slot);
+                return Err(GpuError::Timeout {
+                    adapter: adapter(),
+                    waited_secs: RENDER_TIMEOUT.as_secs(),
+                });
+            }
+        }
+        if frame.status(pending.slot) != MapStatus::Mapped {
+            frame.release(pending.slot);
+            return Err(GpuError::MapFailed { adapter: adapter() });
+        }
+        let unpacked = frame.unpack(pending.slot, out);
+        self.check_fault()?;
+        if unpacked {
+            Ok(())
+        } else {
+            Err(GpuError::MapFailed { adapter: adapter() })
+        }
+    }
+}
+
+impl Renderer for GpuRenderer {
+    fn name(&self) -> String {
+        format!("wgpu: {} ({:?})", self.info.name, self.info.backend)
+    }
+
+    fn render(
+        &mut self,
+        world_from_camera: &Pose,
+        camera: &PinholeCamera,
+        out: &mut RenderedView,
+    ) -> Result<(), RenderError> {
+        check_request(world_from_camera, camera)?;
+        out.check_size(camera)?;
+        let pending = self.submit(world_from_camera, camera)?;
+        Ok(self.collect(pending, out)?)
+    }
+}

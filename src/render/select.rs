@@ -1,0 +1,252 @@
+//! Renderer choice and runtime fallback: `render.renderer` in the config to
+//! a working [`Renderer`].
+//!
+//! Takes a [`RendererKind`] and the mesh; gives out a [`FallbackRenderer`]
+//! holding the chain of renderers to try:
+//! - `auto`: a hardware wgpu adapter (Vulkan, then GL), the software adapter
+//!   (lavapipe, then llvmpipe), the CPU rasterizer; the first that starts is used;
+//! - `gpu`: a hardware adapter must start, then as `auto`;
+//! - `software`: the software adapter must start, then the CPU rasterizer;
+//! - `cpu`: the CPU rasterizer only.
+//!
+//! When the active renderer fails at runtime (a backend error: device lost,
+//! out of memory, a timeout, even a panic inside wgpu), the next renderer of
+//! the chain is started and the same view is rendered again, so tracking
+//! never stops for a renderer failure. Each switch is logged at `warn`.
+//! Request errors (wrong buffer size, non-finite pose) are returned as they
+//! are: the next renderer would refuse them too.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::Arc;
+
+use super::cpu::CpuRenderer;
+use super::gpu::{AdapterPreference, GpuRenderer};
+use super::{RenderError, RenderedView, Renderer};
+use crate::config::RendererKind;
+use crate::geometry::{PinholeCamera, Pose};
+use crate::map::Mesh;
+
+/// One renderer of a fallback chain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// The wgpu renderer on an adapter of this class.
+    Gpu(AdapterPreference),
+    /// The CPU rasterizer.
+    Cpu,
+}
+
+impl Stage {
+    fn describe(self) -> &'static str {
+        match self {
+            Stage::Gpu(AdapterPreference::Hardware) => "wgpu hardware adapter",
+            Stage::Gpu(AdapterPreference::Software) => "wgpu software adapter",
+            Stage::Cpu => "CPU rasterizer",
+        }
+    }
+}
+
+const HARDWARE: Stage = Stage::Gpu(AdapterPreference::Hardware);
+const SOFTWARE: Stage = Stage::Gpu(AdapterPreference::Software);
+
+/// The renderers `kind` may use, in the order they are tried.
+pub fn chain(kind: RendererKind) -> &'static [Stage] {
+    match kind {
+        RendererKind::Auto | RendererKind::Gpu => &[HARDWARE, SOFTWARE, Stage::Cpu],
+        RendererKind::Software => &[SOFTWARE, Stage::Cpu],
+        RendererKind::Cpu => &[Stage::Cpu],
+    }
+}
+
+/// The renderer currently in use.
+#[derive(Debug)]
+enum Active {
+    Gpu(Box<GpuRenderer>),
+    Cpu(CpuRenderer),
+}
+
+impl Active {
+    fn start(stage: Stage, mesh: &Arc<Mesh>) -> Result<Self, RenderError> {
+        match stage {
+            Stage::Gpu(which) => Ok(Active::Gpu(Box::new(GpuRenderer::new(
+                Arc::clone(mesh),
+                which,
+            )?))),
+            Stage::Cpu => Ok(Active::Cpu(CpuRenderer::new(Arc::clone(mesh))?)),
+        }
+    }
+
+    fn renderer(&mut self) -> &mut dyn Renderer {
+        match self {
+            Active::Gpu(r) => r.as_mut(),
+            Active::Cpu(r) => r,
+        }
+    }
+}
+
+/// A renderer that falls back down its chain on failure. See the
+/// [module docs](self).
+#[derive(Debug)]
+pub struct FallbackRenderer {
+    mesh: Arc<Mesh>,
+    chain: &'static [Stage],
+    index: usize,
+    active: Active,
+}
+
+/// Builds the renderer `kind` asks for, boxed; see [`FallbackRenderer::new`].
+pub fn make_renderer(
+    kind: RendererKind,
+    mesh: Arc<Mesh>,
+) -> Result<Box<dyn Renderer>, RenderError> {
+    Ok(Box::new(FallbackRenderer::new(kind, mesh)?))
+}
+
+impl FallbackRenderer {
+    /// Starts the first renderer of `kind`'s chain that works. With `gpu`
+    /// or `software` the first one must work: asking for it explicitly
+    /// makes its absence an error. Logs the renderer chosen.
+    pub fn new(kind: RendererKind, mesh: Arc<Mesh>) -> Result<Self, RenderError> {
+        let chain = chain(kind);
+        let strict = matches!(kind, RendererKind::Gpu | RendererKind::Software);
+        let mut errors = Vec::new();
+        for (index, &stage) in chain.iter().enumerate() {
+            match Active::start(stage, &mesh) {
+                Ok(active) => {
+                    let mut renderer = Self {
+                        mesh,
+                        chain,
+                        index,
+                        active,
+                    };
+                    tracing::info!(renderer = %renderer.active.renderer().name(), ?kind, "keyframe renderer chosen");
+                    return Ok(renderer);
+                }
+                Err(e) => {
+                    tracing::info!(stage = stage.describe(), error = %e, "renderer unavailable");
+                    if strict && index == 0 {
+                        return Err(e);
+                    }
+                    errors.push(format!("{}: {e}", stage.describe()));
+                }
+            }
+        }
+        Err(RenderError::Backend(format!(
+            "no renderer could start: {}",
+            errors.join("; ")
+        )))
+    }
+
+    /// The stage of the chain in use.
+    pub fn active_stage(&self) -> Stage {
+        self.chain.get(self.index).copied().unwrap_or(Stage::Cpu)
+    }
+
+    /// Test hook: makes the active GPU renderer fail after `n` more renders
+    /// (see [`GpuRenderer::inject_failure_after`]); false if it is not a GPU one.
+    #[doc(hidden)]
+    pub fn inject_failure_after(&mut self, n: u64) -> bool {
+        match &mut self.active {
+            Active::Gpu(r) => {
+                r.inject_failure_after(n);
+                true
+            }
+            Active::Cpu(_) => false,
+        }
+    }
+
+    /// Starts the next renderer of the chain that works after `failure`.
+    fn fall_back(&mut self, failure: &str) -> Result<(), RenderError> {
+        let from = self.active.renderer().name();
+        for index in self.index + 1..self.chain.len() {
+            let Some(&stage) = self.chain.get(index) else {
+                break;
+            };
+            match Active::start(stage, &self.mesh) {
+                Ok(active) => {
+                    self.active = active;
+                    self.index = index;
+                    tracing::warn!(
+                        from = %from,
+                        to = %self.active.renderer().name(),
+                        error = failure,
+                        "keyframe renderer failed; switched to the next one"
+                    );
+                    return Ok(());
+                }
+                Err(e) => {
+                    tracing::warn!(stage = stage.describe(), error = %e, "fallback renderer unavailable");
+                }
+            }
+        }
+        Err(RenderError::Backend(format!(
+            "{from} failed ({failure}) and no fallback renderer is left"
+        )))
+    }
+}
+
+impl Renderer for FallbackRenderer {
+    fn name(&self) -> String {
+        match &self.active {
+            Active::Gpu(r) => r.name(),
+            Active::Cpu(r) => r.name(),
+        }
+    }
+
+    fn render(
+        &mut self,
+        world_from_camera: &Pose,
+        camera: &PinholeCamera,
+        out: &mut RenderedView,
+    ) -> Result<(), RenderError> {
+        loop {
+            let result = match &mut self.active {
+                // A panic inside wgpu or a driver is a backend failure too.
+                Active::Gpu(r) => catch_unwind(AssertUnwindSafe(|| {
+                    r.render(world_from_camera, camera, out)
+                }))
+                .unwrap_or_else(|_| Err(RenderError::Backend("wgpu renderer panicked".into()))),
+                Active::Cpu(r) => r.render(world_from_camera, camera, out),
+            };
+            match result {
+                Err(RenderError::Backend(failure)) if self.index + 1 < self.chain.len() => {
+                    self.fall_back(&failure)?;
+                }
+                other => return other,
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chains_end_with_the_cpu_rasterizer() {
+        assert_eq!(chain(RendererKind::Auto), &[HARDWARE, SOFTWARE, Stage::Cpu]);
+        assert_eq!(chain(RendererKind::Gpu), &[HARDWARE, SOFTWARE, Stage::Cpu]);
+        assert_eq!(chain(RendererKind::Software), &[SOFTWARE, Stage::Cpu]);
+        assert_eq!(chain(RendererKind::Cpu), &[Stage::Cpu]);
+    }
+
+    #[test]
+    fn cpu_kind_uses_the_rasterizer_and_cannot_be_failed() {
+        let mesh = Arc::new(Mesh {
+            positions: vec![[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]],
+            gray: vec![1.0; 3],
+            uvs: vec![[0.0, 0.0]; 3],
+            indices: vec![0, 1, 2],
+            groups: vec![crate::map::MeshGroup {
+                first_index: 0,
+                index_count: 3,
+                texture: None,
+            }],
+            textures: Vec::new(),
+        });
+        let mut r = FallbackRenderer::new(RendererKind::Cpu, mesh).expect("cpu starts");
+        assert_eq!(r.active_stage(), Stage::Cpu);
+        assert_eq!(r.name(), "cpu");
+        assert!(!r.inject_failure_after(0), "no GPU renderer to fail");
+    }
+}
