@@ -13,4 +13,5 @@ pub mod geometry;
 pub mod imgproc;
 pub mod map;
 pub mod render;
+pub mod synth;
 pub mod track;

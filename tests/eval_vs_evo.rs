@@ -32,7 +32,9 @@ fn assert_same(ours: &ErrorStats, evo: &HashMap<String, f64>, what: &str) {
         ("max", ours.max),
         ("std", ours.std),
     ] {
-        let theirs = *evo.get(key).unwrap_or_else(|| panic!("{what}: evo printed no {key}: {evo:?}"));
+        let theirs = *evo
+            .get(key)
+            .unwrap_or_else(|| panic!("{what}: evo printed no {key}: {evo:?}"));
         assert!(
             (value - theirs).abs() < 1e-4,
             "{what} {key}: star {value} vs evo {theirs}"
@@ -42,8 +44,12 @@ fn assert_same(ours: &ErrorStats, evo: &HashMap<String, f64>, what: &str) {
 
 #[test]
 fn ate_and_rpe_match_evo() {
-    let Some(evo_ape) = common::venv_tool("evo_ape") else { return };
-    let Some(evo_rpe) = common::venv_tool("evo_rpe") else { return };
+    let Some(evo_ape) = common::venv_tool("evo_ape") else {
+        return;
+    };
+    let Some(evo_rpe) = common::venv_tool("evo_rpe") else {
+        return;
+    };
     let mut rng = rand::rngs::StdRng::seed_from_u64(7);
     let (mut gt, mut est) = (Trajectory::default(), Trajectory::default());
     for i in 0..400 {
@@ -74,21 +80,54 @@ fn ate_and_rpe_match_evo() {
     let est_path = dir.path().join("est.txt");
     gt.write(&gt_path).expect("write gt");
     est.write(&est_path).expect("write est");
-    let (g, e) = (gt_path.to_str().expect("utf-8"), est_path.to_str().expect("utf-8"));
+    let (g, e) = (
+        gt_path.to_str().expect("utf-8"),
+        est_path.to_str().expect("utf-8"),
+    );
     let max_dt = "0.005";
 
     let ours = ate(&gt, &est, 0.005).expect("ate");
     assert_eq!(ours.translation_m.count, 400 - 57);
-    let out = common::run_tool(&evo_ape, &["tum", g, e, "-r", "trans_part", "--t_max_diff", max_dt], dir.path());
+    let out = common::run_tool(
+        &evo_ape,
+        &["tum", g, e, "-r", "trans_part", "--t_max_diff", max_dt],
+        dir.path(),
+    );
     assert!(out.contains("not aligned"), "{out}");
-    assert_same(&ours.translation_m, &parse_evo_stats(&out), "ATE translation");
-    let out = common::run_tool(&evo_ape, &["tum", g, e, "-r", "angle_deg", "--t_max_diff", max_dt], dir.path());
+    assert_same(
+        &ours.translation_m,
+        &parse_evo_stats(&out),
+        "ATE translation",
+    );
+    let out = common::run_tool(
+        &evo_ape,
+        &["tum", g, e, "-r", "angle_deg", "--t_max_diff", max_dt],
+        dir.path(),
+    );
     assert_same(&ours.rotation_deg, &parse_evo_stats(&out), "ATE rotation");
 
     let ours = rpe(&gt, &est, 0.005, 10).expect("rpe");
-    let rpe_args = |r: &'static str| ["tum", g, e, "-r", r, "--t_max_diff", max_dt, "--delta", "10", "--delta_unit", "f"];
+    let rpe_args = |r: &'static str| {
+        [
+            "tum",
+            g,
+            e,
+            "-r",
+            r,
+            "--t_max_diff",
+            max_dt,
+            "--delta",
+            "10",
+            "--delta_unit",
+            "f",
+        ]
+    };
     let out = common::run_tool(&evo_rpe, &rpe_args("trans_part"), dir.path());
-    assert_same(&ours.translation_m, &parse_evo_stats(&out), "RPE translation");
+    assert_same(
+        &ours.translation_m,
+        &parse_evo_stats(&out),
+        "RPE translation",
+    );
     let out = common::run_tool(&evo_rpe, &rpe_args("angle_deg"), dir.path());
     assert_same(&ours.rotation_deg, &parse_evo_stats(&out), "RPE rotation");
 }
@@ -97,18 +136,34 @@ fn ate_and_rpe_match_evo() {
 fn star_eval_prints_the_table() {
     let mut gt = Trajectory::default();
     for i in 0..20 {
-        gt.push(i as f64 * 0.02, exp_se3(&Vector6::new(i as f64 * 0.1, 0.0, 0.0, 0.0, 0.0, 0.0)));
+        gt.push(
+            i as f64 * 0.02,
+            exp_se3(&Vector6::new(i as f64 * 0.1, 0.0, 0.0, 0.0, 0.0, 0.0)),
+        );
     }
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("gt.txt");
     gt.write(&path).expect("write");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_star"))
-        .args(["eval", path.to_str().expect("utf-8"), path.to_str().expect("utf-8"), "--delta", "2"])
+        .args([
+            "eval",
+            path.to_str().expect("utf-8"),
+            path.to_str().expect("utf-8"),
+            "--delta",
+            "2",
+        ])
         .output()
         .expect("run star");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(text.contains("ATE translation [m]") && text.contains("RPE/2f"), "{text}");
+    assert!(
+        text.contains("ATE translation [m]") && text.contains("RPE/2f"),
+        "{text}"
+    );
     let bad = std::process::Command::new(env!("CARGO_BIN_EXE_star"))
         .args(["eval", "/nonexistent/gt.txt", path.to_str().expect("utf-8")])
         .output()

@@ -19,7 +19,11 @@ pub fn run(gt_path: &Path, est_path: &Path, delta: Option<usize>, max_dt_s: f64)
             gt_path.display()
         )
     })?;
-    println!("ground truth: {}\nestimate:     {}", gt_path.display(), est_path.display());
+    println!(
+        "ground truth: {}\nestimate:     {}",
+        gt_path.display(),
+        est_path.display()
+    );
     print!("{evaluation}");
     Ok(())
 }

@@ -86,7 +86,11 @@ impl PoseErrors {
 /// Pairs `(estimate index, ground-truth index)`: each estimate pose with the
 /// ground-truth pose nearest in time within `max_dt_s`. Both trajectories
 /// are in increasing time order.
-pub fn associate(ground_truth: &Trajectory, estimate: &Trajectory, max_dt_s: f64) -> Vec<(usize, usize)> {
+pub fn associate(
+    ground_truth: &Trajectory,
+    estimate: &Trajectory,
+    max_dt_s: f64,
+) -> Vec<(usize, usize)> {
     let gt = &ground_truth.stamps_s;
     let mut pairs = Vec::with_capacity(estimate.len());
     for (i_est, &t) in estimate.stamps_s.iter().enumerate() {
@@ -105,7 +109,11 @@ pub fn associate(ground_truth: &Trajectory, estimate: &Trajectory, max_dt_s: f64
     pairs
 }
 
-fn associate_checked(gt: &Trajectory, est: &Trajectory, max_dt_s: f64) -> Result<Vec<(usize, usize)>, EvalError> {
+fn associate_checked(
+    gt: &Trajectory,
+    est: &Trajectory,
+    max_dt_s: f64,
+) -> Result<Vec<(usize, usize)>, EvalError> {
     if !(max_dt_s.is_finite() && max_dt_s >= 0.0) {
         return Err(EvalError::BadTolerance(max_dt_s));
     }
@@ -132,12 +140,22 @@ fn associate_checked(gt: &Trajectory, est: &Trajectory, max_dt_s: f64) -> Result
 /// Absolute trajectory error without alignment.
 pub fn ate(gt: &Trajectory, est: &Trajectory, max_dt_s: f64) -> Result<PoseErrors, EvalError> {
     let pairs = associate_checked(gt, est, max_dt_s)?;
-    let errors = pairs.iter().map(|&(e, g)| gt.poses[g].inverse() * est.poses[e]);
-    PoseErrors::from_errors(errors).ok_or(EvalError::BadDelta { delta: 0, matched: 0 })
+    let errors = pairs
+        .iter()
+        .map(|&(e, g)| gt.poses[g].inverse() * est.poses[e]);
+    PoseErrors::from_errors(errors).ok_or(EvalError::BadDelta {
+        delta: 0,
+        matched: 0,
+    })
 }
 
 /// Relative pose error over `delta` matched frames.
-pub fn rpe(gt: &Trajectory, est: &Trajectory, max_dt_s: f64, delta: usize) -> Result<PoseErrors, EvalError> {
+pub fn rpe(
+    gt: &Trajectory,
+    est: &Trajectory,
+    max_dt_s: f64,
+    delta: usize,
+) -> Result<PoseErrors, EvalError> {
     let pairs = associate_checked(gt, est, max_dt_s)?;
     if delta == 0 || delta >= pairs.len() {
         return Err(EvalError::BadDelta {
@@ -145,13 +163,15 @@ pub fn rpe(gt: &Trajectory, est: &Trajectory, max_dt_s: f64, delta: usize) -> Re
             matched: pairs.len(),
         });
     }
-    let errors = pairs.iter().step_by(delta).zip(pairs.iter().step_by(delta).skip(1)).map(
-        |(&(ei, gi), &(ej, gj))| {
+    let errors = pairs
+        .iter()
+        .step_by(delta)
+        .zip(pairs.iter().step_by(delta).skip(1))
+        .map(|(&(ei, gi), &(ej, gj))| {
             let gt_rel = gt.poses[gi].inverse() * gt.poses[gj];
             let est_rel = est.poses[ei].inverse() * est.poses[ej];
             gt_rel.inverse() * est_rel
-        },
-    );
+        });
     PoseErrors::from_errors(errors).ok_or(EvalError::BadDelta {
         delta,
         matched: pairs.len(),

@@ -65,7 +65,12 @@ mod tests {
         assert_eq!(s.max, 4.0);
         assert!((s.rmse - 7.5f64.sqrt()).abs() < 1e-15);
         assert!((s.std - 1.25f64.sqrt()).abs() < 1e-15);
-        assert_eq!(ErrorStats::from_samples(&[2.0, 9.0, 1.0]).expect("odd").median, 2.0);
+        assert_eq!(
+            ErrorStats::from_samples(&[2.0, 9.0, 1.0])
+                .expect("odd")
+                .median,
+            2.0
+        );
         assert!(ErrorStats::from_samples(&[]).is_none());
     }
 }

@@ -8,7 +8,10 @@ fn gt(n: usize) -> Trajectory {
     let mut t = Trajectory::default();
     for i in 0..n {
         let s = i as f64 * 0.02;
-        t.push(s, exp_se3(&Vector6::new(s.sin(), s, 1.5, 0.2 * s, 0.3 * s.cos(), s)));
+        t.push(
+            s,
+            exp_se3(&Vector6::new(s.sin(), s, 1.5, 0.2 * s, 0.3 * s.cos(), s)),
+        );
     }
     t
 }
@@ -56,9 +59,15 @@ fn constant_offset_is_not_aligned_away() {
     assert!((ate.rotation_deg.mean - 2.0).abs() < 1e-9);
     // A constant world offset is invisible to the RPE translation.
     let rpe = rpe(&g, &e, DEFAULT_MAX_DT_S, 1).expect("rpe");
-    assert!(rpe.translation_m.max > 1e-4, "the camera-frame tilt changes relative motion");
+    assert!(
+        rpe.translation_m.max > 1e-4,
+        "the camera-frame tilt changes relative motion"
+    );
     let mut shifted = g.clone();
-    shifted.poses.iter_mut().for_each(|p| p.translation = offset * p.translation);
+    shifted
+        .poses
+        .iter_mut()
+        .for_each(|p| p.translation = offset * p.translation);
     let rpe = super::rpe(&g, &shifted, DEFAULT_MAX_DT_S, 1).expect("rpe");
     assert!(rpe.translation_m.max < 1e-12);
 }
@@ -68,11 +77,32 @@ fn errors_are_reported() {
     let g = gt(10);
     let mut late = g.clone();
     late.stamps_s.iter_mut().for_each(|s| *s += 100.0);
-    assert!(matches!(ate(&g, &late, 0.005), Err(EvalError::NoOverlap { .. })));
-    assert!(matches!(ate(&g, &Trajectory::default(), 0.005), Err(EvalError::NoOverlap { .. })));
-    assert!(matches!(rpe(&g, &g, 0.005, 0), Err(EvalError::BadDelta { delta: 0, .. })));
-    assert!(matches!(rpe(&g, &g, 0.005, 10), Err(EvalError::BadDelta { delta: 10, matched: 10 })));
-    assert!(matches!(ate(&g, &g, f64::NAN), Err(EvalError::BadTolerance(_))));
+    assert!(matches!(
+        ate(&g, &late, 0.005),
+        Err(EvalError::NoOverlap { .. })
+    ));
+    assert!(matches!(
+        ate(&g, &Trajectory::default(), 0.005),
+        Err(EvalError::NoOverlap { .. })
+    ));
+    assert!(matches!(
+        rpe(&g, &g, 0.005, 0),
+        Err(EvalError::BadDelta { delta: 0, .. })
+    ));
+    assert!(matches!(
+        rpe(&g, &g, 0.005, 10),
+        Err(EvalError::BadDelta {
+            delta: 10,
+            matched: 10
+        })
+    ));
+    assert!(matches!(
+        ate(&g, &g, f64::NAN),
+        Err(EvalError::BadTolerance(_))
+    ));
     let text = evaluate(&g, &g, 0.005, Some(2)).expect("ok").to_string();
-    assert!(text.contains("ATE translation [m]") && text.contains("RPE/2f rotation [deg]"), "{text}");
+    assert!(
+        text.contains("ATE translation [m]") && text.contains("RPE/2f rotation [deg]"),
+        "{text}"
+    );
 }

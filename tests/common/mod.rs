@@ -20,7 +20,8 @@ pub fn venv_tool(name: &str) -> Option<PathBuf> {
     if tool.exists() {
         return Some(tool);
     }
-    let required = std::env::var_os("CI").is_some() || std::env::var_os("STAR_REQUIRE_VENV").is_some();
+    let required =
+        std::env::var_os("CI").is_some() || std::env::var_os("STAR_REQUIRE_VENV").is_some();
     assert!(
         !required,
         "{} not found and CI/STAR_REQUIRE_VENV is set; create the venv or set STAR_VENV",

@@ -1,0 +1,6 @@
+//! Synthetic sequences: camera trajectories, sensor corruptions and presets
+//! that `star synth` combines with the procedural scene and the CPU
+//! rasterizer into TUM datasets with exact ground truth.
+
+pub mod look;
+pub mod trajectory;
