@@ -2,5 +2,6 @@
 //! that `star synth` combines with the procedural scene and the CPU
 //! rasterizer into TUM datasets with exact ground truth.
 
+pub mod corrupt;
 pub mod look;
 pub mod trajectory;
