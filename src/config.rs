@@ -78,8 +78,49 @@ pub struct Config {
     pub map: MapConfig,
     /// Keyframe rendering.
     pub render: RenderConfig,
-    /// The tracker and keyframe policy.
+    /// The tracker.
     pub tracker: TrackerConfig,
+    /// When to render a new keyframe, and when tracking is lost.
+    pub keyframe: KeyframeConfig,
+    /// The MAVLink link to the autopilot.
+    pub mavlink: crate::mavlink_io::MavlinkConfig,
+}
+
+/// `[keyframe]`: the keyframe policy and the lost test.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct KeyframeConfig {
+    /// Render a new keyframe when the visible fraction of keyframe points drops below this.
+    pub min_visible: f32,
+    /// ... when the translation from the keyframe exceeds this fraction of its median depth.
+    pub max_baseline_ratio: f32,
+    /// ... when the rotation from the keyframe exceeds this, degrees.
+    pub max_rotation_deg: f32,
+    /// ... when the inlier ratio drops below this.
+    pub min_inlier_ratio: f32,
+    /// ... when the keyframe is older than this, seconds.
+    pub max_interval_s: f32,
+    /// Tracking is lost when the inlier ratio drops below this.
+    pub lost_inlier_ratio: f32,
+    /// Tracking is lost when fewer than this fraction of keyframe points are visible.
+    pub lost_visible_ratio: f32,
+    /// Tracking is lost when the estimate jumps this far from the prediction in one frame, meters.
+    pub lost_max_jump_m: f32,
+}
+
+impl Default for KeyframeConfig {
+    fn default() -> Self {
+        Self {
+            min_visible: 0.75,
+            max_baseline_ratio: 0.08,
+            max_rotation_deg: 6.0,
+            min_inlier_ratio: 0.75,
+            max_interval_s: 1.0,
+            lost_inlier_ratio: 0.35,
+            lost_visible_ratio: 0.15,
+            lost_max_jump_m: 0.3,
+        }
+    }
 }
 
 /// `[camera]`
@@ -223,6 +264,9 @@ impl Config {
                 format!("expected 1..=6, found {}", self.tracker.pyramid_levels),
             ));
         }
+        if let Err((key, reason)) = self.mavlink.validate() {
+            return Err(invalid(&format!("mavlink.{key}"), reason));
+        }
         let t = &self.tracker;
         let checks: [(&str, bool, String); 7] = [
             (
@@ -269,6 +313,55 @@ impl Config {
                 ),
             ),
         ];
+        let k = &self.keyframe;
+        let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
+        let positive = |v: f32| v.is_finite() && v > 0.0;
+        let kchecks: [(&str, bool, f32); 8] = [
+            ("keyframe.min_visible", unit(k.min_visible), k.min_visible),
+            (
+                "keyframe.max_baseline_ratio",
+                positive(k.max_baseline_ratio),
+                k.max_baseline_ratio,
+            ),
+            (
+                "keyframe.max_rotation_deg",
+                positive(k.max_rotation_deg) && k.max_rotation_deg < 90.0,
+                k.max_rotation_deg,
+            ),
+            (
+                "keyframe.min_inlier_ratio",
+                unit(k.min_inlier_ratio),
+                k.min_inlier_ratio,
+            ),
+            (
+                "keyframe.max_interval_s",
+                positive(k.max_interval_s),
+                k.max_interval_s,
+            ),
+            (
+                "keyframe.lost_inlier_ratio",
+                unit(k.lost_inlier_ratio),
+                k.lost_inlier_ratio,
+            ),
+            (
+                "keyframe.lost_visible_ratio",
+                unit(k.lost_visible_ratio),
+                k.lost_visible_ratio,
+            ),
+            (
+                "keyframe.lost_max_jump_m",
+                positive(k.lost_max_jump_m),
+                k.lost_max_jump_m,
+            ),
+        ];
+        for (key, ok, value) in kchecks {
+            if !ok {
+                return Err(invalid(
+                    key,
+                    format!("out of range: {value} (ratios are 0..=1, others > 0)"),
+                ));
+            }
+        }
         for (key, ok, reason) in checks {
             if !ok {
                 return Err(invalid(key, reason));
@@ -330,6 +423,33 @@ mod tests {
         let err = Config::parse("[render]\nrenderer = \"vulkan\"\n", Path::new("a.toml"))
             .expect_err("unknown renderer");
         assert!(err.to_string().contains("renderer"), "{err}");
+    }
+
+    #[test]
+    fn mavlink_section_is_validated() {
+        let err = Config::parse(
+            "[mavlink]\nconnection = \"serial:/dev/ttyACM0\"\n",
+            Path::new("a.toml"),
+        )
+        .expect_err("serial without baud");
+        let msg = err.to_string();
+        assert!(
+            msg.contains("mavlink.connection") && msg.contains("PORT:BAUD"),
+            "{msg}"
+        );
+        let c = Config::parse(
+            "[mavlink]\nmessage = \"odometry\"\n[mavlink.body_from_camera]\nquaternion_wxyz = [1.0, 0.0, 0.0, 0.0]\n",
+            Path::new("a.toml"),
+        )
+        .expect("quaternion alone is valid");
+        assert_eq!(c.mavlink.message, crate::mavlink_io::PoseMessage::Odometry);
+        assert_eq!(c.mavlink.body_from_camera.rpy_deg, None);
+        let err = Config::parse(
+            "[mavlink.ned_from_world]\nrpy_deg = [0.0, 0.0]\n",
+            Path::new("a.toml"),
+        )
+        .expect_err("two angles");
+        assert!(err.to_string().contains("rpy_deg"), "{err}");
     }
 
     #[test]

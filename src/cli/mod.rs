@@ -10,6 +10,8 @@ use clap::{Parser, Subcommand};
 
 mod check_config;
 mod eval;
+pub mod localize;
+mod pose_arg;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]
@@ -32,6 +34,8 @@ pub enum Command {
         #[arg(default_value = "/etc/star/star.toml")]
         config: PathBuf,
     },
+    /// Localize a recorded dataset against its map and write the trajectory.
+    Localize(localize::LocalizeArgs),
     /// Absolute trajectory error (no alignment) and relative pose error of
     /// an estimated TUM trajectory against ground truth.
     Eval {
@@ -66,6 +70,7 @@ pub fn main() -> ExitCode {
     init_tracing(cli.log.as_deref());
     let result = match cli.command {
         Command::CheckConfig { config } => check_config::run(&config),
+        Command::Localize(args) => localize::run(&args),
         Command::Eval {
             gt,
             est,

@@ -15,4 +15,4 @@ pub mod camera;
 pub mod se3;
 
 pub use camera::{CameraError, Distortion, PinholeCamera, UndistortMap};
-pub use se3::{exp_se3, hat, log_se3, Pose};
+pub use se3::{exp_se3, hat, log_se3, renormalized, Pose};

@@ -62,6 +62,15 @@ pub fn log_se3(pose: &Pose) -> Vector6<f64> {
     Vector6::new(v.x, v.y, v.z, w.x, w.y, w.z)
 }
 
+/// Re-normalizes the rotation quaternion. Compose poses in a loop (tracking,
+/// keyframes built on estimates) and the norm error compounds, because
+/// inverses use the conjugate; call this on every pose that is fed back.
+#[inline]
+pub fn renormalized(mut pose: Pose) -> Pose {
+    pose.rotation.renormalize();
+    pose
+}
+
 /// Angle of the rotation part of `pose`, in radians, in `[0, pi]`.
 pub fn rotation_angle_rad(pose: &Pose) -> f64 {
     pose.rotation.angle()
@@ -119,6 +128,15 @@ mod tests {
         let pose = exp_se3(&xi);
         assert!((pose.translation.vector - Vector3::new(0.1, -0.2, 0.3)).norm() < 1e-6);
         assert!((log_se3(&pose) - xi).norm() < 1e-12);
+    }
+
+    #[test]
+    fn renormalized_restores_unit_norm() {
+        let mut p = exp_se3(&Vector6::new(0.1, 0.2, 0.3, 0.4, 0.5, 0.6));
+        *p.rotation.as_mut_unchecked() *= 1.01;
+        let q = renormalized(p);
+        assert!((q.rotation.coords.norm() - 1.0).abs() < 1e-15);
+        assert!((q.translation.vector - p.translation.vector).norm() == 0.0);
     }
 
     #[test]

@@ -10,6 +10,8 @@
 use crate::geometry::{PinholeCamera, Pose};
 use crate::imgproc::ImageF32;
 
+pub mod cpu;
+
 /// Depth value of a pixel that sees no surface (unmapped space or a hole).
 pub const NO_DEPTH: f32 = 0.0;
 
@@ -34,6 +36,16 @@ pub enum RenderError {
     /// The rendering backend failed (device lost, out of memory, ...).
     #[error("renderer backend failed: {0}")]
     Backend(String),
+    /// The mesh cannot be rendered: a field is inconsistent or out of range.
+    #[error("invalid mesh: {field}[{index}]: {reason}")]
+    InvalidMesh {
+        /// The [`crate::map::Mesh`] field, e.g. `indices` or `positions`.
+        field: &'static str,
+        /// The element index within that field.
+        index: usize,
+        /// What was expected and what was found.
+        reason: String,
+    },
 }
 
 /// One rendered view: gray intensity (0..=255) and metric depth (the z

@@ -18,7 +18,7 @@
 use nalgebra::Vector6;
 
 use crate::config::{IlluminationModel, TrackerConfig};
-use crate::geometry::{exp_se3, PinholeCamera, Pose};
+use crate::geometry::{exp_se3, renormalized, PinholeCamera, Pose};
 
 use super::keyframe::Keyframe;
 use super::normal_eq::{NormalEquations, MAX_DIM};
@@ -127,7 +127,7 @@ impl Aligner {
                     break;
                 }
                 let delta = Vector6::new(step[0], step[1], step[2], step[3], step[4], step[5]);
-                let cand_pose = pose * exp_se3(&delta).inverse();
+                let cand_pose = renormalized(pose * exp_se3(&delta).inverse());
                 let cand = self.evaluate(keyframe, frame, &cam_l, level, &cand_pose, Some(k));
                 match cand {
                     Some((e, _)) if e.energy <= cur.energy => {

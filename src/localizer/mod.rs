@@ -1,0 +1,371 @@
+//! The STAR loop: tracking at camera rate against keyframes rendered
+//! asynchronously from the map (paper sections II-A to II-C).
+//!
+//! Takes camera frames (8-bit gray, raw and distorted, with a
+//! CLOCK_MONOTONIC capture time), gives out one [`FrameOutput`] per frame: a
+//! pose and covariance while tracking, nothing while lost. Owns the
+//! constant-velocity prediction, the keyframe policy ([`policy`]), the lost
+//! test, and the render thread ([`worker`]). Tracking never waits for a
+//! render: when a new keyframe is due, it is requested and tracking goes on
+//! against the old one until the new one is ready.
+//!
+//! After [`Localizer::start`], [`Localizer::process_frame`] allocates nothing.
+
+pub mod offline;
+pub mod policy;
+pub mod worker;
+
+use nalgebra::Matrix6;
+
+use crate::config::{KeyframeConfig, TrackerConfig};
+use crate::geometry::{exp_se3, log_se3, renormalized, PinholeCamera, Pose};
+use crate::render::Renderer;
+use crate::track::{AlignQuality, Aligner, Keyframe, Pyramid};
+
+use worker::{RenderRequest, RenderWorker};
+
+/// Errors from the STAR loop. Bad frames are rejected without changing state.
+#[derive(Debug, thiserror::Error)]
+pub enum LocalizerError {
+    /// A frame does not match the calibrated size.
+    #[error("frame is {found_w}x{found_h} (stride {stride}, {len} bytes) but the camera is {want_w}x{want_h}")]
+    FrameSize {
+        /// Frame width.
+        found_w: usize,
+        /// Frame height.
+        found_h: usize,
+        /// Row stride, bytes.
+        stride: usize,
+        /// Buffer length, bytes.
+        len: usize,
+        /// Calibrated width.
+        want_w: u32,
+        /// Calibrated height.
+        want_h: u32,
+    },
+    /// A frame's capture time is not after the previous frame's.
+    #[error(
+        "frame capture time {capture_ns} ns is not after the previous frame's {previous_ns} ns"
+    )]
+    TimestampOrder {
+        /// This frame's capture time.
+        capture_ns: u64,
+        /// The previous frame's capture time.
+        previous_ns: u64,
+    },
+    /// The initial pose is not finite.
+    #[error("initial pose is not finite")]
+    BadInitialPose,
+    /// The first keyframe could not be rendered.
+    #[error("first keyframe could not be rendered: {0}")]
+    FirstKeyframe(String),
+    /// The render thread could not be started.
+    #[error("cannot start the render thread: {0}")]
+    Thread(#[from] std::io::Error),
+}
+
+/// Tracking state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackState {
+    /// The frame was aligned and passed the quality gate.
+    Tracking,
+    /// The frame failed the quality gate; no pose is output.
+    Lost,
+}
+
+/// What the loop gives out for one frame.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameOutput {
+    /// Capture time, CLOCK_MONOTONIC ns.
+    pub capture_ns: u64,
+    /// Tracking or lost.
+    pub state: TrackState,
+    /// The pose; `None` while lost.
+    pub world_from_camera: Option<Pose>,
+    /// Covariance of the right perturbation `xi = [v; w]` in the camera
+    /// frame: `world_from_camera_true = world_from_camera * exp(xi)`.
+    pub covariance: Matrix6<f64>,
+    /// Alignment quality.
+    pub quality: AlignQuality,
+    /// Photometric gain and bias (camera = gain * keyframe + bias).
+    pub gain: f32,
+    /// See `gain`.
+    pub bias: f32,
+    /// Id of the keyframe tracked against.
+    pub keyframe_id: u64,
+    /// Age of that keyframe, seconds since the frame that requested it.
+    pub keyframe_age_s: f64,
+    /// True when a newer keyframe had been requested but was not ready yet.
+    pub stale_keyframe: bool,
+    /// Incremented on every discontinuity (relocalization, re-initialization).
+    pub reset_counter: u8,
+}
+
+/// Running counters for the summary.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct LoopStats {
+    /// Frames processed.
+    pub frames: u64,
+    /// Frames lost.
+    pub lost_frames: u64,
+    /// Keyframes rendered (including the first).
+    pub keyframes: u64,
+    /// Keyframe renders that failed.
+    pub render_failures: u64,
+    /// Frames tracked while a newer keyframe was pending.
+    pub stale_frames: u64,
+    /// Largest keyframe age seen, seconds.
+    pub max_keyframe_age_s: f64,
+}
+
+/// The STAR loop.
+pub struct Localizer {
+    camera: PinholeCamera,
+    policy: KeyframeConfig,
+    aligner: Aligner,
+    pyramid: Pyramid,
+    worker: RenderWorker,
+    keyframe: Box<Keyframe>,
+    next_keyframe_id: u64,
+    pending: bool,
+    last: Option<(u64, Pose)>,
+    /// Velocity as a twist per second, in the camera frame (right perturbation).
+    velocity: nalgebra::Vector6<f64>,
+    state: TrackState,
+    reset_counter: u8,
+    stats: LoopStats,
+}
+
+impl Localizer {
+    /// Starts the render thread and renders the first keyframe at
+    /// `world_from_camera` (this one blocks: there is nothing to track yet).
+    pub fn start(
+        renderer: Box<dyn Renderer>,
+        camera: &PinholeCamera,
+        tracker: &TrackerConfig,
+        policy: &KeyframeConfig,
+        world_from_camera: Pose,
+        capture_ns: u64,
+    ) -> Result<Self, LocalizerError> {
+        if !pose_is_finite(&world_from_camera) {
+            return Err(LocalizerError::BadInitialPose);
+        }
+        let worker = RenderWorker::spawn(renderer, camera, tracker)?;
+        worker.try_request(RenderRequest {
+            world_from_keyframe: world_from_camera,
+            id: 1,
+            requested_at_ns: capture_ns,
+        });
+        let keyframe = worker
+            .wait_result()
+            .map_err(LocalizerError::FirstKeyframe)?;
+        tracing::info!(
+            renderer = worker.renderer_name(),
+            points = keyframe.point_count(0),
+            "first keyframe rendered"
+        );
+        Ok(Self {
+            camera: *camera,
+            policy: policy.clone(),
+            aligner: Aligner::new(tracker),
+            pyramid: Pyramid::new(
+                camera.width as usize,
+                camera.height as usize,
+                tracker.pyramid_levels as usize,
+            ),
+            worker,
+            keyframe,
+            next_keyframe_id: 2,
+            pending: false,
+            last: Some((capture_ns.saturating_sub(1), world_from_camera)),
+            velocity: nalgebra::Vector6::zeros(),
+            state: TrackState::Tracking,
+            reset_counter: 0,
+            stats: LoopStats {
+                keyframes: 1,
+                ..LoopStats::default()
+            },
+        })
+    }
+
+    /// The renderer in use.
+    pub fn renderer_name(&self) -> &str {
+        self.worker.renderer_name()
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> LoopStats {
+        self.stats
+    }
+
+    /// Current state.
+    pub fn state(&self) -> TrackState {
+        self.state
+    }
+
+    /// The keyframe currently tracked against.
+    pub fn keyframe(&self) -> &Keyframe {
+        &self.keyframe
+    }
+
+    /// Tracks one 8-bit gray frame with row stride `stride` bytes.
+    pub fn process_frame(
+        &mut self,
+        pixels: &[u8],
+        width: usize,
+        height: usize,
+        stride: usize,
+        capture_ns: u64,
+    ) -> Result<FrameOutput, LocalizerError> {
+        let (want_w, want_h) = (self.camera.width, self.camera.height);
+        if width != want_w as usize
+            || height != want_h as usize
+            || stride < width
+            || pixels.len() < stride * (height - 1) + width
+        {
+            return Err(LocalizerError::FrameSize {
+                found_w: width,
+                found_h: height,
+                stride,
+                len: pixels.len(),
+                want_w,
+                want_h,
+            });
+        }
+        if let Some((prev_ns, _)) = self.last {
+            if capture_ns <= prev_ns {
+                return Err(LocalizerError::TimestampOrder {
+                    capture_ns,
+                    previous_ns: prev_ns,
+                });
+            }
+        }
+        self.swap_in_ready_keyframe();
+        self.pyramid.fill_from_u8(pixels, stride);
+
+        // Constant-velocity prediction.
+        let (prev_ns, prev_pose) = self
+            .last
+            .unwrap_or((capture_ns, self.keyframe.world_from_keyframe));
+        let dt_s = (capture_ns.saturating_sub(prev_ns)) as f64 * 1e-9;
+        let predicted = renormalized(prev_pose * exp_se3(&(self.velocity * dt_s.min(0.2))));
+        let camera_from_keyframe = predicted.inverse() * self.keyframe.world_from_keyframe;
+
+        let result = self.aligner.align(
+            &self.keyframe,
+            &self.pyramid,
+            &self.camera,
+            camera_from_keyframe,
+        );
+        let world_from_camera =
+            self.keyframe.world_from_keyframe * result.camera_from_keyframe.inverse();
+        let jump_m = (predicted.inverse() * world_from_camera)
+            .translation
+            .vector
+            .norm();
+        let q = result.quality;
+        let tracking = result.valid
+            && pose_is_finite(&world_from_camera)
+            && q.inlier_ratio >= self.policy.lost_inlier_ratio
+            && q.visible_ratio >= self.policy.lost_visible_ratio
+            && jump_m <= self.policy.lost_max_jump_m as f64;
+
+        let keyframe_age_s = capture_ns.saturating_sub(self.keyframe.requested_at_ns) as f64 * 1e-9;
+        self.stats.frames += 1;
+        self.stats.max_keyframe_age_s = self.stats.max_keyframe_age_s.max(keyframe_age_s);
+        if self.pending {
+            self.stats.stale_frames += 1;
+        }
+        let mut out = FrameOutput {
+            capture_ns,
+            state: TrackState::Lost,
+            world_from_camera: None,
+            covariance: Matrix6::zeros(),
+            quality: q,
+            gain: result.gain,
+            bias: result.bias,
+            keyframe_id: self.keyframe.id,
+            keyframe_age_s,
+            stale_keyframe: self.pending,
+            reset_counter: self.reset_counter,
+        };
+        if !tracking {
+            if self.state == TrackState::Tracking {
+                tracing::warn!(
+                    inliers = q.inlier_ratio,
+                    visible = q.visible_ratio,
+                    jump_m,
+                    "tracking lost"
+                );
+            }
+            self.state = TrackState::Lost;
+            self.stats.lost_frames += 1;
+            // Keep predicting from the last good pose; the velocity decays.
+            self.velocity *= 0.5;
+            return Ok(out);
+        }
+        if self.state == TrackState::Lost {
+            tracing::info!("tracking resumed");
+        }
+        self.state = TrackState::Tracking;
+        if dt_s > 0.0 {
+            let step = log_se3(&(prev_pose.inverse() * world_from_camera));
+            self.velocity = step / dt_s;
+        }
+        self.last = Some((capture_ns, world_from_camera));
+        let cov_delta = Matrix6::from_fn(|r, c| result.covariance_delta[r][c]);
+        let adj = adjoint(&result.camera_from_keyframe);
+        out.state = TrackState::Tracking;
+        out.world_from_camera = Some(world_from_camera);
+        out.covariance = adj * cov_delta * adj.transpose();
+
+        if !self.pending
+            && policy::needs_keyframe(&self.policy, &self.keyframe, &result, keyframe_age_s)
+        {
+            let requested = self.worker.try_request(RenderRequest {
+                world_from_keyframe: world_from_camera,
+                id: self.next_keyframe_id,
+                requested_at_ns: capture_ns,
+            });
+            if requested {
+                self.next_keyframe_id += 1;
+                self.pending = true;
+            }
+        }
+        Ok(out)
+    }
+
+    /// Takes a finished keyframe from the render thread, if any.
+    fn swap_in_ready_keyframe(&mut self) {
+        while let Some(result) = self.worker.try_result() {
+            self.pending = false;
+            match result {
+                Ok(kf) => {
+                    let old = std::mem::replace(&mut self.keyframe, kf);
+                    self.worker.recycle(old);
+                    self.stats.keyframes += 1;
+                }
+                Err(e) => {
+                    self.stats.render_failures += 1;
+                    tracing::warn!(error = %e, "keyframe render failed; tracking on the old keyframe");
+                }
+            }
+        }
+    }
+}
+
+/// Adjoint of `T` for twists ordered `[v; w]`: `T exp(xi) T^-1 = exp(Ad_T xi)`.
+pub fn adjoint(t: &Pose) -> Matrix6<f64> {
+    let r = t.rotation.to_rotation_matrix().into_inner();
+    let tx = crate::geometry::hat(&t.translation.vector) * r;
+    let mut m = Matrix6::zeros();
+    m.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    m.fixed_view_mut::<3, 3>(0, 3).copy_from(&tx);
+    m.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    m
+}
+
+fn pose_is_finite(p: &Pose) -> bool {
+    p.translation.vector.iter().all(|v| v.is_finite())
+        && p.rotation.coords.iter().all(|v| v.is_finite())
+}

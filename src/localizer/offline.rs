@@ -1,0 +1,196 @@
+//! Offline localization of a recorded dataset: the same STAR loop as on the
+//! vehicle, fed from a TUM-layout folder instead of the camera, with timing
+//! and quality summaries. Used by `star localize`, the accuracy tests and
+//! the benchmarks.
+
+use std::time::Instant;
+
+use crate::config::Config;
+use crate::dataset::{Dataset, Trajectory};
+use crate::eval::{self, Evaluation};
+use crate::geometry::Pose;
+use crate::imgproc::ImageU8;
+use crate::render::Renderer;
+
+use super::{Localizer, LocalizerError, TrackState};
+
+/// Errors of an offline run.
+#[derive(Debug, thiserror::Error)]
+pub enum OfflineError {
+    /// No `--init-pose` and no ground truth to start from.
+    #[error("no initial pose: give one, or provide groundtruth.txt in {0}")]
+    NoInitialPose(std::path::PathBuf),
+    /// The loop could not start.
+    #[error(transparent)]
+    Localizer(#[from] LocalizerError),
+}
+
+/// Options of an offline run.
+#[derive(Debug, Clone, Default)]
+pub struct OfflineOptions {
+    /// Start pose; the ground truth nearest the first frame when `None`.
+    pub init_pose: Option<Pose>,
+    /// Process at most this many frames.
+    pub max_frames: Option<usize>,
+    /// Pace frames at the recorded rate (as a live camera would deliver them).
+    pub realtime: bool,
+}
+
+/// What an offline run produced.
+#[derive(Debug, Clone)]
+pub struct OfflineReport {
+    /// Tracked poses (lost frames have none), stamped with dataset time.
+    pub estimate: Trajectory,
+    /// Per-frame tracking time, milliseconds, in frame order.
+    pub track_ms: Vec<f64>,
+    /// Frames that could not be decoded or were rejected, with the reason.
+    pub bad_frames: Vec<(usize, String)>,
+    /// Frames processed.
+    pub frames: usize,
+    /// Frames in the lost state.
+    pub lost_frames: usize,
+    /// Keyframes rendered.
+    pub keyframes: u64,
+    /// Frames tracked while a newer keyframe was pending.
+    pub stale_frames: u64,
+    /// Largest keyframe age, seconds.
+    pub max_keyframe_age_s: f64,
+    /// Median points used per level, finest first.
+    pub median_points: Vec<u32>,
+    /// Renderer name.
+    pub renderer: String,
+    /// Accuracy against the dataset's ground truth, when it has one.
+    pub evaluation: Option<Evaluation>,
+}
+
+/// Runs the STAR loop over `dataset` with `renderer` (built on the map).
+/// `on_frame` is called after every frame (for progress bars).
+pub fn localize_dataset(
+    dataset: &Dataset,
+    renderer: Box<dyn Renderer>,
+    config: &Config,
+    options: &OfflineOptions,
+    mut on_frame: impl FnMut(usize),
+) -> Result<OfflineReport, OfflineError> {
+    let camera = *dataset.camera();
+    let n = options
+        .max_frames
+        .map_or(dataset.len(), |m| m.min(dataset.len()));
+    let first_stamp_s = dataset.frames[0].timestamp_s;
+    let init = match options.init_pose {
+        Some(p) => p,
+        None => nearest_pose(dataset, first_stamp_s)
+            .ok_or_else(|| OfflineError::NoInitialPose(dataset.root.clone()))?,
+    };
+    let to_ns = |t_s: f64| ((t_s - first_stamp_s) * 1e9).round().max(0.0) as u64 + 1_000_000_000;
+    let mut localizer = Localizer::start(
+        renderer,
+        &camera,
+        &config.tracker,
+        &config.keyframe,
+        init,
+        to_ns(first_stamp_s).saturating_sub(1),
+    )?;
+    let mut image = ImageU8::new(camera.width as usize, camera.height as usize, 0);
+    let mut scratch = Vec::new();
+    let mut report = OfflineReport {
+        estimate: Trajectory::default(),
+        track_ms: Vec::with_capacity(n),
+        bad_frames: Vec::new(),
+        frames: 0,
+        lost_frames: 0,
+        keyframes: 0,
+        stale_frames: 0,
+        max_keyframe_age_s: 0.0,
+        median_points: Vec::new(),
+        renderer: localizer.renderer_name().to_string(),
+        evaluation: None,
+    };
+    let levels = config.tracker.pyramid_levels as usize;
+    let mut points: Vec<Vec<u32>> = vec![Vec::with_capacity(n); levels];
+    let wall_start = Instant::now();
+    for i in 0..n {
+        let stamp_s = dataset.frames[i].timestamp_s;
+        if options.realtime {
+            let due = std::time::Duration::from_secs_f64((stamp_s - first_stamp_s).max(0.0));
+            if let Some(wait) = due.checked_sub(wall_start.elapsed()) {
+                std::thread::sleep(wait);
+            }
+        }
+        if let Err(e) = dataset.load_frame_into(i, &mut image, &mut scratch) {
+            tracing::warn!(frame = i, error = %e, "skipping frame");
+            report.bad_frames.push((i, e.to_string()));
+            on_frame(i);
+            continue;
+        }
+        let t0 = Instant::now();
+        let out = localizer.process_frame(
+            image.data(),
+            image.width(),
+            image.height(),
+            image.width(),
+            to_ns(stamp_s),
+        );
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        match out {
+            Ok(out) => {
+                report.frames += 1;
+                report.track_ms.push(ms);
+                for (l, p) in points.iter_mut().enumerate() {
+                    p.push(out.quality.points_used[l]);
+                }
+                match (out.state, out.world_from_camera) {
+                    (TrackState::Tracking, Some(pose)) => report.estimate.push(stamp_s, pose),
+                    _ => report.lost_frames += 1,
+                }
+            }
+            Err(e) => {
+                tracing::warn!(frame = i, error = %e, "frame rejected");
+                report.bad_frames.push((i, e.to_string()));
+            }
+        }
+        on_frame(i);
+    }
+    let stats = localizer.stats();
+    report.keyframes = stats.keyframes;
+    report.stale_frames = stats.stale_frames;
+    report.max_keyframe_age_s = stats.max_keyframe_age_s;
+    report.median_points = points
+        .iter_mut()
+        .map(|p| {
+            if p.is_empty() {
+                0
+            } else {
+                let mid = p.len() / 2;
+                *p.select_nth_unstable(mid).1
+            }
+        })
+        .collect();
+    if let Some(gt) = &dataset.ground_truth {
+        if !report.estimate.is_empty() {
+            report.evaluation = eval::evaluate(gt, &report.estimate, 0.005, Some(1)).ok();
+        }
+    }
+    Ok(report)
+}
+
+fn nearest_pose(dataset: &Dataset, stamp_s: f64) -> Option<Pose> {
+    let gt = dataset.ground_truth.as_ref()?;
+    let (i, _) = gt
+        .stamps_s
+        .iter()
+        .enumerate()
+        .min_by(|a, b| (a.1 - stamp_s).abs().total_cmp(&(b.1 - stamp_s).abs()))?;
+    gt.poses.get(i).copied()
+}
+
+/// Median and 99th percentile of `samples` (0 when empty).
+pub fn median_p99(samples: &[f64]) -> (f64, f64) {
+    if samples.is_empty() {
+        return (0.0, 0.0);
+    }
+    let mut s = samples.to_vec();
+    s.sort_by(f64::total_cmp);
+    let at = |q: f64| s[((s.len() - 1) as f64 * q).round() as usize];
+    (at(0.5), at(0.99))
+}

@@ -1,0 +1,155 @@
+//! The render thread: renders keyframes through a [`Renderer`] and prepares
+//! them for the tracker, without ever blocking the tracking thread.
+//!
+//! Keyframe buffers circulate in a fixed pool: the tracker holds one, the
+//! worker fills another, and finished ones travel back through bounded
+//! channels, so no keyframe is allocated after start-up.
+
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TryRecvError, TrySendError};
+use std::thread::JoinHandle;
+
+use crate::config::TrackerConfig;
+use crate::geometry::{PinholeCamera, Pose};
+use crate::render::{RenderedView, Renderer};
+use crate::track::Keyframe;
+
+/// Number of keyframe buffers in circulation.
+const POOL: usize = 3;
+
+/// A keyframe request.
+#[derive(Debug, Clone, Copy)]
+pub struct RenderRequest {
+    /// Where to render.
+    pub world_from_keyframe: Pose,
+    /// Keyframe id to assign.
+    pub id: u64,
+    /// Capture time of the frame that asked for it.
+    pub requested_at_ns: u64,
+}
+
+/// A finished keyframe, or the reason it could not be made.
+pub type RenderResult = Result<Box<Keyframe>, String>;
+
+/// Handle to the render thread.
+pub struct RenderWorker {
+    requests: Option<SyncSender<RenderRequest>>,
+    results: Receiver<RenderResult>,
+    recycle: Option<SyncSender<Box<Keyframe>>>,
+    thread: Option<JoinHandle<()>>,
+    renderer_name: String,
+}
+
+impl RenderWorker {
+    /// Starts the thread, which owns `renderer`.
+    pub fn spawn(
+        mut renderer: Box<dyn Renderer>,
+        camera: &PinholeCamera,
+        config: &TrackerConfig,
+    ) -> std::io::Result<Self> {
+        let pinhole = camera.pinhole();
+        let config = config.clone();
+        let renderer_name = renderer.name();
+        let (req_tx, req_rx) = sync_channel::<RenderRequest>(1);
+        let (res_tx, res_rx) = sync_channel::<RenderResult>(POOL);
+        let (recycle_tx, recycle_rx) = sync_channel::<Box<Keyframe>>(POOL);
+        for _ in 0..POOL - 1 {
+            // The tracker's own first keyframe is the POOL-th buffer; it comes
+            // from the first request.
+            let _ = recycle_tx.try_send(Box::new(Keyframe::new(&pinhole, &config)));
+        }
+        let spare = Box::new(Keyframe::new(&pinhole, &config));
+        let thread = std::thread::Builder::new()
+            .name("star-render".into())
+            .spawn(move || {
+                let mut view = RenderedView::for_camera(&pinhole);
+                let mut spare = Some(spare);
+                while let Ok(req) = req_rx.recv() {
+                    let mut kf = match spare.take() {
+                        Some(kf) => kf,
+                        None => match recycle_rx.recv() {
+                            Ok(kf) => kf,
+                            Err(_) => return,
+                        },
+                    };
+                    let t0 = std::time::Instant::now();
+                    let result =
+                        match renderer.render(&req.world_from_keyframe, &pinhole, &mut view) {
+                            Ok(()) => {
+                                kf.prepare(&view, req.world_from_keyframe, req.id, &config);
+                                kf.requested_at_ns = req.requested_at_ns;
+                                tracing::debug!(
+                                    id = req.id,
+                                    points = kf.point_count(0),
+                                    ms = t0.elapsed().as_secs_f64() * 1e3,
+                                    "keyframe ready"
+                                );
+                                Ok(kf)
+                            }
+                            Err(e) => {
+                                spare = Some(kf);
+                                Err(format!("{}: {e}", renderer.name()))
+                            }
+                        };
+                    if res_tx.send(result).is_err() {
+                        return;
+                    }
+                }
+            })?;
+        Ok(Self {
+            requests: Some(req_tx),
+            results: res_rx,
+            recycle: Some(recycle_tx),
+            thread: Some(thread),
+            renderer_name,
+        })
+    }
+
+    /// The renderer's name.
+    pub fn renderer_name(&self) -> &str {
+        &self.renderer_name
+    }
+
+    /// Asks for a keyframe without blocking; false if one is already queued.
+    pub fn try_request(&self, req: RenderRequest) -> bool {
+        match self.requests.as_ref().map(|tx| tx.try_send(req)) {
+            Some(Ok(())) => true,
+            Some(Err(TrySendError::Full(_))) | Some(Err(TrySendError::Disconnected(_))) | None => {
+                false
+            }
+        }
+    }
+
+    /// A finished keyframe, if one is ready (never blocks).
+    pub fn try_result(&self) -> Option<RenderResult> {
+        match self.results.try_recv() {
+            Ok(r) => Some(r),
+            Err(TryRecvError::Empty) => None,
+            Err(TryRecvError::Disconnected) => Some(Err("render thread stopped".into())),
+        }
+    }
+
+    /// Blocks until a keyframe is ready; for start-up and relocalization only.
+    pub fn wait_result(&self) -> RenderResult {
+        self.results
+            .recv()
+            .unwrap_or_else(|_| Err("render thread stopped".into()))
+    }
+
+    /// Returns a keyframe buffer to the pool.
+    pub fn recycle(&self, kf: Box<Keyframe>) {
+        if let Some(tx) = &self.recycle {
+            let _ = tx.try_send(kf);
+        }
+    }
+}
+
+impl Drop for RenderWorker {
+    fn drop(&mut self) {
+        // Closing both senders wakes the thread wherever it waits.
+        self.requests.take();
+        self.recycle.take();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}

@@ -1,0 +1,266 @@
+//! The `[mavlink]` configuration section: where the link goes, what it sends,
+//! how fast, and the two mounting transforms that take a tracker pose into the
+//! autopilot's frames.
+//!
+//! Takes TOML (through [`crate::config::Config`]), gives out a validated
+//! [`MavlinkConfig`] whose transforms convert to [`Pose`]s with
+//! [`TransformConfig::to_pose`].
+//!
+//! Rotation convention for `rpy_deg = [roll, pitch, yaw]`: the aerospace
+//! Z-Y-X order, `R = Rz(yaw) * Ry(pitch) * Rx(roll)`, the same as MAVLink's
+//! attitude angles. A rotation may instead be given as `quaternion_wxyz`.
+
+use nalgebra::{Quaternion, Rotation3, Translation3, UnitQuaternion};
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::Pose;
+use crate::mavlink_io::link::LinkAddress;
+
+/// MAVLink component id of a visual-inertial odometry source
+/// (MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY).
+pub const COMPONENT_ID_VISUAL_INERTIAL_ODOMETRY: u8 = 197;
+
+/// Which message carries the pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseMessage {
+    /// VISION_POSITION_ESTIMATE (102): position and Euler angles, covariance.
+    #[default]
+    VisionPositionEstimate,
+    /// ODOMETRY (331): position and quaternion, covariance, quality,
+    /// `estimator_type` VISION. Velocities are sent as NaN (unknown).
+    Odometry,
+}
+
+/// A rigid transform in the config: a translation and at most one rotation.
+///
+/// With neither `rpy_deg` nor `quaternion_wxyz` the rotation is the identity.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct TransformConfig {
+    /// Translation `[x, y, z]` in meters, expressed in the target frame.
+    pub translation_m: [f64; 3],
+    /// Rotation as `[roll, pitch, yaw]` in degrees, `Rz(yaw) Ry(pitch) Rx(roll)`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rpy_deg: Option<[f64; 3]>,
+    /// Rotation as a unit quaternion `[w, x, y, z]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quaternion_wxyz: Option<[f64; 4]>,
+}
+
+impl TransformConfig {
+    /// A transform from a translation and roll/pitch/yaw in degrees.
+    pub fn from_rpy_deg(translation_m: [f64; 3], rpy_deg: [f64; 3]) -> Self {
+        Self {
+            translation_m,
+            rpy_deg: Some(rpy_deg),
+            quaternion_wxyz: None,
+        }
+    }
+
+    /// Checks the values; `Err` holds the reason (the caller adds the key).
+    pub fn validate(&self) -> Result<(), String> {
+        if self.translation_m.iter().any(|v| !v.is_finite()) {
+            return Err(format!(
+                "translation_m must be finite, found {:?}",
+                self.translation_m
+            ));
+        }
+        match (self.rpy_deg, self.quaternion_wxyz) {
+            (Some(_), Some(_)) => Err("give either rpy_deg or quaternion_wxyz, not both".into()),
+            (Some(rpy), None) if rpy.iter().any(|v| !v.is_finite()) => {
+                Err(format!("rpy_deg must be finite, found {rpy:?}"))
+            }
+            (None, Some(q)) => {
+                let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if !norm.is_finite() || (norm - 1.0).abs() > 1e-3 {
+                    Err(format!(
+                        "quaternion_wxyz must be a unit quaternion (norm 1 +- 1e-3), found {q:?} with norm {norm}"
+                    ))
+                } else {
+                    Ok(())
+                }
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The transform as a [`Pose`]. Call [`Self::validate`] first; an invalid
+    /// quaternion is normalized here.
+    pub fn to_pose(&self) -> Pose {
+        let rotation = match (self.rpy_deg, self.quaternion_wxyz) {
+            (Some([r, p, y]), _) => UnitQuaternion::from_rotation_matrix(
+                &Rotation3::from_euler_angles(r.to_radians(), p.to_radians(), y.to_radians()),
+            ),
+            (None, Some([w, x, y, z])) => {
+                UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z))
+            }
+            (None, None) => UnitQuaternion::identity(),
+        };
+        let [x, y, z] = self.translation_m;
+        Pose::from_parts(Translation3::new(x, y, z), rotation)
+    }
+}
+
+/// `[mavlink]`: the link to the autopilot.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MavlinkConfig {
+    /// Whether the tracker talks to an autopilot at all.
+    pub enabled: bool,
+    /// `udpout:HOST:PORT`, `udpin:ADDR:PORT`, `tcpout:HOST:PORT` or `serial:PORT:BAUD`.
+    pub connection: String,
+    /// Maximum pose message rate, Hz, on capture timestamps (ArduPilot drops
+    /// samples less than 20 ms apart, hence 50).
+    pub rate_hz: f64,
+    /// `vision_position_estimate` or `odometry`.
+    pub message: PoseMessage,
+    /// Our MAVLink system id (normally the autopilot's).
+    pub system_id: u8,
+    /// Our MAVLink component id (197 = MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY).
+    pub component_id: u8,
+    /// Poses older than this (now - capture time) when they reach the link
+    /// are dropped, so a returning link gets no stale pose.
+    pub max_pose_age_ms: u32,
+    /// Send our own TIMESYNC requests and apply the estimated offset to `usec`.
+    pub timesync: bool,
+    /// The map (world) frame in local NED: `ned_from_world`.
+    pub ned_from_world: TransformConfig,
+    /// The camera mounting on the body (FRD): `body_from_camera`.
+    pub body_from_camera: TransformConfig,
+}
+
+impl Default for MavlinkConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            connection: "udpout:127.0.0.1:14550".into(),
+            rate_hz: 50.0,
+            message: PoseMessage::VisionPositionEstimate,
+            system_id: 1,
+            component_id: COMPONENT_ID_VISUAL_INERTIAL_ODOMETRY,
+            max_pose_age_ms: 100,
+            timesync: true,
+            // A z-up map with x east, y north: NED x = world y, NED y = world x,
+            // NED z = -world z.
+            ned_from_world: TransformConfig::from_rpy_deg([0.0; 3], [180.0, 0.0, 90.0]),
+            // A forward-looking camera at the body origin: camera z (optical
+            // axis) = body x, camera x (right) = body y, camera y (down) = body z.
+            body_from_camera: TransformConfig::from_rpy_deg([0.0; 3], [90.0, 0.0, 90.0]),
+        }
+    }
+}
+
+impl MavlinkConfig {
+    /// Checks every value; `Err((key, reason))` names the key below `mavlink.`.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        if let Err(e) = LinkAddress::parse(&self.connection) {
+            return Err(("connection", e.to_string()));
+        }
+        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0 && self.rate_hz <= 1000.0) {
+            return Err((
+                "rate_hz",
+                format!("expected 0 < rate_hz <= 1000, found {}", self.rate_hz),
+            ));
+        }
+        if self.system_id == 0 {
+            return Err(("system_id", "expected 1..=255, found 0".into()));
+        }
+        if self.component_id == 0 {
+            return Err(("component_id", "expected 1..=255, found 0".into()));
+        }
+        if self.max_pose_age_ms == 0 {
+            return Err(("max_pose_age_ms", "expected > 0, found 0".into()));
+        }
+        self.ned_from_world
+            .validate()
+            .map_err(|e| ("ned_from_world", e))?;
+        self.body_from_camera
+            .validate()
+            .map_err(|e| ("body_from_camera", e))?;
+        Ok(())
+    }
+
+    /// Minimum spacing of pose messages on capture time, nanoseconds.
+    pub fn min_interval_ns(&self) -> u64 {
+        (1e9 / self.rate_hz).round() as u64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix3, Vector3};
+
+    #[test]
+    fn default_transforms_match_their_comments() {
+        let c = MavlinkConfig::default();
+        c.validate().expect("defaults valid");
+        let ned_from_world = c.ned_from_world.to_pose();
+        let r = ned_from_world.rotation.to_rotation_matrix().into_inner();
+        let expected = Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0);
+        assert!((r - expected).abs().max() < 1e-12, "{r}");
+        let body_from_camera = c.body_from_camera.to_pose();
+        // Optical axis (camera z) is body forward (x).
+        let axis = body_from_camera.rotation * Vector3::z();
+        assert!((axis - Vector3::x()).norm() < 1e-12);
+        let right = body_from_camera.rotation * Vector3::x();
+        assert!((right - Vector3::y()).norm() < 1e-12);
+    }
+
+    #[test]
+    fn quaternion_and_rpy_agree() {
+        let rpy = TransformConfig::from_rpy_deg([1.0, 2.0, 3.0], [0.0, 0.0, 90.0]);
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        let q = TransformConfig {
+            translation_m: [1.0, 2.0, 3.0],
+            rpy_deg: None,
+            quaternion_wxyz: Some([h, 0.0, 0.0, h]),
+        };
+        q.validate().expect("unit quaternion");
+        let d = rpy.to_pose().inverse() * q.to_pose();
+        assert!(d.rotation.angle() < 1e-12 && d.translation.vector.norm() < 1e-12);
+    }
+
+    #[test]
+    fn bad_transforms_are_rejected() {
+        let both = TransformConfig {
+            rpy_deg: Some([0.0; 3]),
+            quaternion_wxyz: Some([1.0, 0.0, 0.0, 0.0]),
+            ..Default::default()
+        };
+        assert!(both.validate().unwrap_err().contains("not both"));
+        let not_unit = TransformConfig {
+            quaternion_wxyz: Some([2.0, 0.0, 0.0, 0.0]),
+            ..Default::default()
+        };
+        assert!(not_unit.validate().unwrap_err().contains("norm 2"));
+        let nan = TransformConfig {
+            translation_m: [f64::NAN, 0.0, 0.0],
+            ..Default::default()
+        };
+        assert!(nan.validate().unwrap_err().contains("translation_m"));
+    }
+
+    #[test]
+    fn bad_values_name_their_key() {
+        let c = MavlinkConfig {
+            rate_hz: 0.0,
+            ..Default::default()
+        };
+        assert_eq!(c.validate().unwrap_err().0, "rate_hz");
+        let c = MavlinkConfig {
+            connection: "udp:1.2.3.4".into(),
+            ..Default::default()
+        };
+        let (key, reason) = c.validate().unwrap_err();
+        assert_eq!(key, "connection");
+        assert!(reason.contains("udp:1.2.3.4"), "{reason}");
+    }
+
+    #[test]
+    fn interval_from_rate() {
+        let c = MavlinkConfig::default();
+        assert_eq!(c.min_interval_ns(), 20_000_000);
+    }
+}

@@ -1,0 +1,287 @@
+//! The MAVLink link to the autopilot (PX4 or ArduPilot), on the `mavlink`
+//! crate with the common dialect, MAVLink 2.
+//!
+//! Owns the connection (`udpout:`, `udpin:`, `tcpout:`, `serial:`) and two
+//! threads: `mavlink-tx` (reconnects, sends poses at a capped rate, HEARTBEAT
+//! at 1 Hz, TIMESYNC requests) and `mavlink-rx` (answers TIMESYNC requests,
+//! feeds the offset estimator). Takes [`PoseSample`]s from the tracker through
+//! a one-slot mailbox ([`MavlinkHandle::publish`] never blocks on the link and
+//! never allocates); gives out VISION_POSITION_ESTIMATE or ODOMETRY in local
+//! NED / body FRD, and [`LinkStats`].
+//!
+//! Sending rules: nothing is sent while tracking is lost; samples closer than
+//! `1 / rate_hz` in capture time to the last sent one are dropped; samples
+//! older than `max_pose_age_ms` when the link takes them are dropped, so a
+//! link that comes back gets the newest pose and never a burst of stale ones.
+//! `usec` is the capture time (CLOCK_MONOTONIC) plus the TIMESYNC offset once
+//! the autopilot has answered.
+//!
+//! ```no_run
+//! # use std::sync::{Arc, atomic::AtomicBool};
+//! # use star::mavlink_io::{MavlinkConfig, MavlinkLink, PoseSample};
+//! let shutdown = Arc::new(AtomicBool::new(false));
+//! let link = MavlinkLink::spawn(&MavlinkConfig::default(), shutdown)?;
+//! # let sample: PoseSample = todo!();
+//! link.publish(sample); // once per tracked (or lost) frame
+//! println!("{:?}", link.stats());
+//! link.shutdown();
+//! # Ok::<(), star::mavlink_io::MavlinkError>(())
+//! ```
+
+pub mod config;
+pub mod frames;
+pub mod link;
+pub mod messages;
+mod receiver;
+pub mod reset;
+mod sender;
+mod stats;
+pub mod timesync;
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex, PoisonError};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use mavlink::MavHeader;
+
+pub use config::{MavlinkConfig, PoseMessage, TransformConfig};
+pub use frames::{FrameConverter, NedPose};
+pub use link::{LinkAddress, LinkError};
+pub use stats::LinkStats;
+pub use timesync::monotonic_now_ns;
+
+use crate::geometry::Pose;
+use sender::Mailbox;
+use stats::Counters;
+use timesync::TimesyncEstimator;
+
+/// How long [`MavlinkHandle::shutdown`] waits for the threads.
+pub const SHUTDOWN_TIMEOUT: Duration = Duration::from_millis(900);
+
+/// One tracker output, as handed to the link.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseSample {
+    /// Capture time of the frame, CLOCK_MONOTONIC, ns.
+    pub capture_ns: u64,
+    /// The tracked camera pose.
+    pub world_from_camera: Pose,
+    /// Covariance of the twist `[v; w]` (m, rad) that perturbs
+    /// `world_from_camera` on the left, in the WORLD frame:
+    /// `true = exp(xi) * world_from_camera`; row-major `[row][col]`.
+    /// A camera-frame (right) covariance converts with
+    /// [`frames::covariance_camera_to_world`]. Non-finite entries send
+    /// "unknown" (NaN in the first element).
+    pub covariance_6x6: [[f64; 6]; 6],
+    /// The tracker's reset counter: change it on relocalization or any jump.
+    pub reset_counter: u8,
+    /// Tracking quality, percent (ODOMETRY `quality`; 0 = unknown).
+    pub quality_percent: u8,
+    /// False while lost: the sample is not sent.
+    pub tracking: bool,
+}
+
+/// Errors starting the link.
+#[derive(Debug, thiserror::Error)]
+pub enum MavlinkError {
+    /// The configured connection string is invalid.
+    #[error(transparent)]
+    Address(#[from] link::AddressError),
+    /// The configuration failed validation.
+    #[error("invalid [mavlink] config: key `mavlink.{key}`: {reason}")]
+    Config {
+        /// Key below `mavlink.`.
+        key: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A thread could not be started.
+    #[error("cannot start MAVLink thread {name}: {source}")]
+    Thread {
+        /// Thread name.
+        name: &'static str,
+        /// The OS error.
+        source: std::io::Error,
+    },
+}
+
+/// State shared by the handle and the two threads.
+pub(crate) struct Shared {
+    pub config: MavlinkConfig,
+    pub address: LinkAddress,
+    pub header: MavHeader,
+    pub shutdown: Arc<AtomicBool>,
+    pub stop: AtomicBool,
+    pub mailbox: Mailbox,
+    /// The open link and its generation (generations start at 1).
+    pub link: Mutex<Option<(u64, Arc<link::Link>)>>,
+    /// Generation that a thread found broken (0 = none).
+    pub broken_generation: AtomicU64,
+    pub timesync: Mutex<TimesyncEstimator>,
+    pub counters: Counters,
+}
+
+impl Shared {
+    pub fn stopping(&self) -> bool {
+        self.stop.load(Ordering::Relaxed) || self.shutdown.load(Ordering::Relaxed)
+    }
+
+    pub fn current_link(&self) -> Option<(u64, Arc<link::Link>)> {
+        self.link
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+
+    pub fn mark_broken(&self, generation: u64, error: &LinkError) {
+        if self.broken_generation.swap(generation, Ordering::AcqRel) != generation {
+            stats::bump(&self.counters.link_errors);
+            tracing::warn!(%error, "MAVLink link down");
+        }
+    }
+
+    pub fn offset_ns(&self) -> Option<i64> {
+        if !self.config.timesync {
+            return None;
+        }
+        self.timesync
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .offset_ns()
+    }
+}
+
+/// Starts the link threads.
+pub struct MavlinkLink;
+
+impl MavlinkLink {
+    /// Validates `config` and starts the threads. The link itself opens in
+    /// the background and reopens after failures, so an autopilot that boots
+    /// later is fine. The threads stop when `shutdown` becomes true or the
+    /// handle is shut down or dropped.
+    pub fn spawn(
+        config: &MavlinkConfig,
+        shutdown: Arc<AtomicBool>,
+    ) -> Result<MavlinkHandle, MavlinkError> {
+        config
+            .validate()
+            .map_err(|(key, reason)| MavlinkError::Config { key, reason })?;
+        let address = LinkAddress::parse(&config.connection)?;
+        let shared = Arc::new(Shared {
+            config: config.clone(),
+            address,
+            header: MavHeader {
+                system_id: u32::from(config.system_id),
+                component_id: config.component_id,
+                sequence: 0,
+            },
+            shutdown,
+            stop: AtomicBool::new(false),
+            mailbox: Mailbox::new(),
+            link: Mutex::new(None),
+            broken_generation: AtomicU64::new(0),
+            timesync: Mutex::new(TimesyncEstimator::new()),
+            counters: Counters::default(),
+        });
+        let (done_tx, done_rx) = mpsc::channel();
+        let mut handle = MavlinkHandle {
+            shared: shared.clone(),
+            threads: Vec::with_capacity(2),
+            done_rx: Mutex::new(done_rx),
+        };
+        let starts: [(&'static str, fn(Arc<Shared>)); 2] =
+            [("mavlink-tx", sender::run), ("mavlink-rx", receiver::run)];
+        for (name, body) in starts {
+            let shared = shared.clone();
+            let done = DoneGuard(done_tx.clone());
+            let thread = std::thread::Builder::new()
+                .name(name.into())
+                .spawn(move || {
+                    let _done = done;
+                    body(shared);
+                })
+                .map_err(|source| MavlinkError::Thread { name, source })?;
+            handle.threads.push(thread);
+        }
+        tracing::info!(connection = %shared.address, rate_hz = config.rate_hz, message = ?config.message, "MAVLink link started");
+        Ok(handle)
+    }
+}
+
+/// Tells the handle a thread has finished, also when it panicked.
+struct DoneGuard(mpsc::Sender<()>);
+
+impl Drop for DoneGuard {
+    fn drop(&mut self) {
+        let _ = self.0.send(());
+    }
+}
+
+/// The tracker's side of the link. `Send + Sync`: share it behind an `Arc`
+/// if several threads publish or read stats.
+pub struct MavlinkHandle {
+    shared: Arc<Shared>,
+    threads: Vec<JoinHandle<()>>,
+    /// In a mutex only to make the handle `Sync`; used with `&mut self`.
+    done_rx: Mutex<mpsc::Receiver<()>>,
+}
+
+impl MavlinkHandle {
+    /// Hands the newest sample to the link, replacing one not yet taken.
+    /// Never waits for the link and never allocates.
+    pub fn publish(&self, sample: PoseSample) {
+        self.shared.mailbox.put(sample);
+    }
+
+    /// Counters: messages sent by type, drops by reason, link up or down.
+    pub fn stats(&self) -> LinkStats {
+        self.shared.counters.snapshot()
+    }
+
+    /// Stops the threads and waits up to [`SHUTDOWN_TIMEOUT`] for them.
+    /// Returns whether all of them finished in time (a thread stuck in a
+    /// device call is left behind and ends with the process).
+    pub fn shutdown(mut self) -> bool {
+        self.stop_and_join()
+    }
+
+    fn stop_and_join(&mut self) -> bool {
+        if self.threads.is_empty() {
+            return true;
+        }
+        self.shared.stop.store(true, Ordering::Relaxed);
+        self.shared.mailbox.wake();
+        let deadline = Instant::now() + SHUTDOWN_TIMEOUT;
+        let mut finished = 0;
+        while finished < self.threads.len() {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let done_rx = self
+                .done_rx
+                .get_mut()
+                .unwrap_or_else(PoisonError::into_inner);
+            match done_rx.recv_timeout(left) {
+                Ok(()) => finished += 1,
+                Err(_) => break,
+            }
+        }
+        let all = finished == self.threads.len();
+        if all {
+            for t in self.threads.drain(..) {
+                let _ = t.join();
+            }
+            tracing::info!("MAVLink link stopped");
+        } else {
+            tracing::warn!(
+                "MAVLink threads did not stop within {SHUTDOWN_TIMEOUT:?}; leaving them"
+            );
+            self.threads.clear();
+        }
+        all
+    }
+}
+
+impl Drop for MavlinkHandle {
+    fn drop(&mut self) {
+        self.stop_and_join();
+    }
+}

@@ -1,0 +1,173 @@
+//! Triangle setup and binning.
+//!
+//! Takes a fixed range of mesh triangles (a chunk) and the transformed
+//! vertices, culls the triangles that cannot cover a pixel center, clips
+//! those that cross the near plane or the guard band, and gives out
+//! screen-space triangles ([`ScreenTri`]) binned into horizontal bands of
+//! [`BAND_ROWS`] rows. Chunk boundaries do not depend on the thread count,
+//! so neither does the order in which a band sees its triangles.
+
+use super::clip::{ClipVertex, Polygon, MAX_POLY};
+use super::view::{CamVertex, View, CLIP_MASK, CULL_MASK, OUT_INVALID, SUBPIXEL_BITS};
+use crate::map::Mesh;
+
+/// Rows per band: the unit of work of the raster stage.
+pub(super) const BAND_ROWS: usize = 16;
+/// Mesh triangles per setup chunk: the unit of work of the setup stage.
+pub(super) const CHUNK_TRIS: usize = 4096;
+/// Texture index meaning "no texture".
+pub(super) const NO_TEXTURE: u32 = u32::MAX;
+
+/// A projected, positively oriented triangle ready to rasterize.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ScreenTri {
+    /// Fixed-point screen x of the vertices.
+    pub x: [i32; 3],
+    /// Fixed-point screen y of the vertices.
+    pub y: [i32; 3],
+    /// `1/z` at the vertices.
+    pub inv_z: [f32; 3],
+    /// `gray/z` at the vertices.
+    pub gray_z: [f32; 3],
+    /// `u/z` at the vertices.
+    pub u_z: [f32; 3],
+    /// `v/z` at the vertices.
+    pub v_z: [f32; 3],
+    /// Texture index, or [`NO_TEXTURE`].
+    pub texture: u32,
+    /// Pixel-center bounds `[x_min, x_max, y_min, y_max]`, inclusive,
+    /// clamped to the image.
+    pub bbox: [u16; 4],
+}
+
+/// Scratch of one setup chunk, reused across renders.
+#[derive(Debug, Default)]
+pub(super) struct Chunk {
+    /// The chunk's screen triangles.
+    pub tris: Vec<ScreenTri>,
+    /// Per band, the indices into `tris` of the triangles touching it.
+    pub bins: Vec<Vec<u32>>,
+}
+
+/// A vertex after projection, before orientation.
+#[derive(Clone, Copy, Default)]
+struct Projected {
+    sx: i32,
+    sy: i32,
+    inv_z: f32,
+    gray: f32,
+    uv: [f32; 2],
+}
+
+impl Chunk {
+    /// Sets up and bins mesh triangles `first..first + CHUNK_TRIS` (clamped
+    /// to the mesh) for `view`. `bands` is the number of bands of the image.
+    pub fn build(
+        &mut self,
+        first: usize,
+        mesh: &Mesh,
+        tri_texture: &[u32],
+        verts: &[CamVertex],
+        view: &View,
+        bands: usize,
+    ) {
+        self.tris.clear();
+        if self.bins.len() != bands {
+            self.bins.resize_with(bands, Vec::new);
+        }
+        for bin in &mut self.bins {
+            bin.clear();
+        }
+        let last = (first + CHUNK_TRIS).min(tri_texture.len());
+        let uv_at = |i: usize| mesh.uvs.get(i).copied().unwrap_or([0.0, 0.0]);
+        let indices = mesh.indices.get(3 * first..3 * last).unwrap_or(&[]);
+        let textures = tri_texture.get(first..last).unwrap_or(&[]);
+        for (tri, &texture) in indices.chunks_exact(3).zip(textures) {
+            let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
+            let cv = [verts[idx[0]], verts[idx[1]], verts[idx[2]]];
+            let all = cv[0].code & cv[1].code & cv[2].code;
+            let any = cv[0].code | cv[1].code | cv[2].code;
+            if all & CULL_MASK != 0 || any & OUT_INVALID != 0 {
+                continue;
+            }
+            if any & CLIP_MASK == 0 {
+                let p = |k: usize| Projected {
+                    sx: cv[k].sx,
+                    sy: cv[k].sy,
+                    inv_z: cv[k].inv_z,
+                    gray: mesh.gray[idx[k]],
+                    uv: uv_at(idx[k]),
+                };
+                self.emit([p(0), p(1), p(2)], texture, view);
+            } else {
+                let c = |k: usize| ClipVertex {
+                    p: cv[k].p,
+                    gray: mesh.gray[idx[k]],
+                    uv: uv_at(idx[k]),
+                };
+                let mut poly = Polygon::triangle([c(0), c(1), c(2)]);
+                poly.clip(view, any & CLIP_MASK);
+                if poly.len < 3 {
+                    continue;
+                }
+                let mut proj = [Projected::default(); MAX_POLY];
+                for (slot, cvx) in proj.iter_mut().zip(&poly.verts[..poly.len]) {
+                    let (sx, sy, inv_z) = view.project(cvx.p);
+                    *slot = Projected {
+                        sx,
+                        sy,
+                        inv_z,
+                        gray: cvx.gray,
+                        uv: cvx.uv,
+                    };
+                }
+                for k in 1..poly.len - 1 {
+                    self.emit([proj[0], proj[k], proj[k + 1]], texture, view);
+                }
+            }
+        }
+    }
+
+    /// Orients, bounds and bins one projected triangle; drops it when it is
+    /// degenerate or covers no pixel center.
+    #[inline]
+    fn emit(&mut self, mut v: [Projected; 3], texture: u32, view: &View) {
+        let area2 = (i64::from(v[1].sx) - i64::from(v[0].sx))
+            * (i64::from(v[2].sy) - i64::from(v[0].sy))
+            - (i64::from(v[1].sy) - i64::from(v[0].sy)) * (i64::from(v[2].sx) - i64::from(v[0].sx));
+        if area2 == 0 {
+            return;
+        }
+        if area2 < 0 {
+            v.swap(1, 2);
+        }
+        let bits = SUBPIXEL_BITS;
+        let min_x = v[0].sx.min(v[1].sx).min(v[2].sx);
+        let max_x = v[0].sx.max(v[1].sx).max(v[2].sx);
+        let min_y = v[0].sy.min(v[1].sy).min(v[2].sy);
+        let max_y = v[0].sy.max(v[1].sy).max(v[2].sy);
+        // Pixel centers inside [min, max]: ceil(min) ..= floor(max).
+        let x0 = (-((-min_x) >> bits)).max(0);
+        let x1 = (max_x >> bits).min(view.width as i32 - 1);
+        let y0 = (-((-min_y) >> bits)).max(0);
+        let y1 = (max_y >> bits).min(view.height as i32 - 1);
+        if x0 > x1 || y0 > y1 {
+            return;
+        }
+        let index = self.tris.len() as u32;
+        self.tris.push(ScreenTri {
+            x: [v[0].sx, v[1].sx, v[2].sx],
+            y: [v[0].sy, v[1].sy, v[2].sy],
+            inv_z: [v[0].inv_z, v[1].inv_z, v[2].inv_z],
+            gray_z: [0, 1, 2].map(|k| v[k].gray * v[k].inv_z),
+            u_z: [0, 1, 2].map(|k| v[k].uv[0] * v[k].inv_z),
+            v_z: [0, 1, 2].map(|k| v[k].uv[1] * v[k].inv_z),
+            texture,
+            bbox: [x0 as u16, x1 as u16, y0 as u16, y1 as u16],
+        });
+        let (b0, b1) = (y0 as usize / BAND_ROWS, y1 as usize / BAND_ROWS);
+        for bin in &mut self.bins[b0..=b1] {
+            bin.push(index);
+        }
+    }
+}
