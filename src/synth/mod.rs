@@ -4,4 +4,5 @@
 
 pub mod corrupt;
 pub mod look;
+pub mod preset;
 pub mod trajectory;

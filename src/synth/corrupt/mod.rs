@@ -9,19 +9,18 @@
 //!   missing;
 //! - [`blur`]: motion blur as the average of sub-frame renders across the
 //!   exposure, with as many sub-frames as the motion needs;
-//! - [`holes`]: map holes, patches of triangles removed from the map mesh.
 //!
-//! Occluders live in the scene's truth mesh and not in its map mesh; the
-//! preset only chooses which mesh draws the images.
+//! Map holes and occluders are built by the scene
+//! (`synth::scene::SceneParams::hole_fraction` and `occluders`): the map
+//! mesh written to `map/` has the holes, the truth mesh the camera renders
+//! has the occluders; the preset chooses which mesh draws the images.
 
 pub mod blur;
 pub mod distortion;
-pub mod holes;
 pub mod photometric;
 
 pub use blur::{subframe_offsets_s, BlurSpec};
 pub use distortion::{DistortionError, DistortionWarp};
-pub use holes::{punch_holes, refine, HoleSpec};
 pub use photometric::{PhotometricDrift, PhotometricSpec, SensorModel};
 
 /// Mixes a seed with a stream index (frame number, component) into an
