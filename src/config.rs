@@ -84,6 +84,8 @@ pub struct Config {
     pub keyframe: KeyframeConfig,
     /// The MAVLink link to the autopilot.
     pub mavlink: crate::mavlink_io::MavlinkConfig,
+    /// Inter-process transport (iceoryx2).
+    pub ipc: IpcConfig,
 }
 
 /// `[keyframe]`: the keyframe policy and the lost test.
@@ -131,8 +133,21 @@ pub struct CameraConfig {
     pub source: String,
     /// Requested frame rate, Hz.
     pub fps: f64,
-    /// Calibration of the camera (distortion included).
+    /// Calibration of the camera (distortion included). Its width and height
+    /// are also the capture size requested from the camera.
     pub intrinsics: PinholeCamera,
+    /// Fixed exposure, microseconds; absent leaves auto exposure on.
+    pub exposure_us: Option<f64>,
+    /// Fixed analog gain, dB; absent leaves auto gain on.
+    pub gain_db: Option<f64>,
+    /// Driver buffers: V4L2 mmap buffers or the Aravis buffer pool (2..=32).
+    pub buffers: u32,
+    /// A camera that delivers no frame for this long is reconnected, ms.
+    pub frame_timeout_ms: u64,
+    /// Replay speed factor; 1 plays at the recorded rate.
+    pub replay_speed: f64,
+    /// Replay starts over at the end of the dataset.
+    pub replay_loop: bool,
 }
 
 impl Default for CameraConfig {
@@ -141,6 +156,49 @@ impl Default for CameraConfig {
             source: "v4l2:/dev/video0".into(),
             fps: 50.0,
             intrinsics: PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5),
+            exposure_us: None,
+            gain_db: None,
+            buffers: 4,
+            frame_timeout_ms: 2000,
+            replay_speed: 1.0,
+            replay_loop: false,
+        }
+    }
+}
+
+impl CameraConfig {
+    /// The settings camera sources take.
+    pub fn source_settings(&self) -> crate::camera::SourceSettings {
+        crate::camera::SourceSettings {
+            width: self.intrinsics.width,
+            height: self.intrinsics.height,
+            fps: self.fps,
+            buffers: self.buffers,
+            exposure_us: self.exposure_us,
+            gain_db: self.gain_db,
+            replay_speed: self.replay_speed,
+            replay_loop: self.replay_loop,
+            frame_timeout_ms: self.frame_timeout_ms,
+        }
+    }
+}
+
+/// `[ipc]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IpcConfig {
+    /// iceoryx2 configuration file (the repository ships `config/iceoryx2.toml`);
+    /// when missing, iceoryx2's defaults are used and a warning is logged.
+    pub iceoryx2_config: PathBuf,
+    /// The tracker reports the camera silent after this long without a frame, ms.
+    pub silence_timeout_ms: u64,
+}
+
+impl Default for IpcConfig {
+    fn default() -> Self {
+        Self {
+            iceoryx2_config: PathBuf::from("/etc/star/iceoryx2.toml"),
+            silence_timeout_ms: 500,
         }
     }
 }
@@ -256,6 +314,63 @@ impl Config {
             return Err(invalid(
                 "camera.fps",
                 format!("expected 0 < fps <= 1000, found {}", self.camera.fps),
+            ));
+        }
+        if let Err(e) = crate::camera::SourceUri::parse(&self.camera.source) {
+            return Err(invalid("camera.source", e.to_string()));
+        }
+        let (w, h) = (self.camera.intrinsics.width, self.camera.intrinsics.height);
+        if w > crate::ipc::FRAME_MAX_WIDTH || h > crate::ipc::FRAME_MAX_HEIGHT {
+            return Err(invalid(
+                "camera.intrinsics",
+                format!(
+                    "expected at most {}x{} (the frame capacity), found {w}x{h}",
+                    crate::ipc::FRAME_MAX_WIDTH,
+                    crate::ipc::FRAME_MAX_HEIGHT
+                ),
+            ));
+        }
+        for (key, value) in [
+            ("camera.exposure_us", self.camera.exposure_us),
+            ("camera.gain_db", self.camera.gain_db),
+        ] {
+            if let Some(v) = value {
+                if !v.is_finite() || (key == "camera.exposure_us" && v <= 0.0) {
+                    return Err(invalid(
+                        key,
+                        format!("expected a positive finite value, found {v}"),
+                    ));
+                }
+            }
+        }
+        if !(2..=32).contains(&self.camera.buffers) {
+            return Err(invalid(
+                "camera.buffers",
+                format!("expected 2..=32, found {}", self.camera.buffers),
+            ));
+        }
+        if !(10..=60_000).contains(&self.camera.frame_timeout_ms) {
+            return Err(invalid(
+                "camera.frame_timeout_ms",
+                format!(
+                    "expected 10..=60000, found {}",
+                    self.camera.frame_timeout_ms
+                ),
+            ));
+        }
+        if !(self.camera.replay_speed.is_finite() && self.camera.replay_speed > 0.0) {
+            return Err(invalid(
+                "camera.replay_speed",
+                format!(
+                    "expected a positive factor, found {}",
+                    self.camera.replay_speed
+                ),
+            ));
+        }
+        if !(10..=60_000).contains(&self.ipc.silence_timeout_ms) {
+            return Err(invalid(
+                "ipc.silence_timeout_ms",
+                format!("expected 10..=60000, found {}", self.ipc.silence_timeout_ms),
             ));
         }
         if !(1..=6).contains(&self.tracker.pyramid_levels) {
@@ -416,6 +531,36 @@ mod tests {
         )
         .expect_err("negative focal length");
         assert!(err.to_string().contains("fx"), "{err}");
+    }
+
+    #[test]
+    fn camera_and_ipc_keys_are_validated() {
+        let c = Config::parse(
+            "[camera]\nsource = \"aravis:fake\"\nexposure_us = 5000.0\nbuffers = 8\n[ipc]\nsilence_timeout_ms = 250\n",
+            Path::new("a.toml"),
+        )
+        .expect("valid");
+        assert_eq!(c.camera.exposure_us, Some(5000.0));
+        assert_eq!(c.camera.source_settings().buffers, 8);
+        assert_eq!(c.ipc.silence_timeout_ms, 250);
+        for (text, key) in [
+            ("[camera]\nsource = \"usb:0\"\n", "camera.source"),
+            ("[camera]\nbuffers = 1\n", "camera.buffers"),
+            ("[camera]\nexposure_us = -1.0\n", "camera.exposure_us"),
+            ("[camera]\nreplay_speed = 0.0\n", "camera.replay_speed"),
+            (
+                "[camera]\nframe_timeout_ms = 1\n",
+                "camera.frame_timeout_ms",
+            ),
+            ("[ipc]\nsilence_timeout_ms = 0\n", "ipc.silence_timeout_ms"),
+            (
+                "[camera.intrinsics]\nwidth=4096\nheight=512\nfx=400\nfy=400\ncx=320\ncy=256\n",
+                "camera.intrinsics",
+            ),
+        ] {
+            let err = Config::parse(text, Path::new("a.toml")).expect_err(key);
+            assert!(err.to_string().contains(key), "{key}: {err}");
+        }
     }
 
     #[test]

@@ -5,6 +5,7 @@
 //! publishes frames, the tracker aligns each frame against a keyframe rendered
 //! from the map, and the pose goes to the autopilot over MAVLink.
 
+pub mod camera;
 pub mod cli;
 pub mod config;
 pub mod dataset;
@@ -12,6 +13,7 @@ pub mod eval;
 pub mod geometry;
 pub mod imgproc;
 pub mod localizer;
+pub mod ipc;
 pub mod map;
 pub mod mavlink_io;
 pub mod render;

@@ -2,6 +2,8 @@
 //! burst of stale poses, dropping stale and lost samples, TIMESYNC answers,
 //! and shutdown through the shared flag.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::net::{TcpListener, TcpStream, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -142,7 +144,7 @@ fn drain(peer: &UdpSocket, window: Duration) -> Vec<(MavHeader, MavMessage)> {
 }
 
 #[test]
-fn stale_and_lost_samples_are_not_sent_and_timesync_is_answered() {
+fn stale_lost_and_invalid_samples_are_not_sent_and_timesync_is_answered() {
     let (peer, config) = udp_peer();
     let shutdown = Arc::new(AtomicBool::new(false));
     let link = MavlinkLink::spawn(&config, shutdown.clone()).unwrap();
@@ -152,6 +154,11 @@ fn stale_and_lost_samples_are_not_sent_and_timesync_is_answered() {
     wait_for("stale drop", || link.stats().poses_dropped_stale == 1);
     link.publish(sample(monotonic_now_ns(), false));
     wait_for("lost drop", || link.stats().poses_dropped_lost == 1);
+    // A NaN pose from a broken tracker is not sent either.
+    let mut nan = sample(monotonic_now_ns(), true);
+    nan.world_from_camera.translation.vector.x = f64::NAN;
+    link.publish(nan);
+    wait_for("invalid drop", || link.stats().poses_dropped_invalid == 1);
     let got = drain(&peer, Duration::from_millis(100));
     assert!(got
         .iter()

@@ -2,6 +2,8 @@
 //! A counting global allocator counts this thread's allocations only (the
 //! link's own threads allocate as they please).
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::atomic::AtomicBool;

@@ -7,6 +7,8 @@
 //! The Python venv is `$STAR_VENV` (default `<repo>/.venv`). Without it the
 //! test prints SKIP and passes, unless `CI` or `STAR_REQUIRE_VENV` is set.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -148,26 +150,42 @@ fn check_timesync_answers(records: &[Value]) {
         .into_iter()
         .filter(|r| r["fields"]["tc1"] != 0)
         .collect();
-    assert!(requests.len() >= 4, "{} requests", requests.len());
+    let answered: Vec<i64> = answers
+        .iter()
+        .map(|a| a["fields"]["ts1"].as_i64().unwrap())
+        .collect();
     assert!(
-        answers.len() >= requests.len() - 2,
-        "{} of {} answered",
-        answers.len(),
-        requests.len()
+        answered.iter().all(|ts1| requests.contains(ts1)),
+        "answers echo request ts1"
     );
-    for a in &answers {
-        assert!(
-            requests.contains(&a["fields"]["ts1"].as_i64().unwrap()),
-            "{a}"
-        );
-    }
-    let last = answers.last().unwrap();
-    let (tc1, ts1) = (f(&last["fields"]["tc1"]), f(&last["fields"]["ts1"]));
-    let now = f(&last["clock_ns"]);
+    // Requests sent well before the link went quiet were all answered (the
+    // receiver may read with a delay on a loaded machine, hence 0.5 s).
+    let last_heard = records
+        .iter()
+        .filter(|r| r["kind"] == "rx")
+        .map(|r| r["clock_ns"].as_i64().unwrap())
+        .max()
+        .unwrap();
+    let due: Vec<i64> = requests
+        .iter()
+        .copied()
+        .filter(|ts1| *ts1 < last_heard - 500_000_000)
+        .collect();
+    assert!(due.len() >= 4, "{} requests", due.len());
+    let missed = due.iter().filter(|ts1| !answered.contains(ts1)).count();
+    assert!(missed <= 1, "{missed} of {} requests unanswered", due.len());
+    // The answer with the shortest round trip bounds our clock's error.
+    let best = answers
+        .iter()
+        .min_by_key(|a| a["clock_ns"].as_i64().unwrap() - a["fields"]["ts1"].as_i64().unwrap())
+        .unwrap();
+    let (tc1, ts1) = (f(&best["fields"]["tc1"]), f(&best["fields"]["ts1"]));
+    let now = f(&best["clock_ns"]);
     let apparent_offset_ms = (tc1 - (ts1 + now) / 2.0) * 1e-6;
+    let half_rtt_ms = (now - ts1) * 0.5e-6;
     assert!(
-        apparent_offset_ms.abs() < 20.0,
-        "our public clock is off by {apparent_offset_ms} ms"
+        apparent_offset_ms.abs() < half_rtt_ms + 20.0,
+        "our public clock is off by {apparent_offset_ms} ms (half round trip {half_rtt_ms} ms)"
     );
 }
 
@@ -272,6 +290,7 @@ fn vision_position_estimate_to_pymavlink() {
         "{stats:?}"
     );
     let mut last_usec = 0u64;
+    let mut short_intervals = 0;
     let mut counters = Vec::new();
     for v in &vision {
         let d = &v["fields"];
@@ -299,14 +318,20 @@ fn vision_position_estimate_to_pymavlink() {
         // Yaw about the world origin moves the body at (2.9, 2.0) by 1e-4 * r^2 more.
         assert!((cov[0] - (0.01 + 1e-4 * 2.0 * 2.0)).abs() < 1e-7, "{cov:?}");
         assert!((cov[6] - (0.04 + 1e-4 * 2.9 * 2.9)).abs() < 1e-7, "{cov:?}");
-        // Rate cap on capture time: >= 20 ms apart (minus the TIMESYNC refinement).
+        // Rate cap on capture time: >= 20 ms apart, except where a better
+        // TIMESYNC sample moved the offset between two messages.
         let usec = d["usec"].as_u64().unwrap();
-        if last_usec != 0 {
-            assert!(usec >= last_usec + 19_000, "usec {last_usec} -> {usec}");
+        if last_usec != 0 && usec < last_usec + 20_000 {
+            short_intervals += 1;
         }
         last_usec = usec;
         counters.push(d["reset_counter"].as_u64().unwrap());
     }
+    assert!(
+        short_intervals <= stats.timesync_samples,
+        "{short_intervals} intervals under 20 ms, {} offset updates",
+        stats.timesync_samples
+    );
     // reset_counter: 0, then +1 (resumed after lost, tracker reset 0->1 in the
     // same sample), then +1 (tracker reset 1->2).
     assert_eq!(counters.first(), Some(&0));
@@ -319,12 +344,13 @@ fn vision_position_estimate_to_pymavlink() {
     );
     assert!(counters.contains(&1));
     // Once synchronized, usec is in the receiver's clock: the last messages
-    // were captured shortly before they arrived.
+    // were captured shortly before they arrived (without the offset they
+    // would look 5 s old; the receiver may read late on a loaded machine).
     for v in &vision[vision.len() - 10..] {
         let usec_ns = v["fields"]["usec"].as_i64().unwrap() * 1000;
         let latency_ms = (v["clock_ns"].as_i64().unwrap() - usec_ns) as f64 * 1e-6;
         assert!(
-            (-5.0..150.0).contains(&latency_ms),
+            (-20.0..1000.0).contains(&latency_ms),
             "usec is {latency_ms} ms before arrival"
         );
     }
@@ -340,6 +366,8 @@ fn odometry_to_pymavlink() {
         message: PoseMessage::Odometry,
         body_from_camera: TransformConfig::from_rpy_deg([0.0, 0.0, 0.10], [0.0, 0.0, 90.0]),
         rate_hz: 30.0,
+        // usec = capture time exactly, so the rate cap shows unblurred.
+        timesync: false,
         ..MavlinkConfig::default()
     };
     let link = MavlinkLink::spawn(&config, Arc::new(AtomicBool::new(false))).unwrap();
@@ -387,7 +415,7 @@ fn odometry_to_pymavlink() {
         let usec = d["time_usec"].as_u64().unwrap();
         if last_usec != 0 {
             assert!(
-                usec >= last_usec + 32_000,
+                usec >= last_usec + 33_333,
                 "30 Hz cap: {last_usec} -> {usec}"
             );
         }

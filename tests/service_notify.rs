@@ -3,6 +3,8 @@
 //!
 //! One test in this binary, because it sets process-wide environment variables.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::os::unix::net::UnixDatagram;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;

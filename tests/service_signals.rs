@@ -1,6 +1,8 @@
 //! SIGTERM and SIGINT set the shared shutdown flag instead of killing the
 //! process. One test in this binary, because handlers are process-wide.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use std::sync::atomic::Ordering;
 
 #[test]

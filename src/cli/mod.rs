@@ -8,10 +8,12 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod camera;
 mod check_config;
 mod eval;
 pub mod localize;
 mod pose_arg;
+mod replay;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]
@@ -50,6 +52,10 @@ pub enum Command {
         #[arg(long, default_value_t = crate::eval::DEFAULT_MAX_DT_S)]
         max_dt: f64,
     },
+    /// Run the camera process: read a camera and publish frames over iceoryx2.
+    Camera(camera::CameraArgs),
+    /// Play a dataset into a v4l2loopback device (virtual camera) or onto iceoryx2.
+    Replay(replay::ReplayArgs),
 }
 
 fn init_tracing(filter: Option<&str>) {
@@ -77,6 +83,8 @@ pub fn main() -> ExitCode {
             delta,
             max_dt,
         } => eval::run(&gt, &est, delta, max_dt),
+        Command::Camera(args) => camera::run(&args),
+        Command::Replay(args) => replay::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

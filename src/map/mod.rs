@@ -20,7 +20,7 @@ mod validate;
 pub use error::{MapError, MeshProblem, IN_MEMORY};
 pub use obj::{load_gray_texture, load_obj, luma601_255};
 pub use obj_write::write_obj;
-pub use subdivide::subdivide;
+pub use subdivide::{subdivide, MAX_SUBDIVIDED_TRIANGLES};
 
 /// A texture converted to gray intensity (0..=255 as f32), row-major,
 /// with `v = 0` at the top row (image convention, OBJ `vt` is flipped on load).
@@ -55,12 +55,13 @@ pub struct Mesh {
     /// Per-vertex gray intensity, 0..=255.
     pub gray: Vec<f32>,
     /// Per-vertex texture coordinates, `[u, v]` with v down (image rows);
-    /// zero when the vertex has none.
+    /// zero when the vertex has none; may be empty when no group is textured.
     pub uvs: Vec<[f32; 2]>,
     /// Triangle vertex indices, three per triangle, counter-clockwise or not
     /// (renderers do not cull back faces).
     pub indices: Vec<u32>,
-    /// Triangle groups by texture, covering `indices` exactly once.
+    /// Triangle groups by texture, covering `indices` exactly once, in
+    /// order; empty means every triangle is untextured.
     pub groups: Vec<MeshGroup>,
     /// Gray textures referenced by the groups.
     pub textures: Vec<GrayTexture>,

@@ -45,7 +45,6 @@ pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
         triangulate: true,
         ignore_points: true,
         ignore_lines: true,
-        ..Default::default()
     };
     let parsed = tobj::load_obj_buf(&mut text.as_bytes(), &options, |mtl: &Path| {
         let full = obj_dir.join(mtl);

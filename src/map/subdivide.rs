@@ -1,55 +1,91 @@
-//! Uniform 1-to-4 subdivision of a [`Mesh`], to make large meshes with the
-//! same surface for renderer benchmarks (200k, 1M triangles).
+//! Uniform subdivision of a [`Mesh`], to make large meshes with the same
+//! surface for renderer benchmarks (200k, 1M triangles).
 //!
 //! Takes a mesh and a minimum triangle count; gives out a new mesh whose
-//! every triangle is split at its edge midpoints (gray and uv interpolated
-//! linearly) as many times as needed. The surface, bounds, groups and
-//! textures are unchanged; edge midpoints are shared so the mesh stays
-//! watertight where it was.
+//! every triangle is split into `n x n` similar triangles (each edge cut into
+//! `n` equal segments, gray and uv interpolated linearly), with the smallest
+//! `n` that reaches the count. `n = 2` is the classic 1-to-4 midpoint split
+//! and `n = 2^k` equals `k` rounds of it; other `n` land closer to the target
+//! (a 27k-triangle room gives 242k for 200k, not 430k). The surface, bounds,
+//! groups and textures are unchanged; edge points are shared between
+//! neighbouring triangles so the mesh stays watertight where it was.
 
 use std::collections::HashMap;
 
 use super::{Mesh, MeshGroup};
 
-/// Splits every triangle into 4 (at edge midpoints) until the mesh has at
-/// least `min_triangles` triangles. Returns a copy when it already has.
+/// Largest number of triangles [`subdivide`] produces.
+pub const MAX_SUBDIVIDED_TRIANGLES: usize = 64 << 20;
+
+/// Splits every triangle into `n x n` (smallest `n` with at least
+/// `min_triangles` in all, capped at [`MAX_SUBDIVIDED_TRIANGLES`]). Returns a
+/// copy when the mesh already has enough. Triangles with out-of-range
+/// indices are dropped ([`Mesh::validate`] reports them).
 pub fn subdivide(mesh: &Mesh, min_triangles: usize) -> Mesh {
-    let mut out = mesh.clone();
-    while out.triangle_count() < min_triangles && out.triangle_count() > 0 {
-        out = subdivide_once(&out);
+    let count = mesh.triangle_count();
+    if count == 0 || count >= min_triangles {
+        return mesh.clone();
     }
-    out
+    let target = min_triangles.min(MAX_SUBDIVIDED_TRIANGLES) as f64;
+    let mut n = ((target / count as f64).sqrt().ceil() as usize).max(1);
+    while n > 1 && count * n * n > MAX_SUBDIVIDED_TRIANGLES {
+        n -= 1;
+    }
+    split(mesh, n)
 }
 
-/// One round of 1-to-4 subdivision.
-fn subdivide_once(mesh: &Mesh) -> Mesh {
+/// Interpolation weights and source vertices of a new vertex.
+type Blend = [(u32, f64); 3];
+
+/// Splits every triangle into `n x n`.
+fn split(mesh: &Mesh, n: usize) -> Mesh {
+    let vertex_count = mesh.positions.len();
+    let has_uvs = mesh.uvs.len() == vertex_count;
     let mut out = Mesh {
         positions: mesh.positions.clone(),
         gray: mesh.gray.clone(),
         uvs: mesh.uvs.clone(),
-        indices: Vec::with_capacity(mesh.indices.len() * 4),
-        groups: Vec::with_capacity(mesh.groups.len()),
+        indices: Vec::with_capacity(mesh.indices.len() * n * n),
+        groups: Vec::with_capacity(mesh.groups.len().max(1)),
         textures: mesh.textures.clone(),
     };
-    let mut midpoints: HashMap<(u32, u32), u32> = HashMap::with_capacity(mesh.indices.len());
-    let n = mesh.positions.len();
-    let attr = |v: &Vec<f32>, i: u32| v.get(i as usize).copied().unwrap_or(0.0);
-    let uv = |i: u32| mesh.uvs.get(i as usize).copied().unwrap_or([0.0, 0.0]);
-    let mut midpoint = |out: &mut Mesh, a: u32, b: u32| -> u32 {
-        let key = (a.min(b), a.max(b));
-        *midpoints.entry(key).or_insert_with(|| {
-            let (pa, pb) = (mesh.positions[a as usize], mesh.positions[b as usize]);
-            out.positions.push([
-                0.5 * (pa[0] + pb[0]),
-                0.5 * (pa[1] + pb[1]),
-                0.5 * (pa[2] + pb[2]),
-            ]);
-            out.gray
-                .push(0.5 * (attr(&mesh.gray, a) + attr(&mesh.gray, b)));
-            let (ua, ub) = (uv(a), uv(b));
-            out.uvs.push([0.5 * (ua[0] + ub[0]), 0.5 * (ua[1] + ub[1])]);
-            (out.positions.len() - 1) as u32
-        })
+    let push = |out: &mut Mesh, blend: Blend| -> u32 {
+        let mut p = [0.0f64; 3];
+        let (mut g, mut uv) = (0.0f64, [0.0f64; 2]);
+        for (i, w) in blend {
+            let i = i as usize;
+            for (acc, &c) in p.iter_mut().zip(&mesh.positions[i]) {
+                *acc += w * f64::from(c);
+            }
+            g += w * f64::from(mesh.gray.get(i).copied().unwrap_or(0.0));
+            if has_uvs {
+                uv[0] += w * f64::from(mesh.uvs[i][0]);
+                uv[1] += w * f64::from(mesh.uvs[i][1]);
+            }
+        }
+        out.positions.push([p[0] as f32, p[1] as f32, p[2] as f32]);
+        out.gray.push(g as f32);
+        if has_uvs {
+            out.uvs.push([uv[0] as f32, uv[1] as f32]);
+        }
+        (out.positions.len() - 1) as u32
+    };
+    // The n - 1 inner points of each edge, keyed by (low, high) vertex and
+    // stored from low to high.
+    let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(mesh.indices.len());
+    let nf = n as f64;
+    let mut edge_point = |out: &mut Mesh, from: u32, to: u32, k: usize| -> u32 {
+        let (lo, hi) = (from.min(to), from.max(to));
+        let first = *edges.entry((lo, hi)).or_insert_with(|| {
+            let first = out.positions.len() as u32;
+            for step in 1..n {
+                let t = step as f64 / nf;
+                push(&mut *out, [(lo, 1.0 - t), (hi, t), (hi, 0.0)]);
+            }
+            first
+        });
+        let step = if from == lo { k } else { n - k };
+        first + step as u32 - 1
     };
     let groups: Vec<MeshGroup> = if mesh.groups.is_empty() {
         vec![MeshGroup {
@@ -60,20 +96,47 @@ fn subdivide_once(mesh: &Mesh) -> Mesh {
     } else {
         mesh.groups.clone()
     };
+    // Grid point (i, j) of triangle (a, b, c) is a + (b - a) i/n + (c - a) j/n.
+    let mut grid: Vec<u32> = vec![0; (n + 1) * (n + 1)];
     for group in groups {
         let first_index = out.indices.len() as u32;
         let start = group.first_index as usize;
         let end = (start + group.index_count as usize).min(mesh.indices.len());
         for tri in mesh.indices.get(start..end).unwrap_or(&[]).chunks_exact(3) {
             let (a, b, c) = (tri[0], tri[1], tri[2]);
-            if [a, b, c].iter().any(|&i| i as usize >= n) {
-                continue; // invalid triangle: dropped (validate() reports it)
+            if [a, b, c].iter().any(|&i| i as usize >= vertex_count) {
+                continue;
             }
-            let ab = midpoint(&mut out, a, b);
-            let bc = midpoint(&mut out, b, c);
-            let ca = midpoint(&mut out, c, a);
-            out.indices
-                .extend_from_slice(&[a, ab, ca, ab, b, bc, ca, bc, c, ab, bc, ca]);
+            for j in 0..=n {
+                for i in 0..=n - j {
+                    grid[j * (n + 1) + i] = match (i, j) {
+                        (0, 0) => a,
+                        (i, 0) if i == n => b,
+                        (0, j) if j == n => c,
+                        (i, 0) => edge_point(&mut out, a, b, i),
+                        (0, j) => edge_point(&mut out, a, c, j),
+                        (i, j) if i + j == n => edge_point(&mut out, b, c, j),
+                        (i, j) => {
+                            let (wi, wj) = (i as f64 / nf, j as f64 / nf);
+                            push(&mut out, [(a, 1.0 - wi - wj), (b, wi), (c, wj)])
+                        }
+                    };
+                }
+            }
+            let at = |i: usize, j: usize| grid[j * (n + 1) + i];
+            for j in 0..n {
+                for i in 0..n - j {
+                    out.indices
+                        .extend_from_slice(&[at(i, j), at(i + 1, j), at(i, j + 1)]);
+                    if i + j + 1 < n {
+                        out.indices.extend_from_slice(&[
+                            at(i + 1, j),
+                            at(i + 1, j + 1),
+                            at(i, j + 1),
+                        ]);
+                    }
+                }
+            }
         }
         out.groups.push(MeshGroup {
             first_index,
@@ -136,13 +199,21 @@ mod tests {
     fn surface_and_bounds_are_unchanged() {
         let mesh = tetra();
         let fine = subdivide(&mesh, 1000);
-        assert_eq!(fine.triangle_count(), 4 * 4usize.pow(4));
+        // n = ceil(sqrt(1000 / 4)) = 16 segments per edge.
+        assert_eq!(fine.triangle_count(), 4 * 16 * 16);
         assert!(fine.validate().is_ok());
         assert!((area(&fine) - area(&mesh)).abs() < 1e-4 * area(&mesh));
         assert_eq!(fine.bounds(), mesh.bounds());
         assert_eq!(fine.groups.len(), 2);
         assert_eq!(fine.groups[1].texture, Some(0));
         assert_eq!(fine.groups[1].index_count, 6 * 256);
+        // Odd n too, and a target that is not a square multiple.
+        let odd = subdivide(&mesh, 4 * 9 - 3);
+        assert_eq!(odd.triangle_count(), 4 * 9);
+        assert!((area(&odd) - area(&mesh)).abs() < 1e-4 * area(&mesh));
+        let v = odd.positions.len() as i64;
+        let f = odd.triangle_count() as i64;
+        assert_eq!(v - 3 * f / 2 + f, 2);
         // Shared midpoints: a closed tetrahedron stays closed (V - E + F = 2).
         let v = fine.positions.len() as i64;
         let f = fine.triangle_count() as i64;
@@ -152,6 +223,7 @@ mod tests {
     #[test]
     fn attributes_are_interpolated() {
         let fine = subdivide(&tetra(), 5);
+        assert_eq!(fine.triangle_count(), 16);
         // Midpoint of vertices 0 and 1: gray 50, uv (0.5, 0).
         let i = fine
             .positions

@@ -12,9 +12,11 @@ use super::Mesh;
 
 impl Mesh {
     /// Checks the mesh is renderable: at least one triangle, attribute
-    /// arrays sized like `positions`, finite positions/gray/uvs, indices in
-    /// range, groups covering `indices` exactly once in order, textures
-    /// existing and of consistent size with finite texels.
+    /// arrays sized like `positions` (`uvs` may be empty when no group is
+    /// textured), finite positions/gray/uvs, indices in range, groups
+    /// covering `indices` exactly once in order (or no groups at all: every
+    /// triangle untextured), textures existing and of consistent size with
+    /// finite texels.
     ///
     /// The error names [`IN_MEMORY`] as the file; the loader replaces it.
     pub fn validate(&self) -> Result<(), MapError> {
@@ -35,8 +37,10 @@ impl Mesh {
                 count: self.indices.len(),
             });
         }
+        let textured = self.groups.iter().any(|g| g.texture.is_some());
+        let uvs_optional = !textured && self.uvs.is_empty();
         for (what, found) in [("gray", self.gray.len()), ("uvs", self.uvs.len())] {
-            if found != n {
+            if found != n && !(what == "uvs" && uvs_optional) {
                 return Err(MeshProblem::AttributeCount {
                     what,
                     expected: n,
@@ -85,6 +89,9 @@ impl Mesh {
     }
 
     fn check_groups(&self) -> Result<(), MeshProblem> {
+        if self.groups.is_empty() {
+            return Ok(()); // no groups: every triangle untextured
+        }
         let mut next: u64 = 0;
         for (group, g) in self.groups.iter().enumerate() {
             let end = u64::from(g.first_index) + u64::from(g.index_count);
@@ -248,6 +255,12 @@ mod tests {
             m.find_problem(),
             Err(MeshProblem::TextureSize { .. })
         ));
+
+        // No groups and no uvs: a plain untextured mesh is fine.
+        let mut m = quad();
+        m.groups.clear();
+        m.uvs.clear();
+        assert_eq!(m.find_problem(), Ok(()));
 
         let mut m = quad();
         m.uvs.pop();

@@ -23,7 +23,7 @@
 //!     (roll, pitch, yaw) of `ned_from_body`, as the message fields are; near
 //!     level flight they equal small rotations about NED north, east, down;
 //!   - the off-diagonal 3x3 blocks (m rad) correlate the two.
-//!   First order: `Sigma_out = J * Sigma_in * J^T` with
+//! - Propagation, first order: `Sigma_out = J * Sigma_in * J^T` with
 //!   `J = [[I, -hat(p_ned_body)], [0, E^-1]] * Ad(ned_from_world)`, where `E`
 //!   maps Euler-angle rates to angular velocity in NED.
 //!   Near pitch +-90 deg (gimbal lock) `cos(pitch)` is clamped to 1e-3.

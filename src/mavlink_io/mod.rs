@@ -151,6 +151,9 @@ impl Shared {
     }
 }
 
+/// The body of a link thread.
+type ThreadBody = fn(Arc<Shared>);
+
 /// Starts the link threads.
 pub struct MavlinkLink;
 
@@ -189,7 +192,7 @@ impl MavlinkLink {
             threads: Vec::with_capacity(2),
             done_rx: Mutex::new(done_rx),
         };
-        let starts: [(&'static str, fn(Arc<Shared>)); 2] =
+        let starts: [(&'static str, ThreadBody); 2] =
             [("mavlink-tx", sender::run), ("mavlink-rx", receiver::run)];
         for (name, body) in starts {
             let shared = shared.clone();

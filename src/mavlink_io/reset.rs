@@ -16,9 +16,9 @@ pub const JUMP_BASE_M: f64 = 0.5;
 /// Fastest plausible speed of an indoor vehicle, m/s.
 pub const JUMP_SPEED_M_PER_S: f64 = 20.0;
 /// Rotation that always counts as a jump, rad (30 degrees).
-pub const JUMP_BASE_RAD: f64 = 0.5236;
+pub const JUMP_BASE_RAD: f64 = std::f64::consts::FRAC_PI_6;
 /// Fastest plausible rotation rate, rad/s (720 degrees/s).
-pub const JUMP_RATE_RAD_PER_S: f64 = 12.566;
+pub const JUMP_RATE_RAD_PER_S: f64 = 4.0 * std::f64::consts::PI;
 
 /// Tracks the counter across samples.
 #[derive(Debug, Clone, Default)]
@@ -135,7 +135,7 @@ mod tests {
         // 90 degrees in 20 ms: a jump.
         let turned = Pose::from_parts(
             nalgebra::Translation3::new(2.2, 0.0, 0.0),
-            nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, 1.5708),
+            nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
         );
         assert_eq!(r.next(0, 60 * MS, &turned), 2);
     }

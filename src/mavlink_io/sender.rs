@@ -252,6 +252,15 @@ impl Sender {
             }
         }
         let pose = self.converter.ned_pose(&sample.world_from_camera);
+        let finite = pose.position_ned_m().iter().all(|v| v.is_finite())
+            && [pose.roll_rad, pose.pitch_rad, pose.yaw_rad]
+                .iter()
+                .all(|v| v.is_finite());
+        if !finite {
+            tracing::warn!(pose = ?sample.world_from_camera, "non-finite pose not sent");
+            bump(&counters.poses_dropped_invalid);
+            return;
+        }
         let twist_covariance = Matrix6::from_fn(|r, c| sample.covariance_6x6[r][c]);
         let covariance = self.converter.pose_covariance(&pose, &twist_covariance);
         let reset_counter =

@@ -34,6 +34,8 @@ pub struct LinkStats {
     pub poses_dropped_rate: u64,
     /// Samples not sent because the link was down or had no peer yet.
     pub poses_dropped_link: u64,
+    /// Samples not sent because the pose was not finite.
+    pub poses_dropped_invalid: u64,
     /// The reset counter last sent.
     pub reset_counter: u8,
     /// The TIMESYNC offset in use (`autopilot - monotonic`, ns), if any.
@@ -57,6 +59,7 @@ pub(crate) struct Counters {
     pub poses_dropped_stale: AtomicU64,
     pub poses_dropped_rate: AtomicU64,
     pub poses_dropped_link: AtomicU64,
+    pub poses_dropped_invalid: AtomicU64,
     pub reset_counter: AtomicU8,
     pub has_offset: AtomicBool,
     pub offset_ns: AtomicI64,
@@ -91,6 +94,7 @@ impl Counters {
             poses_dropped_stale: self.poses_dropped_stale.load(Relaxed),
             poses_dropped_rate: self.poses_dropped_rate.load(Relaxed),
             poses_dropped_link: self.poses_dropped_link.load(Relaxed),
+            poses_dropped_invalid: self.poses_dropped_invalid.load(Relaxed),
             reset_counter: self.reset_counter.load(Relaxed),
             timesync_offset_ns: self
                 .has_offset

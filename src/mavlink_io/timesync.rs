@@ -100,7 +100,7 @@ impl TimesyncEstimator {
             return TimesyncEvent::Rejected;
         }
         let sample = TimesyncSample {
-            offset_ns: tc1 - ts1 - rtt_ns / 2,
+            offset_ns: tc1.saturating_sub(ts1).saturating_sub(rtt_ns / 2),
             rtt_ns,
         };
         self.add(sample);
@@ -110,7 +110,12 @@ impl TimesyncEstimator {
     fn add(&mut self, sample: TimesyncSample) {
         if let Some(best) = self.best() {
             let tolerance = sample.rtt_ns + best.rtt_ns + AGREEMENT_SLACK_NS;
-            if (sample.offset_ns - best.offset_ns).abs() > tolerance {
+            if sample
+                .offset_ns
+                .saturating_sub(best.offset_ns)
+                .saturating_abs()
+                > tolerance
+            {
                 self.disagreeing[self.disagreeing_count] = Some(sample);
                 self.disagreeing_count += 1;
                 if self.disagreeing_count == RESYNC_AFTER {
@@ -262,6 +267,22 @@ mod tests {
             );
         }
         assert_eq!(est.offset_ns(), Some(-1_000_000_000));
+    }
+
+    #[test]
+    fn absurd_replies_do_not_overflow() {
+        let mut est = TimesyncEstimator::new();
+        est.request_sent(1_000);
+        assert!(matches!(
+            est.reply_received(i64::MIN, 1_000, 2_000),
+            TimesyncEvent::Sample(_)
+        ));
+        est.request_sent(3_000);
+        assert!(matches!(
+            est.reply_received(i64::MAX, 3_000, 4_000),
+            TimesyncEvent::Sample(_)
+        ));
+        assert!(est.offset_ns().is_some());
     }
 
     #[test]

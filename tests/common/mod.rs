@@ -1,10 +1,11 @@
-//! Helpers shared by integration tests that call the Python tools (evo) of
-//! the project's virtual environment.
+//! Helpers shared by integration tests: the Python tools (evo) of the
+//! project's virtual environment, and per-test iceoryx2 resource prefixes.
 //!
 //! The venv is `$STAR_VENV`, or `<repo>/.venv` by default. When it is
 //! missing, a test fails if `CI` or `STAR_REQUIRE_VENV` is set, and otherwise
 //! prints a loud SKIP message and returns early.
 
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 #![allow(dead_code)]
 
 use std::path::PathBuf;
@@ -53,4 +54,66 @@ pub fn run_tool(tool: &PathBuf, args: &[&str], home: &std::path::Path) -> String
         String::from_utf8_lossy(&out.stderr)
     );
     String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+// Helpers shared by the transport tests: an iceoryx2 config whose resource
+// prefix is unique to one test, so tests running in parallel never share
+// services.
+use std::path::Path;
+
+/// The resource prefix for `tag` in this test process.
+pub fn prefix(tag: &str) -> String {
+    format!("st{}_{}_", std::process::id(), tag)
+}
+
+/// Removes the shared-memory and descriptor files with this test's prefix
+/// when dropped (iceoryx2 keeps a small global management segment per
+/// prefix). Declare it first so it drops after the nodes.
+pub struct Cleanup(pub String);
+
+impl Drop for Cleanup {
+    fn drop(&mut self) {
+        for dir in ["/dev/shm", "/tmp/iceoryx2/nodes", "/tmp/iceoryx2/services"] {
+            let Ok(entries) = std::fs::read_dir(dir) else {
+                continue;
+            };
+            for entry in entries.flatten() {
+                if entry.file_name().to_string_lossy().starts_with(&self.0) {
+                    let _ = std::fs::remove_file(entry.path());
+                }
+            }
+        }
+    }
+}
+
+/// An iceoryx2 config with a prefix unique to this process and `tag`.
+pub fn isolated_config(tag: &str) -> iceoryx2::config::Config {
+    let prefix = prefix(tag);
+    star::ipc::load_iceoryx_config(Path::new("/nonexistent/iceoryx2.toml"), Some(&prefix))
+        .expect("isolated iceoryx2 config")
+}
+
+/// Writes an iceoryx2 config file with that prefix (for child processes)
+/// and a star config that points at it; returns the star config path.
+pub fn write_isolated_configs(dir: &Path, tag: &str, extra_star_toml: &str) -> std::path::PathBuf {
+    let prefix = prefix(tag);
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/iceoryx2.toml");
+    let text = std::fs::read_to_string(shipped).expect("shipped iceoryx2.toml");
+    let text = text.replace("prefix = \"iox2_\"", &format!("prefix = \"{prefix}\""));
+    assert!(
+        text.contains(&prefix),
+        "config/iceoryx2.toml must set prefix = \"iox2_\""
+    );
+    let iox = dir.join("iceoryx2.toml");
+    std::fs::write(&iox, text).expect("write iceoryx2.toml");
+    let star = dir.join("star.toml");
+    std::fs::write(
+        &star,
+        format!(
+            "[ipc]\niceoryx2_config = \"{}\"\nsilence_timeout_ms = 200\n{extra_star_toml}",
+            iox.display()
+        ),
+    )
+    .expect("write star.toml");
+    star
 }

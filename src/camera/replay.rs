@@ -1,0 +1,259 @@
+//! Dataset replay source (`replay:DIR`): plays the frames listed in a TUM
+//! layout folder's `rgb.txt` at the recorded rate times a speed factor,
+//! optionally looping.
+//!
+//! Takes in the dataset folder; gives out gray frames stamped with the
+//! monotonic time of publishing (`capture_ns`) and their dataset time
+//! (`dataset_stamp_ns`) so evaluation can associate poses with ground truth.
+//! Decoding a PNG allocates; replay is a test tool, not the flight path.
+//!
+//! The frame list is read here with a minimal `rgb.txt` parser; when the
+//! shared `dataset` module lands this can call `dataset::Dataset` instead.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use super::clock::monotonic_now_ns;
+use super::{CameraError, FrameSource, SourceSettings};
+use crate::ipc::{FrameHeader, FrameSlot, FRAME_MAX_HEIGHT, FRAME_MAX_WIDTH};
+
+/// One line of `rgb.txt`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplayEntry {
+    /// Dataset timestamp, seconds.
+    pub timestamp_s: f64,
+    /// Image path, relative to the dataset folder.
+    pub path: PathBuf,
+}
+
+/// Reads `DIR/rgb.txt`: `timestamp path` per line, `#` comments; timestamps
+/// must increase. Errors name the file and line.
+pub fn read_frame_list(dir: &Path) -> Result<Vec<ReplayEntry>, CameraError> {
+    let file = dir.join("rgb.txt");
+    let text = std::fs::read_to_string(&file).map_err(|e| CameraError::Dataset {
+        path: file.clone(),
+        reason: format!("cannot read: {e}"),
+    })?;
+    let mut entries: Vec<ReplayEntry> = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let bad = |reason: String| CameraError::Dataset {
+            path: file.clone(),
+            reason: format!("line {}: {reason}", i + 1),
+        };
+        let mut tokens = line.split_whitespace();
+        let (Some(stamp), Some(path), None) = (tokens.next(), tokens.next(), tokens.next()) else {
+            return Err(bad(format!("expected `timestamp path`, found `{line}`")));
+        };
+        let timestamp_s = stamp
+            .parse::<f64>()
+            .ok()
+            .filter(|t| t.is_finite())
+            .ok_or_else(|| bad(format!("expected a timestamp in seconds, found `{stamp}`")))?;
+        if let Some(prev) = entries.last() {
+            if timestamp_s <= prev.timestamp_s {
+                return Err(bad(format!(
+                    "timestamp {timestamp_s} does not increase (previous {})",
+                    prev.timestamp_s
+                )));
+            }
+        }
+        entries.push(ReplayEntry {
+            timestamp_s,
+            path: PathBuf::from(path),
+        });
+    }
+    if entries.is_empty() {
+        return Err(CameraError::Dataset {
+            path: file,
+            reason: "no frames listed".into(),
+        });
+    }
+    Ok(entries)
+}
+
+/// Plays a dataset folder.
+pub struct ReplaySource {
+    dir: PathBuf,
+    entries: Vec<ReplayEntry>,
+    speed: f64,
+    looping: bool,
+    next: usize,
+    /// Monotonic time that corresponds to the first frame's dataset time.
+    start_mono_ns: Option<u64>,
+}
+
+impl ReplaySource {
+    /// Reads the frame list of `dir`. `settings.replay_speed` scales the
+    /// rate, `settings.replay_loop` restarts at the end.
+    pub fn open(dir: &Path, settings: &SourceSettings) -> Result<Self, CameraError> {
+        if !(settings.replay_speed.is_finite() && settings.replay_speed > 0.0) {
+            return Err(CameraError::Unsupported {
+                device: format!("replay:{}", dir.display()),
+                reason: format!("speed must be positive, found {}", settings.replay_speed),
+            });
+        }
+        Ok(Self {
+            dir: dir.to_owned(),
+            entries: read_frame_list(dir)?,
+            speed: settings.replay_speed,
+            looping: settings.replay_loop,
+            next: 0,
+            start_mono_ns: None,
+        })
+    }
+
+    /// Number of frames in the dataset.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether the dataset lists no frame (never true after `open`).
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    fn load(dir: &Path, entry: &ReplayEntry, slot: &mut FrameSlot<'_>) -> Result<(), CameraError> {
+        let path = dir.join(&entry.path);
+        let image = image::open(&path)
+            .map_err(|e| CameraError::Dataset {
+                path: path.clone(),
+                reason: format!("cannot decode image: {e}"),
+            })?
+            .into_luma8();
+        let (w, h) = image.dimensions();
+        if w > FRAME_MAX_WIDTH || h > FRAME_MAX_HEIGHT || w == 0 || h == 0 {
+            return Err(CameraError::Dataset {
+                path,
+                reason: format!(
+                    "image is {w}x{h}, frames hold 1x1 to {FRAME_MAX_WIDTH}x{FRAME_MAX_HEIGHT}"
+                ),
+            });
+        }
+        let bytes = image.as_raw();
+        slot.pixels[..bytes.len()].copy_from_slice(bytes);
+        *slot.header = FrameHeader::gray8(0, w, h);
+        slot.header.dataset_stamp_ns = (entry.timestamp_s * 1e9).round() as i64;
+        Ok(())
+    }
+}
+
+impl FrameSource for ReplaySource {
+    fn describe(&self) -> String {
+        format!(
+            "replay {} ({} frames, speed {}x{})",
+            self.dir.display(),
+            self.entries.len(),
+            self.speed,
+            if self.looping { ", looping" } else { "" }
+        )
+    }
+
+    fn next_frame(&mut self, slot: &mut FrameSlot<'_>) -> Result<(), CameraError> {
+        if self.next >= self.entries.len() {
+            if !self.looping {
+                return Err(CameraError::EndOfStream);
+            }
+            self.next = 0;
+            self.start_mono_ns = None;
+        }
+        let index = self.next;
+        self.next += 1;
+        let entry = &self.entries[index];
+        let first_s = self.entries[0].timestamp_s;
+        // Decode before waiting so the frame goes out on time.
+        Self::load(&self.dir, entry, slot)?;
+        let start = *self.start_mono_ns.get_or_insert_with(monotonic_now_ns);
+        let offset_ns = ((entry.timestamp_s - first_s) / self.speed * 1e9) as u64;
+        let due = start + offset_ns;
+        let now = monotonic_now_ns();
+        if due > now {
+            std::thread::sleep(Duration::from_nanos(due - now));
+        }
+        slot.header.capture_ns = monotonic_now_ns();
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ipc::Frame;
+
+    fn write_dataset(dir: &Path, stamps: &[f64]) {
+        std::fs::create_dir_all(dir.join("rgb")).expect("mkdir");
+        let mut list = String::from("# timestamp filename\n");
+        for (i, t) in stamps.iter().enumerate() {
+            let name = format!("rgb/{t:.6}.png");
+            image::GrayImage::from_pixel(6, 4, image::Luma([10 * i as u8 + 1]))
+                .save(dir.join(&name))
+                .expect("png");
+            list.push_str(&format!("{t:.6} {name}\n"));
+        }
+        std::fs::write(dir.join("rgb.txt"), list).expect("rgb.txt");
+    }
+
+    #[test]
+    fn replays_in_order_with_dataset_stamps_then_ends() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        write_dataset(tmp.path(), &[100.0, 100.01, 100.02]);
+        let settings = SourceSettings {
+            replay_speed: 10.0,
+            ..SourceSettings::default()
+        };
+        let mut src = ReplaySource::open(tmp.path(), &settings).expect("open");
+        let mut frame = Frame::boxed_zeroed();
+        let mut stamps = Vec::new();
+        for i in 0..3 {
+            let mut slot = FrameSlot::from_frame(&mut frame);
+            src.next_frame(&mut slot).expect("frame");
+            let view = frame.view().expect("valid");
+            assert_eq!(view.pixels[0], 10 * i + 1);
+            stamps.push((view.header.dataset_stamp_ns, view.header.capture_ns));
+        }
+        assert_eq!(stamps[1].0, 100_010_000_000);
+        assert!(
+            stamps[2].1 >= stamps[0].1 + 2_000_000,
+            "paced at 10x: >= 2 ms apart"
+        );
+        let mut slot = FrameSlot::from_frame(&mut frame);
+        assert!(matches!(
+            src.next_frame(&mut slot),
+            Err(CameraError::EndOfStream)
+        ));
+    }
+
+    #[test]
+    fn looping_starts_over() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        write_dataset(tmp.path(), &[1.0, 1.001]);
+        let settings = SourceSettings {
+            replay_loop: true,
+            ..SourceSettings::default()
+        };
+        let mut src = ReplaySource::open(tmp.path(), &settings).expect("open");
+        let mut frame = Frame::boxed_zeroed();
+        for expected in [1u8, 11, 1, 11] {
+            let mut slot = FrameSlot::from_frame(&mut frame);
+            src.next_frame(&mut slot).expect("frame");
+            assert_eq!(frame.pixels[0], expected);
+        }
+    }
+
+    #[test]
+    fn malformed_lists_name_file_and_line() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        std::fs::write(tmp.path().join("rgb.txt"), "1.0 a.png\n0.5 b.png\n").expect("write");
+        let err = read_frame_list(tmp.path()).expect_err("non-monotonic");
+        let msg = err.to_string();
+        assert!(msg.contains("rgb.txt") && msg.contains("line 2"), "{msg}");
+        std::fs::write(tmp.path().join("rgb.txt"), "abc a.png\n").expect("write");
+        assert!(read_frame_list(tmp.path()).is_err());
+        std::fs::write(tmp.path().join("rgb.txt"), "# nothing\n").expect("write");
+        assert!(read_frame_list(tmp.path()).is_err());
+        assert!(read_frame_list(&tmp.path().join("missing")).is_err());
+    }
+}

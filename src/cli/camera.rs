@@ -1,0 +1,85 @@
+//! `star camera`: the camera process. Reads the configured (or `--source`)
+//! camera and publishes its frames on the iceoryx2 frame service until
+//! SIGINT/SIGTERM, reconnecting when the camera fails.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use tracing::{info, warn};
+
+use crate::camera::{open_source, run_camera, RunnerSettings, SourceUri};
+use crate::config::Config;
+use crate::ipc::{create_node, load_iceoryx_config, FramePublisher};
+
+/// Options of `star camera`.
+#[derive(Debug, clap::Args)]
+pub struct CameraArgs {
+    /// Configuration file; built-in defaults when the default path does not exist.
+    #[arg(long, default_value = "/etc/star/star.toml")]
+    pub config: PathBuf,
+    /// Source URI overriding `camera.source`: v4l2:/dev/videoN, aravis:ID
+    /// (aravis:fake for the built-in fake camera), replay:DIR, pattern:WxH.
+    #[arg(long)]
+    pub source: Option<String>,
+    /// Stop after publishing this many frames.
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Replay speed factor (overrides `camera.replay_speed`).
+    #[arg(long)]
+    pub speed: Option<f64>,
+    /// Loop the replay (overrides `camera.replay_loop`).
+    #[arg(long = "loop")]
+    pub looping: bool,
+}
+
+/// Loads `path`, or the defaults when `path` is the default one and absent.
+pub(crate) fn load_config_or_default(path: &Path) -> Result<Config> {
+    if path == Path::new("/etc/star/star.toml") && !path.exists() {
+        warn!(path = %path.display(), "config not found, using built-in defaults");
+        return Ok(Config::default());
+    }
+    Config::load(path).with_context(|| format!("loading {}", path.display()))
+}
+
+/// Runs the camera process.
+pub fn run(args: &CameraArgs) -> Result<()> {
+    let config = load_config_or_default(&args.config)?;
+    let source_text = args.source.as_deref().unwrap_or(&config.camera.source);
+    let uri = SourceUri::parse(source_text).context("camera source")?;
+    let mut settings = config.camera.source_settings();
+    if let Some(speed) = args.speed {
+        anyhow::ensure!(
+            speed.is_finite() && speed > 0.0,
+            "--speed must be positive, found {speed}"
+        );
+        settings.replay_speed = speed;
+    }
+    settings.replay_loop |= args.looping;
+    let iox =
+        load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
+    let node = create_node("star-camera", &iox).context("iceoryx2 node")?;
+    let mut publisher = FramePublisher::new(&node).context("frame publisher")?;
+    info!(source = %uri, "camera process started");
+    let stop = || node.wait(Duration::ZERO).is_err();
+    let runner = RunnerSettings {
+        max_frames: args.frames,
+        ..RunnerSettings::default()
+    };
+    let summary = run_camera(
+        || open_source(&uri, &settings),
+        &mut publisher,
+        &stop,
+        &runner,
+    )
+    .with_context(|| format!("camera {uri}"))?;
+    info!(
+        published = summary.stats.published,
+        rejected = summary.stats.rejected,
+        source_errors = summary.stats.source_errors,
+        skipped = summary.skipped,
+        opens = summary.opens,
+        "camera process stopped"
+    );
+    Ok(())
+}

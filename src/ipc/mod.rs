@@ -1,0 +1,64 @@
+//! Inter-process transport between the camera process and the tracker, on
+//! iceoryx2 shared memory (DESIGN.md "IPC").
+//!
+//! Owns the message types ([`Frame`], [`PoseMsg`]), the services and their
+//! quality of service ([`services`]), and the ports each side uses
+//! ([`FramePublisher`], [`FrameSubscriber`], [`PosePublisher`],
+//! [`PoseSubscriber`]). Takes in frames built in place by a camera source and
+//! poses from the tracker; gives out views into shared memory, never copies.
+//! Subscribers block on an iceoryx2 event through a WaitSet, not a sleep loop.
+//! Each process calls [`services::create_node`] first, which removes the
+//! resources of crashed processes.
+
+pub mod frame;
+pub mod frame_transport;
+pub mod pose;
+pub mod pose_transport;
+pub mod services;
+
+pub use frame::{
+    Frame, FrameError, FrameHeader, FrameSlot, FrameView, PixelFormat, FRAME_CAPACITY_BYTES,
+    FRAME_MAX_HEIGHT, FRAME_MAX_WIDTH, NO_DATASET_STAMP,
+};
+pub use frame_transport::{
+    FrameEvent, FramePublisher, FrameSubscriber, PublishError, PublisherStats, ReceivedFrame,
+    RunEnd, SubscriberStats,
+};
+pub use pose::{PoseMsg, TrackingState};
+pub use pose_transport::{PosePublisher, PoseSubscriber};
+pub use services::{create_node, load_iceoryx_config};
+
+use std::path::PathBuf;
+
+/// Errors of the transport.
+#[derive(Debug, thiserror::Error)]
+pub enum IpcError {
+    /// The iceoryx2 configuration file could not be used.
+    #[error("iceoryx2 config {path}: {reason}")]
+    Config {
+        /// The file.
+        path: PathBuf,
+        /// What was wrong.
+        reason: String,
+    },
+    /// An iceoryx2 operation failed.
+    #[error("iceoryx2 {op} on `{name}` failed: {reason}")]
+    Iceoryx {
+        /// The operation, e.g. `create publisher`.
+        op: &'static str,
+        /// The service or node it applied to.
+        name: String,
+        /// iceoryx2's error.
+        reason: String,
+    },
+}
+
+impl IpcError {
+    pub(crate) fn iceoryx(op: &'static str, name: &'static str, e: impl std::fmt::Debug) -> Self {
+        Self::Iceoryx {
+            op,
+            name: name.to_string(),
+            reason: format!("{e:?}"),
+        }
+    }
+}

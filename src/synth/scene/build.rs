@@ -1,0 +1,145 @@
+//! Mesh assembly for the synthetic scene: subdivided rectangles with
+//! per-vertex shading and uv mapping, collected into one group per texture.
+
+use crate::map::{Mesh, MeshGroup};
+
+/// Edge length of the cells inside a surface patch or box face, meters.
+pub(super) const CELL_M: f64 = 0.125;
+
+/// A planar rectangle in the world: `origin + s * u_axis + t * v_axis` for
+/// `s` in `0..u_len_m`, `t` in `0..v_len_m` (axes unit length).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Face {
+    /// Corner where `s = t = 0`.
+    pub origin: [f64; 3],
+    /// Unit direction of `s` (texture x).
+    pub u_axis: [f64; 3],
+    /// Unit direction of `t` (texture y, down on walls).
+    pub v_axis: [f64; 3],
+    /// Extent along `u_axis`.
+    pub u_len_m: f64,
+    /// Extent along `v_axis`.
+    pub v_len_m: f64,
+    /// Unit normal facing the visible side.
+    pub normal: [f64; 3],
+}
+
+impl Face {
+    /// World point at `(s, t)`.
+    pub fn point(&self, s: f64, t: f64) -> [f64; 3] {
+        [
+            self.origin[0] + s * self.u_axis[0] + t * self.v_axis[0],
+            self.origin[1] + s * self.u_axis[1] + t * self.v_axis[1],
+            self.origin[2] + s * self.u_axis[2] + t * self.v_axis[2],
+        ]
+    }
+}
+
+/// Maps face coordinates (meters) to texture uv: `uv = offset + st * scale`.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct UvMap {
+    /// uv at `s = t = 0`.
+    pub offset: [f64; 2],
+    /// uv per meter along `s` and `t`.
+    pub scale: [f64; 2],
+}
+
+/// Collects triangles per texture and emits a [`Mesh`].
+pub(super) struct MeshBuilder {
+    mesh: Mesh,
+    buckets: Vec<Vec<u32>>,
+}
+
+impl MeshBuilder {
+    /// A builder for meshes using up to `texture_count` textures.
+    pub fn new(texture_count: usize) -> Self {
+        Self {
+            mesh: Mesh::default(),
+            buckets: vec![Vec::new(); texture_count],
+        }
+    }
+
+    /// Adds the part `[s0, s1] x [t0, t1]` of `face` as an `ns x nt` grid of
+    /// quads (two triangles each) on `texture`. Vertex gray is
+    /// `shade(point) * 255`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn grid(
+        &mut self,
+        face: &Face,
+        s: [f64; 2],
+        t: [f64; 2],
+        cells: [usize; 2],
+        texture: usize,
+        uv: UvMap,
+        shade: &dyn Fn([f64; 3]) -> f64,
+    ) {
+        let [ns, nt] = [cells[0].max(1), cells[1].max(1)];
+        let base = self.mesh.positions.len() as u32;
+        for j in 0..=nt {
+            let tt = t[0] + (t[1] - t[0]) * j as f64 / nt as f64;
+            for i in 0..=ns {
+                let ss = s[0] + (s[1] - s[0]) * i as f64 / ns as f64;
+                let p = face.point(ss, tt);
+                self.mesh
+                    .positions
+                    .push([p[0] as f32, p[1] as f32, p[2] as f32]);
+                self.mesh.gray.push((shade(p) * 255.0) as f32);
+                self.mesh.uvs.push([
+                    (uv.offset[0] + ss * uv.scale[0]) as f32,
+                    (uv.offset[1] + tt * uv.scale[1]) as f32,
+                ]);
+            }
+        }
+        let Some(bucket) = self.buckets.get_mut(texture) else {
+            return;
+        };
+        let row = ns as u32 + 1;
+        for j in 0..nt as u32 {
+            for i in 0..ns as u32 {
+                let a = base + j * row + i;
+                let (b, c, d) = (a + 1, a + row + 1, a + row);
+                bucket.extend_from_slice(&[a, b, c, a, c, d]);
+            }
+        }
+    }
+
+    /// Adds a whole face subdivided into cells of about [`CELL_M`].
+    pub fn face(
+        &mut self,
+        face: &Face,
+        texture: usize,
+        uv: UvMap,
+        shade: &dyn Fn([f64; 3]) -> f64,
+    ) {
+        let cells = [
+            (face.u_len_m / CELL_M).ceil() as usize,
+            (face.v_len_m / CELL_M).ceil() as usize,
+        ];
+        self.grid(
+            face,
+            [0.0, face.u_len_m],
+            [0.0, face.v_len_m],
+            cells,
+            texture,
+            uv,
+            shade,
+        );
+    }
+
+    /// The mesh, one group per non-empty texture bucket, in texture order.
+    /// Textures are left empty for the caller to fill.
+    pub fn finish(mut self) -> Mesh {
+        for (texture, bucket) in self.buckets.into_iter().enumerate() {
+            if bucket.is_empty() {
+                continue;
+            }
+            self.mesh.groups.push(MeshGroup {
+                first_index: self.mesh.indices.len() as u32,
+                index_count: bucket.len() as u32,
+                texture: Some(texture as u32),
+            });
+            self.mesh.indices.extend(bucket);
+        }
+        self.mesh
+    }
+}
