@@ -1,13 +1,25 @@
-//! Synthetic data: procedural textured indoor scenes (this part) and, built
-//! on them, sequences with ground truth.
+//! Synthetic data: procedural textured indoor scenes and, built on them,
+//! sequences with exact ground truth.
 //!
 //! - [`scene`]: a seeded room with furniture as a `map` mesh (with holes,
 //!   no occluders) and a `truth` mesh (no holes, with occluders), plus its
 //!   free space.
 //! - [`texture`]: the seeded PRNG and the procedural gray textures.
+//! - [`trajectory`] (with [`look`]): seeded 50 Hz camera trajectories in
+//!   the scene's free space (`slow_loop`, `aggressive`).
+//! - [`corrupt`]: sensor corruptions (gain/bias drift, vignetting, noise,
+//!   lens distortion, motion blur).
+//! - [`preset`]: the named, fully specified sequence presets.
+//! - [`sequence`]: scene + trajectory + renderer + corruptions -> a TUM
+//!   dataset folder (`star synth`).
 
+pub mod corrupt;
+pub mod look;
+pub mod preset;
 pub mod scene;
+pub mod sequence;
 pub mod texture;
+pub mod trajectory;
 
 pub use scene::{build_scene, default_scene, Scene, SceneBox, SceneParams, SceneParamsError};
 pub use texture::SplitMix64;

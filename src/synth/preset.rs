@@ -1,0 +1,220 @@
+//! Named presets of synthetic sequences, with every parameter exact and
+//! printable (`star synth --list-presets`).
+//!
+//! - `ideal`: the slow loop, images drawn from the map mesh itself (no
+//!   holes, no occluders), no lens distortion, no photometric corruption,
+//!   no blur: what the tracker sees matches its rendered keyframes exactly
+//!   up to quantization;
+//! - `realistic`: the slow loop rendered from the truth mesh (3 occluders
+//!   absent from the map), map with 10 % of its room-surface patches
+//!   removed, gain drift +-30 %, bias drift +-10 levels, vignetting 30 %,
+//!   noise sigma 3, lens distortion, 5 ms exposure motion blur;
+//! - `aggressive`: the aggressive trajectory (about 1.5 m/s, up to
+//!   200 deg/s) with the realistic corruptions.
+//!
+//! All: 640x512, fx = fy = 420 px (74.6 x 62.7 degrees field of view),
+//! principal point at the image center, 50 Hz, an 8 x 6 x 3 m room with 6
+//! furniture boxes.
+
+use serde::Serialize;
+
+use super::corrupt::{BlurSpec, PhotometricSpec};
+use super::trajectory::{MotionSpec, TrajectoryKind};
+use crate::geometry::{Distortion, PinholeCamera};
+
+/// Which of the scene's meshes draws the camera images.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ImageSource {
+    /// The map mesh (the one written to `map/`).
+    Map,
+    /// The truth mesh: no holes, with occluders.
+    Truth,
+}
+
+/// The scene part of a preset (the seed comes from the command line).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ScenePreset {
+    /// Room size `[x, y, z]`, m.
+    pub room_size_m: [f64; 3],
+    /// Furniture boxes (in map and truth).
+    pub furniture_boxes: usize,
+    /// Occluder boxes (truth only).
+    pub occluders: usize,
+    /// Fraction of room-surface patches removed from the map.
+    pub map_hole_fraction: f64,
+    /// Texture resolution, texels per meter.
+    pub texture_px_per_m: f64,
+}
+
+/// A complete, exact description of a synthetic sequence.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Preset {
+    /// Name on the command line.
+    pub name: &'static str,
+    /// One-line description.
+    pub description: &'static str,
+    /// Frame rate, Hz.
+    pub rate_hz: f64,
+    /// Camera of the stored images (with distortion), as in `camera.toml`.
+    pub camera: PinholeCamera,
+    /// 16-bit depth PNG units per meter.
+    pub depth_scale: f64,
+    /// Which mesh draws the images.
+    pub images_from: ImageSource,
+    /// The scene.
+    pub scene: ScenePreset,
+    /// Trajectory kind.
+    pub trajectory: TrajectoryKind,
+    /// The trajectory kind's exact motion parameters.
+    pub motion: MotionSpec,
+    /// Photometric corruption.
+    pub photometric: PhotometricSpec,
+    /// Motion blur; `None` renders one instant per frame.
+    pub blur: Option<BlurSpec>,
+}
+
+/// Names of all presets, in `--list-presets` order.
+pub const PRESET_NAMES: [&str; 3] = ["ideal", "realistic", "aggressive"];
+
+fn camera(distortion: Distortion) -> PinholeCamera {
+    PinholeCamera {
+        distortion,
+        ..PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5)
+    }
+}
+
+const REALISTIC_DISTORTION: Distortion = Distortion {
+    k1: -0.10,
+    k2: 0.02,
+    p1: 3e-4,
+    p2: -2e-4,
+    k3: 0.0,
+};
+
+const REALISTIC_PHOTOMETRIC: PhotometricSpec = PhotometricSpec {
+    gain_drift: 0.3,
+    bias_drift: 10.0,
+    drift_period_s: (8.0, 25.0),
+    vignetting: 0.3,
+    noise_sigma: 3.0,
+};
+
+const REALISTIC_BLUR: BlurSpec = BlurSpec {
+    exposure_s: 0.005,
+    px_per_subframe: 1.5,
+    max_subframes: 8,
+    typical_depth_m: 2.5,
+};
+
+const SCENE: ScenePreset = ScenePreset {
+    room_size_m: [8.0, 6.0, 3.0],
+    furniture_boxes: 6,
+    occluders: 0,
+    map_hole_fraction: 0.0,
+    texture_px_per_m: 128.0,
+};
+
+impl Preset {
+    /// The preset called `name`, or `None`.
+    pub fn by_name(name: &str) -> Option<Preset> {
+        let realistic_scene = ScenePreset {
+            occluders: 3,
+            map_hole_fraction: 0.1,
+            ..SCENE
+        };
+        match name {
+            "ideal" => Some(Preset {
+                name: "ideal",
+                description: "slow loop, images rendered from the map mesh, no corruption",
+                rate_hz: 50.0,
+                camera: camera(Distortion::default()),
+                depth_scale: crate::dataset::TUM_DEPTH_SCALE,
+                images_from: ImageSource::Map,
+                scene: SCENE,
+                trajectory: TrajectoryKind::SlowLoop,
+                motion: TrajectoryKind::SlowLoop.spec(),
+                photometric: PhotometricSpec::NONE,
+                blur: None,
+            }),
+            "realistic" => Some(Preset {
+                name: "realistic",
+                description: "slow loop; drift, vignetting, noise, distortion, blur, occluders, 10 % map holes",
+                rate_hz: 50.0,
+                camera: camera(REALISTIC_DISTORTION),
+                depth_scale: crate::dataset::TUM_DEPTH_SCALE,
+                images_from: ImageSource::Truth,
+                scene: realistic_scene,
+                trajectory: TrajectoryKind::SlowLoop,
+                motion: TrajectoryKind::SlowLoop.spec(),
+                photometric: REALISTIC_PHOTOMETRIC,
+                blur: Some(REALISTIC_BLUR),
+            }),
+            "aggressive" => Some(Preset {
+                name: "aggressive",
+                description: "aggressive trajectory (~1.5 m/s, up to 200 deg/s) with the realistic corruptions",
+                trajectory: TrajectoryKind::Aggressive,
+                motion: TrajectoryKind::Aggressive.spec(),
+                ..Preset::by_name("realistic")?
+            }),
+            _ => None,
+        }
+    }
+
+    /// All presets.
+    pub fn all() -> Vec<Preset> {
+        PRESET_NAMES
+            .iter()
+            .filter_map(|n| Preset::by_name(n))
+            .collect()
+    }
+
+    /// The preset as TOML, for `--list-presets` and the dataset's `synth.toml`.
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).unwrap_or_else(|e| format!("# cannot format preset: {e}\n"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_named() {
+        for name in PRESET_NAMES {
+            let p = Preset::by_name(name).expect("exists");
+            assert_eq!(p.name, name);
+            p.camera.validate().expect("valid camera");
+            assert_eq!((p.camera.width, p.camera.height), (640, 512));
+            assert_eq!(p.rate_hz, 50.0);
+            assert_eq!(p.motion, p.trajectory.spec());
+            let text = p.to_toml();
+            assert!(
+                text.contains("noise_sigma") && text.contains("[camera.distortion]"),
+                "{text}"
+            );
+        }
+        assert!(Preset::by_name("nope").is_none());
+    }
+
+    #[test]
+    fn ideal_is_clean_and_realistic_is_not() {
+        let ideal = Preset::by_name("ideal").expect("exists");
+        assert_eq!(ideal.photometric, PhotometricSpec::NONE);
+        assert!(ideal.camera.distortion.is_zero() && ideal.blur.is_none());
+        assert_eq!(ideal.images_from, ImageSource::Map);
+        assert_eq!(
+            (ideal.scene.occluders, ideal.scene.map_hole_fraction),
+            (0, 0.0)
+        );
+        let real = Preset::by_name("realistic").expect("exists");
+        assert_eq!(real.photometric.gain_drift, 0.3);
+        assert_eq!(real.photometric.noise_sigma, 3.0);
+        assert_eq!(real.scene.map_hole_fraction, 0.1);
+        assert!(real.scene.occluders > 0 && !real.camera.distortion.is_zero());
+        let aggr = Preset::by_name("aggressive").expect("exists");
+        assert_eq!(aggr.trajectory, TrajectoryKind::Aggressive);
+        assert_eq!(aggr.photometric, real.photometric);
+        assert_eq!(aggr.motion.max_angular_speed_dps, Some(200.0));
+    }
+}
