@@ -9,6 +9,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod camera;
+mod bench;
 mod check_config;
 mod doctor;
 mod eval;
@@ -38,6 +39,9 @@ pub enum Command {
         #[arg(default_value = "/etc/star/star.toml")]
         config: PathBuf,
     },
+    /// Benchmarks that print figures (tracker pairs, ...).
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
     /// Localize a recorded dataset against its map and write the trajectory.
     Localize(localize::LocalizeArgs),
     /// Render the map at a pose (CPU rasterizer) to a gray PNG and a depth PNG.
@@ -88,6 +92,7 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::CheckConfig { config } => check_config::run(&config),
         Command::Localize(args) => localize::run(&args),
+        Command::Bench(cmd) => bench::run(&cmd),
         Command::Render(args) => render::run(&args),
         Command::Eval {
             gt,
