@@ -245,7 +245,7 @@ fn texture(seed: u32, size: u32) -> GrayTexture {
 /// A textured 6 x 5 x 3 m room (world z up) with two textured boxes.
 fn textured_room() -> Mesh {
     let mut mesh = Mesh::default();
-    let mut quad = |mesh: &mut Mesh, c: [[f32; 3]; 4], texture: u32, gray: f32| {
+    let quad = |mesh: &mut Mesh, c: [[f32; 3]; 4], texture: u32, gray: f32| {
         let base = mesh.positions.len() as u32;
         let first_index = mesh.indices.len() as u32;
         let (w, h) = {

@@ -130,8 +130,17 @@ fn write_pairs(out: &Path, count: usize, seed: u64) -> Result<()> {
             rng.range(-2f64, 2.0).to_radians(),
         );
         let keyframe_from_frame = exp_se3(&twist);
-        truth_r.render(&(world_from_keyframe * keyframe_from_frame), &camera, &mut frame_view)?;
-        sensor.apply(&frame_view.gray, written as u64, written as f64 * 0.37, &mut frame);
+        truth_r.render(
+            &(world_from_keyframe * keyframe_from_frame),
+            &camera,
+            &mut frame_view,
+        )?;
+        sensor.apply(
+            &frame_view.gray,
+            written as u64,
+            written as f64 * 0.37,
+            &mut frame,
+        );
         let i = written;
         write_gray8(&out.join(format!("kf_{i:04}.png")), &kf_view.gray.to_u8())?;
         let depth_mm: Vec<u16> = kf_view
@@ -140,7 +149,12 @@ fn write_pairs(out: &Path, count: usize, seed: u64) -> Result<()> {
             .iter()
             .map(|&d| (d * 1000.0).round().clamp(0.0, 65535.0) as u16)
             .collect();
-        write_gray16(&out.join(format!("kf_depth_{i:04}.png")), camera.width, camera.height, &depth_mm)?;
+        write_gray16(
+            &out.join(format!("kf_depth_{i:04}.png")),
+            camera.width,
+            camera.height,
+            &depth_mm,
+        )?;
         write_gray8(&out.join(format!("frame_{i:04}.png")), &frame)?;
         let t = keyframe_from_frame.translation.vector;
         let q = keyframe_from_frame.rotation;
@@ -157,7 +171,10 @@ fn write_pairs(out: &Path, count: usize, seed: u64) -> Result<()> {
     let c = camera;
     std::fs::write(
         out.join("camera.txt"),
-        format!("# width height fx fy cx cy depth_scale(per m)\n{} {} {} {} {} {} 1000\n", c.width, c.height, c.fx, c.fy, c.cx, c.cy),
+        format!(
+            "# width height fx fy cx cy depth_scale(per m)\n{} {} {} {} {} {} 1000\n",
+            c.width, c.height, c.fx, c.fy, c.cx, c.cy
+        ),
     )?;
     println!("bench pairs: wrote {written} pairs to {}", out.display());
     Ok(())
@@ -166,7 +183,8 @@ fn write_pairs(out: &Path, count: usize, seed: u64) -> Result<()> {
 /// One pair's ground truth: index and keyframe_from_frame.
 fn read_pairs(dir: &Path) -> Result<Vec<(usize, Pose)>> {
     let path = dir.join("pairs.txt");
-    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
     let mut out = Vec::new();
     for (n, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -179,10 +197,21 @@ fn read_pairs(dir: &Path) -> Result<Vec<(usize, Pose)>> {
             .collect::<Result<_, _>>()
             .with_context(|| format!("{}:{}: not numbers", path.display(), n + 1))?;
         let [i, tx, ty, tz, qx, qy, qz, qw] = v[..] else {
-            bail!("{}:{}: expected 8 values, found {}", path.display(), n + 1, v.len());
+            bail!(
+                "{}:{}: expected 8 values, found {}",
+                path.display(),
+                n + 1,
+                v.len()
+            );
         };
         let q = nalgebra::Quaternion::new(qw, qx, qy, qz);
-        out.push((i as usize, Pose::from_parts(Translation3::new(tx, ty, tz), UnitQuaternion::from_quaternion(q))));
+        out.push((
+            i as usize,
+            Pose::from_parts(
+                Translation3::new(tx, ty, tz),
+                UnitQuaternion::from_quaternion(q),
+            ),
+        ));
     }
     Ok(out)
 }
@@ -210,9 +239,19 @@ fn track_pairs(dir: &Path, csv: Option<&Path>) -> Result<()> {
     let mut rows = String::from("index,time_ms,t_err_m,r_err_deg\n");
     for &(i, keyframe_from_frame) in &pairs {
         let size = Some((camera.width, camera.height));
-        decode_gray_into(&dir.join(format!("kf_{i:04}.png")), size, &mut gray, &mut scratch)?;
+        decode_gray_into(
+            &dir.join(format!("kf_{i:04}.png")),
+            size,
+            &mut gray,
+            &mut scratch,
+        )?;
         decode_u16(&dir.join(format!("kf_depth_{i:04}.png")), size, &mut depth)?;
-        decode_gray_into(&dir.join(format!("frame_{i:04}.png")), size, &mut frame, &mut scratch)?;
+        decode_gray_into(
+            &dir.join(format!("frame_{i:04}.png")),
+            size,
+            &mut frame,
+            &mut scratch,
+        )?;
         for (d, &s) in view.gray.data_mut().iter_mut().zip(gray.data()) {
             *d = s as f32;
         }
@@ -228,7 +267,10 @@ fn track_pairs(dir: &Path, csv: Option<&Path>) -> Result<()> {
         let result = aligner.align(&keyframe, &pyramid, &camera, Pose::identity());
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         let err = keyframe_from_frame.inverse() * result.camera_from_keyframe.inverse();
-        let (te, re) = (err.translation.vector.norm(), err.rotation.angle().to_degrees());
+        let (te, re) = (
+            err.translation.vector.norm(),
+            err.rotation.angle().to_degrees(),
+        );
         times_ms.push(ms);
         t_err.push(te);
         r_err.push(re);
@@ -244,12 +286,24 @@ fn track_pairs(dir: &Path, csv: Option<&Path>) -> Result<()> {
     let (prep_med, _) = median_p99_ms(&prep_ms);
     let (t_med, _) = median_p99_ms(&t_err);
     let (r_med, _) = median_p99_ms(&r_err);
-    let ok = t_err.iter().zip(&r_err).filter(|(t, r)| **t < 0.01 && **r < 0.5).count();
+    let ok = t_err
+        .iter()
+        .zip(&r_err)
+        .filter(|(t, r)| **t < 0.01 && **r < 0.5)
+        .count();
     let pts: Vec<u32> = points.iter().map(|p| median_p99_ms(p).0 as u32).collect();
-    println!("star tracker on {} pairs, 640x512, one thread:", pairs.len());
+    println!(
+        "star tracker on {} pairs, 640x512, one thread:",
+        pairs.len()
+    );
     println!("  per-frame time (pyramid + alignment): median {med:.2} ms, p99 {p99:.2} ms");
     println!("  keyframe preparation (render thread): median {prep_med:.2} ms");
     println!("  points used per level (median, finest first): {pts:?}");
-    println!("  error: median {:.2} mm, {:.3} deg; converged (< 1 cm and < 0.5 deg): {ok}/{}", t_med * 1e3, r_med, pairs.len());
+    println!(
+        "  error: median {:.2} mm, {:.3} deg; converged (< 1 cm and < 0.5 deg): {ok}/{}",
+        t_med * 1e3,
+        r_med,
+        pairs.len()
+    );
     Ok(())
 }

@@ -8,8 +8,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-mod camera;
 mod bench;
+mod camera;
 mod check_config;
 mod doctor;
 mod eval;
@@ -17,6 +17,7 @@ pub mod localize;
 mod pose_arg;
 mod render;
 mod replay;
+mod synth;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]
@@ -60,6 +61,8 @@ pub enum Command {
         #[arg(long, default_value_t = crate::eval::DEFAULT_MAX_DT_S)]
         max_dt: f64,
     },
+    /// Synthesize a TUM-layout dataset (images, depth, ground truth, map) from a preset.
+    Synth(synth::SynthArgs),
     /// Run the camera process: read a camera and publish frames over iceoryx2.
     Camera(camera::CameraArgs),
     /// Play a dataset into a v4l2loopback device (virtual camera) or onto iceoryx2.
@@ -100,6 +103,7 @@ pub fn main() -> ExitCode {
             delta,
             max_dt,
         } => eval::run(&gt, &est, delta, max_dt),
+        Command::Synth(args) => synth::run(&args),
         Command::Camera(args) => camera::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Doctor { config } => doctor::run(config.as_deref()),
