@@ -128,6 +128,9 @@ pub struct Localizer {
     keyframe: Box<Keyframe>,
     next_keyframe_id: u64,
     pending: bool,
+    /// Capture time of the previous frame (timestamp order check).
+    previous_ns: Option<u64>,
+    /// Capture time and pose of the last tracked frame (prediction).
     last: Option<(u64, Pose)>,
     /// Velocity as a twist per second, in the camera frame (right perturbation).
     velocity: nalgebra::Vector6<f64>,
@@ -177,7 +180,10 @@ impl Localizer {
             keyframe,
             next_keyframe_id: 2,
             pending: false,
-            last: Some((capture_ns.saturating_sub(1), world_from_camera)),
+            // The first frame predicts from the keyframe pose with zero
+            // velocity; velocity starts once two frames are tracked.
+            previous_ns: None,
+            last: None,
             velocity: nalgebra::Vector6::zeros(),
             state: TrackState::Tracking,
             reset_counter: 0,
@@ -232,7 +238,7 @@ impl Localizer {
                 want_h,
             });
         }
-        if let Some((prev_ns, _)) = self.last {
+        if let Some(prev_ns) = self.previous_ns {
             if capture_ns <= prev_ns {
                 return Err(LocalizerError::TimestampOrder {
                     capture_ns,
@@ -240,6 +246,7 @@ impl Localizer {
                 });
             }
         }
+        self.previous_ns = Some(capture_ns);
         self.swap_in_ready_keyframe();
         self.pyramid.fill_from_u8(pixels, stride);
 
