@@ -110,6 +110,9 @@ pub struct KeyframeConfig {
     pub lost_visible_ratio: f32,
     /// Tracking is lost when the estimate jumps this far from the prediction in one frame, meters.
     pub lost_max_jump_m: f32,
+    /// Tracking is lost when the normalized cross-correlation between the
+    /// keyframe points and the aligned frame drops below this.
+    pub lost_min_correlation: f32,
 }
 
 impl Default for KeyframeConfig {
@@ -123,6 +126,7 @@ impl Default for KeyframeConfig {
             lost_inlier_ratio: 0.35,
             lost_visible_ratio: 0.15,
             lost_max_jump_m: 0.3,
+            lost_min_correlation: 0.4,
         }
     }
 }
@@ -433,7 +437,7 @@ impl Config {
         let k = &self.keyframe;
         let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
         let positive = |v: f32| v.is_finite() && v > 0.0;
-        let kchecks: [(&str, bool, f32); 8] = [
+        let kchecks: [(&str, bool, f32); 9] = [
             ("keyframe.min_visible", unit(k.min_visible), k.min_visible),
             (
                 "keyframe.max_baseline_ratio",
@@ -469,6 +473,11 @@ impl Config {
                 "keyframe.lost_max_jump_m",
                 positive(k.lost_max_jump_m),
                 k.lost_max_jump_m,
+            ),
+            (
+                "keyframe.lost_min_correlation",
+                unit(k.lost_min_correlation),
+                k.lost_min_correlation,
             ),
         ];
         for (key, ok, value) in kchecks {

@@ -118,6 +118,10 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
         "  keyframes {}  frames tracked on a stale keyframe {}  largest keyframe age {:.3} s",
         report.keyframes, report.stale_frames, report.max_keyframe_age_s
     );
+    println!(
+        "  quality over tracked frames: lowest inlier ratio {:.3}, lowest correlation {:.3}",
+        report.min_inlier_ratio, report.min_correlation
+    );
     if let Some(e) = &report.evaluation {
         println!(
             "  ATE (no alignment, {} matched): translation rmse {:.2} cm, mean {:.2} cm, max {:.2} cm; rotation rmse {:.3} deg, max {:.3} deg",

@@ -275,6 +275,7 @@ impl Localizer {
             && pose_is_finite(&world_from_camera)
             && q.inlier_ratio >= self.policy.lost_inlier_ratio
             && q.visible_ratio >= self.policy.lost_visible_ratio
+            && q.correlation >= self.policy.lost_min_correlation
             && jump_m <= self.policy.lost_max_jump_m as f64;
 
         let keyframe_age_s = capture_ns.saturating_sub(self.keyframe.requested_at_ns) as f64 * 1e-9;
@@ -301,6 +302,7 @@ impl Localizer {
                 tracing::warn!(
                     inliers = q.inlier_ratio,
                     visible = q.visible_ratio,
+                    correlation = q.correlation,
                     jump_m,
                     "tracking lost"
                 );

@@ -57,6 +57,10 @@ pub struct OfflineReport {
     pub max_keyframe_age_s: f64,
     /// Median points used per level, finest first.
     pub median_points: Vec<u32>,
+    /// Lowest inlier ratio over the tracked frames.
+    pub min_inlier_ratio: f32,
+    /// Lowest normalized cross-correlation over the tracked frames.
+    pub min_correlation: f32,
     /// Renderer name.
     pub renderer: String,
     /// Accuracy against the dataset's ground truth, when it has one.
@@ -103,6 +107,8 @@ pub fn localize_dataset(
         stale_frames: 0,
         max_keyframe_age_s: 0.0,
         median_points: Vec::new(),
+        min_inlier_ratio: 1.0,
+        min_correlation: 1.0,
         renderer: localizer.renderer_name().to_string(),
         evaluation: None,
     };
@@ -140,7 +146,12 @@ pub fn localize_dataset(
                     p.push(out.quality.points_used[l]);
                 }
                 match (out.state, out.world_from_camera) {
-                    (TrackState::Tracking, Some(pose)) => report.estimate.push(stamp_s, pose),
+                    (TrackState::Tracking, Some(pose)) => {
+                        report.estimate.push(stamp_s, pose);
+                        let q = &out.quality;
+                        report.min_inlier_ratio = report.min_inlier_ratio.min(q.inlier_ratio);
+                        report.min_correlation = report.min_correlation.min(q.correlation);
+                    }
                     _ => report.lost_frames += 1,
                 }
             }

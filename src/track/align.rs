@@ -36,6 +36,12 @@ pub struct AlignQuality {
     pub visible_ratio: f32,
     /// RMS residual of the inliers, gray levels.
     pub residual_rms: f32,
+    /// Zero-mean normalized cross-correlation between the keyframe
+    /// intensities and the camera samples over the visible points (-1..=1).
+    /// Invariant to gain and bias; near 1 when aligned, near 0 when the
+    /// frame shows something else, however many residuals fall under the
+    /// inlier threshold by chance.
+    pub correlation: f32,
     /// Points used (visible) per level, finest first.
     pub points_used: [u32; MAX_LEVELS],
     /// Total LM iterations over all levels.
@@ -76,6 +82,7 @@ struct Eval {
     visible: usize,
     inliers: usize,
     inlier_sq_sum: f64,
+    correlation: f32,
     gain: f32,
     bias: f32,
 }
@@ -172,6 +179,7 @@ impl Aligner {
         result.quality.visible_ratio = e.visible as f32 / n0 as f32;
         result.quality.inlier_ratio = e.inliers as f32 / e.visible.max(1) as f32;
         result.quality.residual_rms = (e.inlier_sq_sum / e.inliers.max(1) as f64).sqrt() as f32;
+        result.quality.correlation = e.correlation;
         let dof = (e.ne.count as f64 - e.ne.n as f64).max(1.0);
         let sigma_sq = e.ne.weighted_sq_sum / dof;
         if let Some(inv) = e.ne.inverse() {
@@ -291,11 +299,18 @@ impl Aligner {
         let mut inlier_sq_sum = 0.0f64;
         let inlier_th = self.config.inlier_threshold;
         let mut j = [0.0f32; MAX_DIM];
+        let mut moments = [0.0f64; 5];
         for (pt, &wv) in points.iter().zip(warped.iter()) {
             if wv.is_nan() {
                 energy += rho_cut as f64;
                 continue;
             }
+            let (x, y) = (pt.gray as f64, wv as f64);
+            moments[0] += x;
+            moments[1] += y;
+            moments[2] += x * x;
+            moments[3] += y * y;
+            moments[4] += x * y;
             let res = wv - (a * pt.gray + b);
             let ar = res.abs();
             if ar < inlier_th {
@@ -325,6 +340,7 @@ impl Aligner {
                 visible,
                 inliers,
                 inlier_sq_sum,
+                correlation: correlation(&moments, visible),
                 gain: a,
                 bias: b,
             },
@@ -375,6 +391,23 @@ impl Aligner {
             }
         }
     }
+}
+
+/// Zero-mean normalized cross-correlation from the sums `[x, y, xx, yy, xy]`
+/// of `n` pairs; 0 when either side has no variance.
+fn correlation(m: &[f64; 5], n: usize) -> f32 {
+    let n = n as f64;
+    if n < 2.0 {
+        return 0.0;
+    }
+    let cov = m[4] - m[0] * m[1] / n;
+    let var_x = m[2] - m[0] * m[0] / n;
+    let var_y = m[3] - m[1] * m[1] / n;
+    let denom = (var_x * var_y).sqrt();
+    if !(denom > 1e-9 * n) {
+        return 0.0;
+    }
+    (cov / denom).clamp(-1.0, 1.0) as f32
 }
 
 /// Median and median absolute deviation; reorders `values`.

@@ -1,0 +1,99 @@
+//! Tracker accuracy on short synthetic sequences, end to end: `star synth`
+//! writes each preset from a fixed seed, then the STAR loop localizes it
+//! against the dataset's map through the CPU rasterizer and through wgpu on
+//! the software adapter (Mesa lavapipe, installed by the test set-up), and
+//! the absolute trajectory error (no alignment) must meet the tracker
+//! issue's bounds with no lost frame.
+//!
+//! The full 500-frame figures are printed by `scripts/bench_accuracy.sh`.
+
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+use std::path::Path;
+use std::process::Command;
+use std::sync::Arc;
+
+use star::config::{Config, RendererKind};
+use star::dataset::Dataset;
+use star::localizer::offline::{localize_dataset, OfflineOptions};
+
+/// Frames per sequence (3 s at 50 Hz).
+const FRAMES: usize = 150;
+
+fn synth(preset: &str, seed: u64, out: &Path) {
+    let status = Command::new(env!("CARGO_BIN_EXE_star"))
+        .args(["synth", "--no-depth", "--preset", preset, "--seed"])
+        .arg(seed.to_string())
+        .args(["--frames", &FRAMES.to_string()])
+        .arg(out)
+        .env("RUST_LOG", "warn")
+        .status()
+        .expect("run star synth");
+    assert!(status.success(), "star synth --preset {preset} failed");
+}
+
+/// Localizes `dir` with `renderer`; asserts no lost frame and the bounds.
+fn check(dir: &Path, renderer: RendererKind, max_ate_cm: f64, max_rot_deg: f64) {
+    let dataset = Dataset::open(dir).expect("open dataset");
+    let mesh = star::map::load_obj(&dir.join("map/map.obj")).expect("map");
+    let config = Config::default();
+    let renderer_box =
+        star::render::select::make_renderer(renderer, Arc::new(mesh)).expect("renderer starts");
+    let report = localize_dataset(
+        &dataset,
+        renderer_box,
+        &config,
+        &OfflineOptions::default(),
+        |_| {},
+    )
+    .expect("localize");
+    let e = report.evaluation.as_ref().expect("evaluation");
+    let ate_cm = e.ate.translation_m.rmse * 100.0;
+    let rot_deg = e.ate.rotation_deg.rmse;
+    eprintln!(
+        "{} with {}: {} frames, {} lost, ATE {ate_cm:.3} cm, rotation {rot_deg:.4} deg, {} keyframes",
+        dir.display(),
+        report.renderer,
+        report.frames,
+        report.lost_frames,
+        report.keyframes
+    );
+    if renderer == RendererKind::Software {
+        assert!(
+            report.renderer.starts_with("wgpu"),
+            "the software path must run through wgpu, got {}",
+            report.renderer
+        );
+    }
+    assert_eq!(report.frames, FRAMES, "every frame processed");
+    assert!(report.bad_frames.is_empty(), "{:?}", report.bad_frames);
+    assert_eq!(report.lost_frames, 0, "no lost frame");
+    assert_eq!(e.matched, FRAMES, "every frame has a pose");
+    assert!(ate_cm <= max_ate_cm, "ATE {ate_cm} cm > {max_ate_cm} cm");
+    assert!(
+        rot_deg <= max_rot_deg,
+        "rotation {rot_deg} deg > {max_rot_deg} deg"
+    );
+}
+
+fn preset_meets_bounds(preset: &str, seed: u64, max_ate_cm: f64, max_rot_deg: f64) {
+    let tmp = tempfile::tempdir().expect("tmp");
+    synth(preset, seed, tmp.path());
+    check(tmp.path(), RendererKind::Cpu, max_ate_cm, max_rot_deg);
+    check(tmp.path(), RendererKind::Software, max_ate_cm, max_rot_deg);
+}
+
+#[test]
+fn ideal_within_1_cm_and_0_2_deg() {
+    preset_meets_bounds("ideal", 11, 1.0, 0.2);
+}
+
+#[test]
+fn realistic_within_3_cm_and_0_5_deg() {
+    preset_meets_bounds("realistic", 12, 3.0, 0.5);
+}
+
+#[test]
+fn aggressive_within_5_cm_and_1_deg() {
+    preset_meets_bounds("aggressive", 13, 5.0, 1.0);
+}

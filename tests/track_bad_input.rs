@@ -1,0 +1,261 @@
+//! Bad input to the tracker: every case gets a clear error or the lost
+//! state, never a panic and never a non-finite pose. Data comes from
+//! `star synth --preset ideal` with a fixed seed, damaged per case.
+
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+use std::path::Path;
+use std::process::Command;
+use std::sync::Arc;
+
+use nalgebra::{Translation3, UnitQuaternion, Vector3};
+use star::config::Config;
+use star::dataset::Dataset;
+use star::geometry::Pose;
+use star::localizer::offline::{localize_dataset, OfflineOptions};
+use star::localizer::{Localizer, LocalizerError, TrackState};
+use star::map::{Mesh, MeshGroup};
+use star::render::cpu::CpuRenderer;
+
+const FRAMES: usize = 40;
+
+fn synth(out: &Path) {
+    let status = Command::new(env!("CARGO_BIN_EXE_star"))
+        .args(["synth", "--no-depth", "--preset", "ideal", "--seed", "21"])
+        .args(["--frames", &FRAMES.to_string()])
+        .arg(out)
+        .env("RUST_LOG", "warn")
+        .status()
+        .expect("run star synth");
+    assert!(status.success());
+}
+
+fn cpu_renderer(dir: &Path) -> Box<CpuRenderer> {
+    let mesh = star::map::load_obj(&dir.join("map/map.obj")).expect("map");
+    Box::new(CpuRenderer::new(Arc::new(mesh)).expect("renderer"))
+}
+
+fn start(dir: &Path, dataset: &Dataset, init: Pose) -> Localizer {
+    let config = Config::default();
+    Localizer::start(
+        cpu_renderer(dir),
+        dataset.camera(),
+        &config.tracker,
+        &config.keyframe,
+        init,
+        1_000,
+    )
+    .expect("start")
+}
+
+fn first_pose(dataset: &Dataset) -> Pose {
+    dataset.ground_truth.as_ref().expect("gt").poses[0]
+}
+
+fn assert_finite(pose: &Pose) {
+    assert!(
+        pose.translation.vector.iter().all(|v| v.is_finite())
+            && pose.rotation.coords.iter().all(|v| v.is_finite()),
+        "non-finite pose {pose:?}"
+    );
+}
+
+#[test]
+fn missing_and_corrupt_images_are_reported_and_skipped() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    synth(tmp.path());
+    let dataset = Dataset::open(tmp.path()).expect("open");
+    // Frame 5 goes missing, frame 9 becomes garbage, frame 12 is truncated.
+    std::fs::remove_file(tmp.path().join(&dataset.frames[5].path)).expect("rm");
+    std::fs::write(tmp.path().join(&dataset.frames[9].path), b"not a png").expect("write");
+    let p12 = tmp.path().join(&dataset.frames[12].path);
+    let bytes = std::fs::read(&p12).expect("read");
+    std::fs::write(&p12, &bytes[..bytes.len() / 3]).expect("truncate");
+
+    let report = localize_dataset(
+        &dataset,
+        cpu_renderer(tmp.path()),
+        &Config::default(),
+        &OfflineOptions::default(),
+        |_| {},
+    )
+    .expect("localize runs through bad frames");
+    let bad: Vec<usize> = report.bad_frames.iter().map(|(i, _)| *i).collect();
+    assert_eq!(bad, vec![5, 9, 12], "{:?}", report.bad_frames);
+    for (i, reason) in &report.bad_frames {
+        let name = dataset.frames[*i].path.to_string_lossy().to_string();
+        assert!(reason.contains(&name), "error names the file: {reason}");
+    }
+    assert_eq!(report.frames, FRAMES - 3);
+    assert_eq!(report.lost_frames, 0, "good frames keep tracking");
+    let e = report.evaluation.expect("evaluation");
+    assert!(e.ate.translation_m.rmse < 0.01);
+}
+
+#[test]
+fn wrong_size_and_out_of_order_frames_are_rejected() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    synth(tmp.path());
+    let dataset = Dataset::open(tmp.path()).expect("open");
+    let mut localizer = start(tmp.path(), &dataset, first_pose(&dataset));
+    let frame = dataset.load_frame(0).expect("frame");
+    let (w, h) = (frame.width(), frame.height());
+
+    let small = vec![0u8; 320 * 256];
+    let err = localizer
+        .process_frame(&small, 320, 256, 320, 2_000)
+        .unwrap_err();
+    assert!(matches!(err, LocalizerError::FrameSize { .. }), "{err}");
+    assert!(err.to_string().contains("320x256"), "{err}");
+    // A buffer too short for its declared size.
+    let err = localizer
+        .process_frame(&frame.data()[..w * h / 2], w, h, w, 2_000)
+        .unwrap_err();
+    assert!(matches!(err, LocalizerError::FrameSize { .. }), "{err}");
+
+    let out = localizer
+        .process_frame(frame.data(), w, h, w, 5_000)
+        .expect("good frame");
+    assert_eq!(out.state, TrackState::Tracking);
+    for stamp_ns in [5_000, 4_000] {
+        let err = localizer
+            .process_frame(frame.data(), w, h, w, stamp_ns)
+            .unwrap_err();
+        assert!(
+            matches!(err, LocalizerError::TimestampOrder { .. }),
+            "{err}"
+        );
+    }
+    // Still tracking after the rejected frames.
+    let out = localizer
+        .process_frame(frame.data(), w, h, w, 6_000)
+        .expect("good frame");
+    assert_eq!(out.state, TrackState::Tracking);
+}
+
+#[test]
+fn non_monotonic_dataset_timestamps_are_an_error() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    synth(tmp.path());
+    let list = tmp.path().join("rgb.txt");
+    let text = std::fs::read_to_string(&list).expect("read");
+    let mut lines: Vec<&str> = text.lines().collect();
+    let n = lines.len();
+    lines.swap(n - 1, n - 2);
+    std::fs::write(&list, lines.join("\n")).expect("write");
+    let err = Dataset::open(tmp.path()).unwrap_err().to_string();
+    assert!(err.contains("rgb.txt"), "{err}");
+}
+
+#[test]
+fn all_black_frames_are_lost_without_a_pose() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    synth(tmp.path());
+    let dataset = Dataset::open(tmp.path()).expect("open");
+    let mut localizer = start(tmp.path(), &dataset, first_pose(&dataset));
+    let frame = dataset.load_frame(0).expect("frame");
+    let (w, h) = (frame.width(), frame.height());
+    localizer
+        .process_frame(frame.data(), w, h, w, 2_000)
+        .expect("good frame");
+    let black = vec![0u8; w * h];
+    for k in 0..10u64 {
+        let out = localizer
+            .process_frame(&black, w, h, w, 3_000 + k * 20_000_000)
+            .expect("processed");
+        assert_eq!(out.state, TrackState::Lost, "black frame {k}");
+        assert!(out.world_from_camera.is_none());
+    }
+}
+
+#[test]
+fn far_off_initial_pose_never_gives_a_wrong_pose() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    synth(tmp.path());
+    let dataset = Dataset::open(tmp.path()).expect("open");
+    let gt = dataset.ground_truth.clone().expect("gt");
+    // 1.5 m to the side and turned 60 degrees: the keyframe shows another view.
+    let truth = first_pose(&dataset);
+    let off = truth
+        * Pose::from_parts(
+            Translation3::new(1.5, 0.0, 0.5),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 60f64.to_radians()),
+        );
+    let mut localizer = start(tmp.path(), &dataset, off);
+    let mut image = star::imgproc::ImageU8::new(0, 0, 0);
+    let mut lost = 0;
+    let mut max_correlation = f32::MIN;
+    for i in 0..20 {
+        dataset
+            .load_frame_into(i, &mut image, &mut Vec::new())
+            .expect("frame");
+        let out = localizer
+            .process_frame(
+                image.data(),
+                image.width(),
+                image.height(),
+                image.width(),
+                2_000 + i as u64 * 20_000_000,
+            )
+            .expect("processed");
+        max_correlation = max_correlation.max(out.quality.correlation);
+        match out.world_from_camera {
+            None => lost += 1,
+            Some(pose) => {
+                assert_finite(&pose);
+                let err_m = (pose.translation.vector - gt.poses[i].translation.vector).norm();
+                panic!(
+                    "frame {i}: a pose {err_m:.2} m from the truth was output from a far-off start"
+                );
+            }
+        }
+    }
+    eprintln!("far-off start: highest correlation {max_correlation:.3}");
+    assert_eq!(lost, 20);
+}
+
+#[test]
+fn texture_less_view_is_lost_or_refused() {
+    // A uniform gray wall: no gradient, no keyframe points.
+    let mesh = Mesh {
+        positions: vec![
+            [-3.0, -3.0, 3.0],
+            [3.0, -3.0, 3.0],
+            [3.0, 3.0, 3.0],
+            [-3.0, 3.0, 3.0],
+        ],
+        gray: vec![128.0; 4],
+        uvs: Vec::new(),
+        indices: vec![0, 1, 2, 0, 2, 3],
+        groups: vec![MeshGroup {
+            first_index: 0,
+            index_count: 6,
+            texture: None,
+        }],
+        textures: Vec::new(),
+    };
+    let camera = star::geometry::PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5);
+    let config = Config::default();
+    let renderer = Box::new(CpuRenderer::new(Arc::new(mesh)).expect("renderer"));
+    match Localizer::start(
+        renderer,
+        &camera,
+        &config.tracker,
+        &config.keyframe,
+        Pose::identity(),
+        1_000,
+    ) {
+        // Refusing to start on a view with nothing to track is a clear error.
+        Err(e) => assert!(!e.to_string().is_empty()),
+        Ok(mut localizer) => {
+            let flat = vec![128u8; 640 * 512];
+            for k in 0..5u64 {
+                let out = localizer
+                    .process_frame(&flat, 640, 512, 640, 2_000 + k * 20_000_000)
+                    .expect("processed");
+                assert_eq!(out.state, TrackState::Lost);
+                assert!(out.world_from_camera.is_none());
+            }
+        }
+    }
+}
