@@ -37,7 +37,10 @@ fn bench_mesh(c: &mut Criterion, class: &str, which: AdapterPreference, name: &s
     for p in &poses {
         renderer.render(p, &camera, &mut out).expect("render");
     }
-    println!("{class}/{name}: {triangles} triangles on {}", renderer.name());
+    println!(
+        "{class}/{name}: {triangles} triangles on {}",
+        renderer.name()
+    );
     let mut k = 0;
     c.bench_function(&format!("wgpu_{class}_640x512/{name}"), |b| {
         b.iter(|| {

@@ -128,6 +128,37 @@ pub fn preset_trajectory(
     )
 }
 
+/// Most scene layouts tried by [`scene_with_trajectory`].
+pub const MAX_SCENE_ATTEMPTS: u64 = 16;
+
+/// The scene and trajectory of `preset` for `seed`. When furniture blocks
+/// every loop the trajectory generator tries, the furniture layout is drawn
+/// again from seeds derived from `seed` (deterministically), up to
+/// [`MAX_SCENE_ATTEMPTS`] layouts. Returns the scene seed actually used.
+pub fn scene_with_trajectory(
+    preset: &Preset,
+    seed: u64,
+    duration_s: f64,
+) -> Result<(Scene, SynthTrajectory, u64), TrajectoryError> {
+    let mut attempt = 0;
+    loop {
+        let scene_seed = if attempt == 0 {
+            seed
+        } else {
+            super::corrupt::derive_seed(seed, 0x5ce0_0000 + attempt)
+        };
+        let scene = preset_scene(preset, scene_seed);
+        match preset_trajectory(preset, &scene, seed, duration_s) {
+            Ok(trajectory) => return Ok((scene, trajectory, scene_seed)),
+            Err(e) if attempt + 1 >= MAX_SCENE_ATTEMPTS => return Err(e),
+            Err(e) => {
+                tracing::debug!(seed, scene_seed, error = %e, "layout blocks the trajectory; drawing another")
+            }
+        }
+        attempt += 1;
+    }
+}
+
 /// Writes the sequence into `out`; `progress` is called after each frame
 /// with the number of frames done.
 pub fn write_sequence(
@@ -141,9 +172,8 @@ pub fn write_sequence(
             found: options.frames,
         });
     }
-    let scene = preset_scene(preset, options.seed);
     let duration_s = options.frames as f64 / preset.rate_hz;
-    let trajectory = preset_trajectory(preset, &scene, options.seed, duration_s)?;
+    let (scene, trajectory, scene_seed) = scene_with_trajectory(preset, options.seed, duration_s)?;
 
     let writer = DatasetWriter::create(
         out,
@@ -155,7 +185,9 @@ pub fn write_sequence(
     let map_path = crate::map::write_obj(&scene.map, &writer.map_dir(), "map")?;
     let synth_toml = out.join("synth.toml");
     let text = format!(
-        "# The exact parameters this dataset was synthesized with.\nseed = {}\nframes = {}\n\n{}",
+        "# The exact parameters this dataset was synthesized with.\nseed = {}\n\
+         # Seed of the room layout (the seed, or one derived from it when furniture blocked the trajectory).\n\
+         scene_seed = {scene_seed}\nframes = {}\n\n{}",
         options.seed,
         options.frames,
         preset.to_toml()
@@ -286,6 +318,22 @@ mod tests {
             let x = std::fs::read(a.path().join(&entry.path)).expect("a png");
             let y = std::fs::read(b.path().join(&entry.path)).expect("b png");
             assert!(x == y, "{} differs", entry.path.display());
+        }
+    }
+
+    #[test]
+    fn blocked_layouts_are_redrawn() {
+        // Seeds whose first layout blocks every loop.
+        for (name, seeds) in [("realistic", [2, 5]), ("aggressive", [4, 7])] {
+            let preset = Preset::by_name(name).expect("preset");
+            for seed in seeds {
+                let (scene, trajectory, _) =
+                    scene_with_trajectory(&preset, seed, 10.0).expect("placed");
+                for i in 0..100 {
+                    let p = trajectory.position_at(i as f64 * 0.1);
+                    assert!(scene.is_free([p.x, p.y, p.z], 0.25), "{name} seed {seed}");
+                }
+            }
         }
     }
 
