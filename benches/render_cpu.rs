@@ -4,6 +4,9 @@
 //! poses inside the room, so the figure averages views of walls, corners
 //! and furniture at 0.3..6 m.
 //!
+//! The first figure is the synthetic default scene of `star synth` (the
+//! `realistic` map mesh, about 24k triangles) along its trajectory.
+//!
 //! Run: `cargo bench --bench render_cpu`.
 
 #![allow(clippy::expect_used, clippy::unwrap_used)]
@@ -21,6 +24,26 @@ mod common;
 use common::room_scene::{poses, room};
 
 fn bench_mesh(c: &mut Criterion, name: &str, mesh: Mesh, threads: Option<usize>) {
+    bench_mesh_at(c, name, mesh, threads, poses());
+}
+
+/// The synthetic default scene (`star synth`'s room, map mesh) seen from 8
+/// poses of the `realistic` preset's trajectory, one second apart.
+fn bench_synth_default(c: &mut Criterion) {
+    let preset = star::synth::preset::Preset::by_name("realistic").expect("preset");
+    let (scene, trajectory, _) =
+        star::synth::sequence::scene_with_trajectory(&preset, 1, 8.0).expect("scene");
+    let poses = (0..8).map(|k| trajectory.pose_at(k as f64)).collect();
+    bench_mesh_at(c, "cpu_640x512/synth_default", scene.map, None, poses);
+}
+
+fn bench_mesh_at(
+    c: &mut Criterion,
+    name: &str,
+    mesh: Mesh,
+    threads: Option<usize>,
+    poses: Vec<star::geometry::Pose>,
+) {
     let camera = PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5);
     let triangles = mesh.triangle_count();
     let mesh = Arc::new(mesh);
@@ -30,7 +53,6 @@ fn bench_mesh(c: &mut Criterion, name: &str, mesh: Mesh, threads: Option<usize>)
     }
     .expect("valid mesh");
     let mut out = RenderedView::for_camera(&camera);
-    let poses = poses();
     let mut hits = 0usize;
     for p in &poses {
         renderer.render(p, &camera, &mut out).expect("render");
@@ -54,6 +76,7 @@ fn bench_mesh(c: &mut Criterion, name: &str, mesh: Mesh, threads: Option<usize>)
 }
 
 fn benches(c: &mut Criterion) {
+    bench_synth_default(c);
     // Base meshes sized so that 1-to-4 subdivision lands just above the
     // target counts: 816 * 4^4 = 209k, 1152 * 4^5 = 1.18M.
     bench_mesh(c, "cpu_640x512/room_1k", room(8, 2), None);
