@@ -126,7 +126,7 @@ impl Default for KeyframeConfig {
             lost_inlier_ratio: 0.35,
             lost_visible_ratio: 0.15,
             lost_max_jump_m: 0.3,
-            lost_min_correlation: 0.4,
+            lost_min_correlation: 0.2,
         }
     }
 }

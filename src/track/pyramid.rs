@@ -85,16 +85,32 @@ fn downsample(src: &ImageF32, dst: &mut ImageF32, scratch: &mut [f32]) {
     let (dw, dh) = (dst.width(), dst.height());
     // Horizontal pass: sh rows of dw samples.
     let tmp = &mut scratch[..dw * sh];
+    // Output x reads input 2x-1..=2x+2; x in 1..interior needs no clamping.
+    let interior = if sw >= 3 {
+        ((sw - 3) / 2 + 1).min(dw)
+    } else {
+        0
+    };
+    let clamped = |row: &[f32], x: usize| {
+        let c0 = 2 * x;
+        let a = row[c0.saturating_sub(1)];
+        let b = row[c0.min(sw - 1)];
+        let c = row[(c0 + 1).min(sw - 1)];
+        let d = row[(c0 + 2).min(sw - 1)];
+        (a + 3.0 * (b + c) + d) * 0.125
+    };
     for y in 0..sh {
         let row = src.row(y);
         let out = &mut tmp[y * dw..(y + 1) * dw];
-        for (x, o) in out.iter_mut().enumerate() {
-            let c0 = 2 * x;
-            let a = row[c0.saturating_sub(1)];
-            let b = row[c0];
-            let c = row[(c0 + 1).min(sw - 1)];
-            let d = row[(c0 + 2).min(sw - 1)];
-            *o = (a + 3.0 * (b + c) + d) * 0.125;
+        if interior > 1 {
+            for (x, o) in out[1..interior].iter_mut().enumerate() {
+                let w = &row[2 * x + 1..2 * x + 5];
+                *o = (w[0] + 3.0 * (w[1] + w[2]) + w[3]) * 0.125;
+            }
+        }
+        out[0] = clamped(row, 0);
+        for x in interior.max(1)..dw {
+            out[x] = clamped(row, x);
         }
     }
     // Vertical pass.
