@@ -1,0 +1,220 @@
+//! Online relocalization: the search and the acceptance test the STAR loop
+//! runs while lost.
+//!
+//! Takes the current camera frame, the last tracked position and the time
+//! since the failure; gives out the database keyframes to try (the top-k by
+//! Hamming distance within a radius that grows with the time lost, or over
+//! the whole map), and, once a candidate is rendered, the verdict of
+//! [`verify_candidate`]: the aligned pose if it passes the strict gate.
+//! After [`Relocalizer::new`] nothing here allocates.
+
+use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+use crate::geometry::{PinholeCamera, Pose};
+use crate::track::{AlignQuality, Aligner, Alignment, Keyframe, Pyramid};
+
+use super::config::RelocConfig;
+use super::database::{RelocDatabase, RelocDbError};
+use super::descriptor::{Descriptor, Thumbnailer};
+
+/// Most candidates one search returns.
+pub const MAX_TOP_K: usize = 64;
+
+/// Where to search.
+#[derive(Debug, Clone, Copy)]
+pub enum SearchRegion {
+    /// Entries within `radius_m` of `center_m`.
+    Near {
+        /// Last tracked position, world, meters.
+        center_m: Vector3<f64>,
+        /// Search radius, meters.
+        radius_m: f64,
+    },
+    /// The whole database.
+    Everywhere,
+}
+
+/// The search side of relocalization: database, descriptor scratch and the
+/// candidate list.
+#[derive(Debug, Clone)]
+pub struct Relocalizer {
+    db: RelocDatabase,
+    config: RelocConfig,
+    thumbnailer: Thumbnailer,
+    best: [(u32, u32); MAX_TOP_K],
+    n_best: usize,
+    candidates: [u32; MAX_TOP_K],
+}
+
+impl Relocalizer {
+    /// Takes `db` for use with `camera`; errors when the database was built
+    /// for other intrinsics (check the map with
+    /// [`RelocDatabase::check_compatible`] where the map is at hand).
+    pub fn new(
+        db: RelocDatabase,
+        config: &RelocConfig,
+        camera: &PinholeCamera,
+    ) -> Result<Self, RelocDbError> {
+        db.check_compatible(camera, db.map_fingerprint)?;
+        Ok(Self {
+            db,
+            config: config.clone(),
+            thumbnailer: Thumbnailer::new(),
+            best: [(u32::MAX, 0); MAX_TOP_K],
+            n_best: 0,
+            candidates: [0; MAX_TOP_K],
+        })
+    }
+
+    /// The database.
+    pub fn database(&self) -> &RelocDatabase {
+        &self.db
+    }
+
+    /// The `[reloc]` settings in use.
+    pub fn config(&self) -> &RelocConfig {
+        &self.config
+    }
+
+    /// The search radius after `lost_s` seconds lost.
+    pub fn radius_m(&self, lost_s: f64) -> f64 {
+        self.config.search_radius_m + self.config.max_speed_m_s * lost_s.max(0.0)
+    }
+
+    /// Descriptor of a camera frame; `None` when it has too little contrast.
+    pub fn describe(
+        &mut self,
+        pixels: &[u8],
+        width: usize,
+        height: usize,
+        stride: usize,
+    ) -> Option<Descriptor> {
+        self.thumbnailer
+            .describe_u8(pixels, width, height, stride, self.config.min_contrast)
+    }
+
+    /// Indices of the `top_k` entries in `region` nearest to `query` by
+    /// Hamming distance, best first (fewer when the region holds fewer).
+    pub fn search(&mut self, query: &Descriptor, region: SearchRegion) -> &[u32] {
+        let k = (self.config.top_k as usize).clamp(1, MAX_TOP_K);
+        let n = top_k(&self.db, query, region, k, &mut self.best);
+        self.n_best = n;
+        for (c, &(_, i)) in self.candidates.iter_mut().zip(&self.best[..n]) {
+            *c = i;
+        }
+        &self.candidates[..n]
+    }
+
+    /// Hamming distance of the `rank`-th candidate of the last search.
+    pub fn distance_of_rank(&self, rank: usize) -> Option<u32> {
+        self.best[..self.n_best].get(rank).map(|b| b.0)
+    }
+}
+
+/// The `k` entries of `db` in `region` nearest to `query`, written to
+/// `best[..returned]` as `(distance, index)`, best first; ties by index.
+pub fn top_k(
+    db: &RelocDatabase,
+    query: &Descriptor,
+    region: SearchRegion,
+    k: usize,
+    best: &mut [(u32, u32); MAX_TOP_K],
+) -> usize {
+    let k = k.clamp(1, MAX_TOP_K);
+    let mut n = 0usize;
+    let (center, r2, near) = match region {
+        SearchRegion::Near { center_m, radius_m } => (center_m, radius_m * radius_m, true),
+        SearchRegion::Everywhere => (Vector3::zeros(), 0.0, false),
+    };
+    for (i, e) in db.entries.iter().enumerate() {
+        if near && (e.world_from_camera.translation.vector - center).norm_squared() > r2 {
+            continue;
+        }
+        let d = query.hamming(&e.descriptor);
+        if n == k && d >= best[k - 1].0 {
+            continue;
+        }
+        // Insertion into the sorted list.
+        let mut j = if n < k { n } else { k - 1 };
+        while j > 0 && best[j - 1].0 > d {
+            best[j] = best[j - 1];
+            j -= 1;
+        }
+        best[j] = (d, i as u32);
+        n = (n + 1).min(k);
+    }
+    n
+}
+
+/// A candidate that passed the gate.
+#[derive(Debug, Clone, Copy)]
+pub struct Verified {
+    /// The aligned camera pose.
+    pub world_from_camera: Pose,
+    /// The alignment.
+    pub alignment: Alignment,
+}
+
+/// True when `q` passes the relocalization gate of `config`.
+pub fn passes_gate(q: &AlignQuality, config: &RelocConfig) -> bool {
+    q.inlier_ratio >= config.min_inlier_ratio
+        && q.visible_ratio >= config.min_visible_ratio
+        && q.residual_rms <= config.max_residual
+        && q.residual_rms.is_finite()
+}
+
+/// Initial yaw offsets tried per candidate, radians: the candidate's own
+/// yaw, then half a grid yaw step either way (the true yaw is at most that
+/// far from the nearest database yaw).
+pub fn start_yaws_rad(config: &RelocConfig) -> [f64; 3] {
+    let half = std::f64::consts::PI / config.yaw_steps.max(1) as f64;
+    [0.0, half, -half]
+}
+
+/// Aligns `frame` against the candidate `keyframe` rendered at a database
+/// pose, from the keyframe pose and from rotations of it about the camera's
+/// vertical axis, and returns the best alignment that passes the gate and
+/// stays within two grid spacings of the candidate.
+pub fn verify_candidate(
+    aligner: &mut Aligner,
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    config: &RelocConfig,
+) -> Option<Verified> {
+    let mut best: Option<Verified> = None;
+    for yaw in start_yaws_rad(config) {
+        // Camera y points down: a yaw to the left is a negative rotation about y.
+        let keyframe_from_camera = Pose::from_parts(
+            Translation3::identity(),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -yaw),
+        );
+        let a = aligner.align(keyframe, frame, camera, keyframe_from_camera.inverse());
+        let world_from_camera = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
+        let finite = world_from_camera
+            .translation
+            .vector
+            .iter()
+            .chain(world_from_camera.rotation.coords.iter())
+            .all(|v| v.is_finite());
+        let moved_m = a.camera_from_keyframe.translation.vector.norm();
+        if !(a.valid && finite && passes_gate(&a.quality, config))
+            || moved_m > 2.0 * config.grid_spacing_m
+        {
+            continue;
+        }
+        let better = best.as_ref().is_none_or(|b| {
+            a.quality.inlier_ratio > b.alignment.quality.inlier_ratio
+        });
+        if better {
+            best = Some(Verified {
+                world_from_camera,
+                alignment: a,
+            });
+        }
+        if a.quality.inlier_ratio >= 0.9 {
+            break;
+        }
+    }
+    best
+}
