@@ -42,6 +42,9 @@ pub struct RelocConfig {
     pub min_visible_ratio: f32,
     /// Acceptance gate: largest inlier residual RMS, gray levels.
     pub max_residual: f32,
+    /// Acceptance gate: smallest normalized cross-correlation between the
+    /// candidate's points and the frame at the aligned pose.
+    pub min_correlation: f32,
     /// Frames after an accepted relocalization that must track through the
     /// same gate before a pose is output again.
     pub verify_frames: u32,
@@ -67,6 +70,7 @@ impl Default for RelocConfig {
             min_inlier_ratio: 0.7,
             min_visible_ratio: 0.5,
             max_residual: 12.0,
+            min_correlation: 0.8,
             verify_frames: 1,
             resume_window_s: 0.2,
         }
@@ -110,7 +114,12 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 11] = [
+        let checks: [(&'static str, bool, String); 12] = [
+            (
+                "min_correlation",
+                self.min_correlation.is_finite() && (-1.0..=1.0).contains(&self.min_correlation),
+                format!("expected -1..=1, found {}", self.min_correlation),
+            ),
             (
                 "bounds_margin_m",
                 self.bounds_margin_m.is_finite() && self.bounds_margin_m >= 0.0,

@@ -21,7 +21,13 @@ pub const DESCRIPTOR_BITS: usize = 256;
 /// changes every descriptor, so the database version must change too).
 pub const PATTERN_SEED: u64 = 0x5354_4152_524c_4331;
 /// Largest offset between the two pixels of a comparison, thumbnail pixels.
-const MAX_PAIR_OFFSET: i64 = 24;
+const MAX_PAIR_OFFSET: i64 = 32;
+/// Smallest offset (L1) between the two pixels of a comparison.
+const MIN_PAIR_OFFSET: i64 = 8;
+/// Box radius of the blur, thumbnail pixels.
+const BLUR_RADIUS: i64 = 2;
+/// Box blur passes (3 passes of radius 2: about a Gaussian of sigma 2.4 px).
+const BLUR_PASSES: usize = 3;
 /// Border kept free of comparison pixels (blur and distortion edge effects).
 const BORDER: i64 = 3;
 
@@ -45,6 +51,9 @@ impl Descriptor {
 pub struct Thumbnailer {
     thumb: Vec<f32>,
     blurred: Vec<f32>,
+    tmp: Vec<f32>,
+    tmp2: Vec<f32>,
+    mask: Vec<f32>,
     pairs: Vec<(u16, u16)>,
 }
 
@@ -69,7 +78,7 @@ impl Thumbnailer {
             if x1 < BORDER || y1 < BORDER || x1 >= w - BORDER || y1 >= h - BORDER {
                 continue;
             }
-            if dx.abs() + dy.abs() < 4 {
+            if dx.abs() + dy.abs() < MIN_PAIR_OFFSET {
                 continue;
             }
             pairs.push(((y0 * w + x0) as u16, (y1 * w + x1) as u16));
@@ -77,6 +86,9 @@ impl Thumbnailer {
         Self {
             thumb: vec![0.0; THUMB_W * THUMB_H],
             blurred: vec![0.0; THUMB_W * THUMB_H],
+            tmp: vec![0.0; THUMB_W * THUMB_H],
+            tmp2: vec![0.0; THUMB_W * THUMB_H],
+            mask: vec![0.0; THUMB_W * THUMB_H],
             pairs,
         }
     }
@@ -110,9 +122,12 @@ impl Thumbnailer {
     }
 
     /// Descriptor of a gray image stored as `f32` row-major `width x height`.
+    /// With `depth_m`, pixels without depth (map holes, unmapped space) are
+    /// filled from their valid neighbourhood instead of counting as black.
     pub fn describe_f32(
         &mut self,
         gray: &[f32],
+        depth_m: Option<&[f32]>,
         width: usize,
         height: usize,
         min_std: f32,
@@ -120,7 +135,44 @@ impl Thumbnailer {
         if width < THUMB_W / 2 || height < THUMB_H / 2 || gray.len() < width * height {
             return None;
         }
-        area_resample(&mut self.thumb, width, height, |x, y| gray[y * width + x]);
+        let Some(depth) = depth_m.filter(|d| d.len() >= width * height) else {
+            area_resample(&mut self.thumb, width, height, |x, y| gray[y * width + x]);
+            return self.finish(min_std);
+        };
+        let hit = |x: usize, y: usize| crate::render::RenderedView::is_hit(depth[y * width + x]);
+        // Normalized convolution: blur(gray * mask) / blur(mask).
+        area_resample(&mut self.thumb, width, height, |x, y| {
+            if hit(x, y) {
+                gray[y * width + x]
+            } else {
+                0.0
+            }
+        });
+        area_resample(&mut self.mask, width, height, |x, y| {
+            if hit(x, y) {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        let mut wide_v = std::mem::take(&mut self.blurred);
+        let mut wide_m = std::mem::take(&mut self.tmp2);
+        blur(&self.thumb, &mut wide_v, &mut self.tmp, 4);
+        blur(&self.mask, &mut wide_m, &mut self.tmp, 4);
+        for (i, v) in self.thumb.iter_mut().enumerate() {
+            let m = self.mask[i];
+            if m < 0.999 {
+                let fill = if wide_m[i] > 1e-3 {
+                    wide_v[i] / wide_m[i]
+                } else {
+                    0.0
+                };
+                // The valid part of the pixel keeps its value.
+                *v += (1.0 - m) * fill;
+            }
+        }
+        self.blurred = wide_v;
+        self.tmp2 = wide_m;
         self.finish(min_std)
     }
 
@@ -131,7 +183,7 @@ impl Thumbnailer {
         if !(var.is_finite() && var.sqrt() >= min_std) {
             return None;
         }
-        box_blur_3(&self.thumb, &mut self.blurred);
+        blur(&self.thumb, &mut self.blurred, &mut self.tmp, BLUR_PASSES);
         let mut bits = [0u64; 4];
         for (i, &(a, b)) in self.pairs.iter().enumerate() {
             let (va, vb) = (self.blurred[a as usize], self.blurred[b as usize]);
@@ -165,28 +217,33 @@ fn area_resample(out: &mut [f32], width: usize, height: usize, at: impl Fn(usize
     }
 }
 
-/// Two passes of a 3x3 box blur (about a Gaussian with sigma 1.2 px),
-/// clamped at the borders.
-fn box_blur_3(input: &[f32], out: &mut [f32]) {
-    let (w, h) = (THUMB_W, THUMB_H);
-    let mut tmp = [0.0f32; THUMB_W * THUMB_H];
-    let pass = |src: &[f32], dst: &mut [f32]| {
+/// Separable box blur of radius [`BLUR_RADIUS`], [`BLUR_PASSES`] times
+/// (about a Gaussian), clamped at the borders; `tmp` is scratch.
+fn blur(input: &[f32], out: &mut [f32], tmp: &mut [f32], passes: usize) {
+    let (w, h) = (THUMB_W as i64, THUMB_H as i64);
+    let r = BLUR_RADIUS;
+    let norm = 1.0 / (2 * r + 1) as f32;
+    out.copy_from_slice(input);
+    for _ in 0..passes {
         for y in 0..h {
             for x in 0..w {
                 let mut s = 0.0;
-                for dy in [-1i64, 0, 1] {
-                    let yy = (y as i64 + dy).clamp(0, h as i64 - 1) as usize;
-                    for dx in [-1i64, 0, 1] {
-                        let xx = (x as i64 + dx).clamp(0, w as i64 - 1) as usize;
-                        s += src[yy * w + xx];
-                    }
+                for dx in -r..=r {
+                    s += out[(y * w + (x + dx).clamp(0, w - 1)) as usize];
                 }
-                dst[y * w + x] = s / 9.0;
+                tmp[(y * w + x) as usize] = s * norm;
             }
         }
-    };
-    pass(input, &mut tmp);
-    pass(&tmp, out);
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0.0;
+                for dy in -r..=r {
+                    s += tmp[((y + dy).clamp(0, h - 1) * w + x) as usize];
+                }
+                out[(y * w + x) as usize] = s * norm;
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -255,7 +312,7 @@ mod tests {
         let f: Vec<f32> = img.iter().map(|&v| v as f32).collect();
         let mut t = Thumbnailer::new();
         let a = t.describe_u8(&img, 320, 256, 320, 2.0).expect("u8");
-        let b = t.describe_f32(&f, 320, 256, 2.0).expect("f32");
+        let b = t.describe_f32(&f, None, 320, 256, 2.0).expect("f32");
         assert_eq!(a, b);
     }
 }

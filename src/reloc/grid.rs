@@ -158,7 +158,13 @@ pub fn build_database(
                 }
                 let (w, h) = (view.gray.width(), view.gray.height());
                 if let Some(descriptor) =
-                    thumbnailer.describe_f32(view.gray.data(), w, h, config.min_contrast)
+                    thumbnailer.describe_f32(
+                        view.gray.data(),
+                        Some(view.depth_m.data()),
+                        w,
+                        h,
+                        config.min_contrast,
+                    )
                 {
                     position_entries.push(RelocEntry {
                         world_from_camera,

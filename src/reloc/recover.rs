@@ -155,6 +155,58 @@ pub struct Verified {
     pub alignment: Alignment,
 }
 
+/// Zero-mean normalized cross-correlation between the keyframe points of
+/// pyramid level `level` and the frame intensities where they project at
+/// `camera_from_keyframe`; `None` with fewer than 50 visible points. A wrong
+/// pose on a look-alike surface can fit an affine photometric model with
+/// small residuals; it does not correlate.
+pub fn correlation(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+    level: usize,
+) -> Option<f32> {
+    let kl = keyframe.levels.get(level)?;
+    if level >= frame.len() {
+        return None;
+    }
+    let image = frame.level(level);
+    let cam = camera.scaled_to_level(level as u32);
+    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0f64, 0f64, 0f64, 0f64, 0f64);
+    for kp in &kl.points {
+        let p = Vector3::new(
+            kp.p_keyframe[0] as f64,
+            kp.p_keyframe[1] as f64,
+            kp.p_keyframe[2] as f64,
+        );
+        let Some(uv) = cam.project(&(camera_from_keyframe * nalgebra::Point3::from(p)).coords) else {
+            continue;
+        };
+        let Some(v) = image.bilinear(uv.x as f32, uv.y as f32) else {
+            continue;
+        };
+        let (a, b) = (kp.gray as f64, v as f64);
+        n += 1;
+        sa += a;
+        sb += b;
+        saa += a * a;
+        sbb += b * b;
+        sab += a * b;
+    }
+    if n < 50 {
+        return None;
+    }
+    let nf = n as f64;
+    let cov = sab - sa * sb / nf;
+    let va = saa - sa * sa / nf;
+    let vb = sbb - sb * sb / nf;
+    if !(va > 0.0 && vb > 0.0) {
+        return None;
+    }
+    Some((cov / (va * vb).sqrt()) as f32)
+}
+
 /// True when `q` passes the relocalization gate of `config`.
 pub fn passes_gate(q: &AlignQuality, config: &RelocConfig) -> bool {
     q.inlier_ratio >= config.min_inlier_ratio
@@ -201,6 +253,10 @@ pub fn verify_candidate(
         if !(a.valid && finite && passes_gate(&a.quality, config))
             || moved_m > 2.0 * config.grid_spacing_m
         {
+            continue;
+        }
+        let ncc = correlation(keyframe, frame, camera, &a.camera_from_keyframe, 1);
+        if !ncc.is_some_and(|c| c >= config.min_correlation) {
             continue;
         }
         let better = best.as_ref().is_none_or(|b| {
