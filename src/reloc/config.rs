@@ -45,6 +45,9 @@ pub struct RelocConfig {
     /// Acceptance gate: smallest normalized cross-correlation between the
     /// candidate's points and the frame at the aligned pose.
     pub min_correlation: f32,
+    /// With relocalization enabled, ordinary tracking is also lost when the
+    /// keyframe points correlate less than this with the frame.
+    pub track_min_correlation: f32,
     /// Frames after an accepted relocalization that must track through the
     /// same gate before a pose is output again.
     pub verify_frames: u32,
@@ -71,6 +74,7 @@ impl Default for RelocConfig {
             min_visible_ratio: 0.5,
             max_residual: 12.0,
             min_correlation: 0.8,
+            track_min_correlation: 0.5,
             verify_frames: 1,
             resume_window_s: 0.2,
         }
@@ -114,7 +118,13 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 12] = [
+        let checks: [(&'static str, bool, String); 13] = [
+            (
+                "track_min_correlation",
+                self.track_min_correlation.is_finite()
+                    && (-1.0..=1.0).contains(&self.track_min_correlation),
+                format!("expected -1..=1, found {}", self.track_min_correlation),
+            ),
             (
                 "min_correlation",
                 self.min_correlation.is_finite() && (-1.0..=1.0).contains(&self.min_correlation),

@@ -68,9 +68,17 @@ pub fn thumb_render_camera(camera: &PinholeCamera) -> PinholeCamera {
     )
 }
 
-/// Grid positions (world, meters) inside the bounds of `mesh`.
-pub fn grid_positions(mesh: &Mesh, config: &RelocConfig) -> Result<Vec<Vector3<f64>>, BuildError> {
-    let (min, max) = mesh.bounds().ok_or(BuildError::EmptyMap)?;
+/// Grid positions (world, meters) inside the bounds of `mesh`, or inside
+/// `region` (`[min, max]` corners, meters) when given.
+pub fn grid_positions(
+    mesh: &Mesh,
+    config: &RelocConfig,
+    region: Option<([f32; 3], [f32; 3])>,
+) -> Result<Vec<Vector3<f64>>, BuildError> {
+    let (min, max) = match region {
+        Some(r) => r,
+        None => mesh.bounds().ok_or(BuildError::EmptyMap)?,
+    };
     let m = config.bounds_margin_m;
     let lo = Vector3::new(min[0] as f64 + m, min[1] as f64 + m, min[2] as f64 + m);
     let hi = Vector3::new(max[0] as f64 - m, max[1] as f64 - m, max[2] as f64 - m);
@@ -119,7 +127,20 @@ pub fn build_database(
     config: &RelocConfig,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RelocDatabase, BuildError> {
-    let positions = grid_positions(mesh, config)?;
+    build_database_in(mesh, camera, renderer, config, None, progress)
+}
+
+/// [`build_database`] with the grid limited to `region` (`[min, max]`
+/// corners, world, meters) instead of the mesh bounds.
+pub fn build_database_in(
+    mesh: &Mesh,
+    camera: &PinholeCamera,
+    renderer: &mut dyn Renderer,
+    config: &RelocConfig,
+    region: Option<([f32; 3], [f32; 3])>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<RelocDatabase, BuildError> {
+    let positions = grid_positions(mesh, config, region)?;
     let render_camera = thumb_render_camera(camera);
     let mut view = RenderedView::for_camera(&render_camera);
     let mut thumbnailer = Thumbnailer::new();

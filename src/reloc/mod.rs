@@ -22,5 +22,5 @@ mod database_tests;
 pub use config::RelocConfig;
 pub use database::{map_fingerprint, RelocDatabase, RelocDbError, RelocEntry};
 pub use descriptor::{Descriptor, Thumbnailer, THUMB_H, THUMB_W};
-pub use grid::{build_database, BuildError};
+pub use grid::{build_database, build_database_in, BuildError};
 pub use recover::{verify_candidate, Relocalizer, SearchRegion, Verified};
