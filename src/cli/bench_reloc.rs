@@ -19,7 +19,7 @@ use crate::config::{Config, TrackerConfig};
 use crate::geometry::Pose;
 use crate::imgproc::{ImageF32, ImageU8};
 use crate::localizer::offline::median_p99;
-use crate::reloc::recover::{top_k, MAX_TOP_K};
+use crate::reloc::recover::{top_k, Ranked, MAX_TOP_K};
 use crate::reloc::{build_database, verify_candidate, Relocalizer, SearchRegion};
 use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderedView, Renderer};
@@ -127,9 +127,9 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
             rejected += 1;
             continue;
         };
-        let candidates: Vec<u32> = reloc.search(&query, SearchRegion::Everywhere).to_vec();
-        if let Some(&first) = candidates.first() {
-            let e = &db.entries[first as usize];
+        let candidates: Vec<Ranked> = reloc.search(&query, SearchRegion::Everywhere).to_vec();
+        if let Some(first) = candidates.first() {
+            let e = &db.entries[first.index as usize];
             retrieved_m.push((e.world_from_camera.translation.vector - p).norm());
         }
         if std::env::var_os("STAR_RELOC_DEBUG").is_some() {
@@ -144,8 +144,9 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                 .min_by(|a, b| score(a.1).total_cmp(&score(b.1)))
                 .map(|(i, e)| (i, *e))
                 .unwrap_or((0, db.entries[0]));
-            let oh = query.hamming(&oracle.descriptor);
-            let rank = db.entries.iter().filter(|e| query.hamming(&e.descriptor) < oh).count();
+            let ham = |d: &crate::reloc::Descriptor| query.iter().map(|q| q.hamming(d)).min().unwrap_or(256);
+            let oh = ham(&oracle.descriptor);
+            let rank = db.entries.iter().filter(|e| ham(&e.descriptor) < oh).count();
             let od = truth.inverse() * oracle.world_from_camera;
             let tcam = crate::reloc::grid::thumb_render_camera(&camera);
             let mut tv = RenderedView::for_camera(&tcam);
@@ -154,7 +155,20 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
             let same = th.describe_f32(tv.gray.data(), Some(tv.depth_m.data()), tv.gray.width(), tv.gray.height(), 0.0);
             let mut th2 = crate::reloc::Thumbnailer::new();
             let qv = th2.describe_f32(qview.gray.data(), None, qview.gray.width(), qview.gray.height(), 0.0);
-            eprintln!("   same-pose ham {:?}  undistorted-clean ham {:?}", same.map(|d| d.hamming(&query)), same.zip(qv).map(|(a,b)| a.hamming(&b)));
+            map_r.render(&oracle.world_from_camera, &pinhole, &mut kview)?;
+            keyframe.prepare(&kview, oracle.world_from_camera, 0, &tracker);
+            for yaw in crate::reloc::recover::start_yaws_rad(rc, 0.0) {
+                let kfc = Pose::from_parts(
+                    Translation3::identity(),
+                    nalgebra::UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw),
+                );
+                let a = aligner.align(&keyframe, &pyramid, &camera, kfc.inverse());
+                let wc = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
+                let e = truth.inverse() * wc;
+                let ncc = crate::reloc::recover::correlation(&keyframe, &pyramid, &camera, &a.camera_from_keyframe, 1);
+                eprintln!("   oracle align yaw0 {:.1}: err {:.3} m {:.2} deg, inl {:.2} vis {:.2} res {:.1} ncc {:?}", yaw.to_degrees(), e.translation.vector.norm(), e.rotation.angle().to_degrees(), a.quality.inlier_ratio, a.quality.visible_ratio, a.quality.residual_rms, ncc);
+            }
+            eprintln!("   same-pose ham {:?}  undistorted-clean ham {:?}", same.map(|d| d.hamming(&query[0])), same.zip(qv).map(|(a,b)| a.hamming(&b)));
             eprintln!(
                 "q{done}: top1 ham {:?} oracle#{oi} ham {oh} rank {rank} (dist {:.2} m, {:.1} deg)",
                 reloc.distance_of_rank(0),
@@ -163,12 +177,14 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
             );
         }
         let mut verdict = None;
-        for &c in &candidates {
+        for r in &candidates {
+            let c = r.index;
             let world_from_keyframe = db.entries[c as usize].world_from_camera;
             map_r.render(&world_from_keyframe, &pinhole, &mut kview)?;
             renders += 1;
             keyframe.prepare(&kview, world_from_keyframe, c as u64, &tracker);
-            if let Some(v) = verify_candidate(&mut aligner, &keyframe, &pyramid, &camera, rc) {
+            let yaw0 = reloc.shift_yaw_rad(r.shift);
+            if let Some(v) = verify_candidate(&mut aligner, &keyframe, &pyramid, &camera, rc, yaw0) {
                 verdict = Some(v);
                 break;
             }
@@ -236,28 +252,28 @@ fn search_timing(db: &crate::reloc::RelocDatabase, k: usize, seed: u64) {
         big.entries.extend_from_slice(&db.entries[..n]);
     }
     let mut rng = SplitMix64::new(seed ^ 0x5ea6c4);
-    let queries: Vec<crate::reloc::Descriptor> = (0..1000)
-        .map(|_| {
-            crate::reloc::Descriptor([
-                rng.next_u64(),
-                rng.next_u64(),
-                rng.next_u64(),
-                rng.next_u64(),
-            ])
-        })
-        .collect();
-    let mut best = [(0u32, 0u32); MAX_TOP_K];
+    let mut random = || {
+        crate::reloc::Descriptor([
+            rng.next_u64(),
+            rng.next_u64(),
+            rng.next_u64(),
+            rng.next_u64(),
+        ])
+    };
+    let queries: Vec<[crate::reloc::Descriptor; 3]> =
+        (0..1000).map(|_| [random(), random(), random()]).collect();
+    let mut best = [Ranked::default(); MAX_TOP_K];
     let mut samples_ms = Vec::with_capacity(queries.len());
     let mut checksum = 0u64;
     for q in &queries {
         let t = Instant::now();
         let n = top_k(&big, q, SearchRegion::Everywhere, k, &mut best);
         samples_ms.push(t.elapsed().as_secs_f64() * 1e3);
-        checksum = checksum.wrapping_add(best[..n].iter().map(|b| b.1 as u64).sum::<u64>());
+        checksum = checksum.wrapping_add(best[..n].iter().map(|b| b.index as u64).sum::<u64>());
     }
     let (med, p99) = median_p99(&samples_ms);
     println!(
-        "  search over {} keyframes{} (top {k}, 1000 queries): median {med:.4} ms, p99 {p99:.4} ms (checksum {checksum})",
+        "  search over {} keyframes{} (top {k}, 3 query shifts, 1000 queries): median {med:.4} ms, p99 {p99:.4} ms (checksum {checksum})",
         big.entries.len(),
         if replicated {
             format!(" ({} replicated to 10k)", db.entries.len())

@@ -12,7 +12,7 @@
 //! `reset_counter` incremented. A wrong but confident pose would need to
 //! fool the gate on consecutive frames.
 
-use crate::reloc::recover::{correlation, passes_gate, MAX_TOP_K};
+use crate::reloc::recover::{correlation, passes_gate, Ranked, MAX_TOP_K};
 use crate::reloc::{verify_candidate, RelocDbError, Relocalizer, SearchRegion};
 use crate::track::AlignQuality;
 
@@ -128,11 +128,12 @@ impl Localizer {
         let mut tried = [u32::MAX; 2 * MAX_TOP_K];
         let mut n_tried = 0usize;
         for region in [near, Some(SearchRegion::Everywhere)].into_iter().flatten() {
-            let mut candidates = [0u32; MAX_TOP_K];
+            let mut candidates = [Ranked::default(); MAX_TOP_K];
             let found = reloc.search(&query, region);
             let n = found.len();
             candidates[..n].copy_from_slice(found);
-            for &c in &candidates[..n] {
+            for ranked in &candidates[..n] {
+                let c = ranked.index;
                 if tried[..n_tried].contains(&c) || n_tried >= tried.len() {
                     continue;
                 }
@@ -165,6 +166,7 @@ impl Localizer {
                     &self.pyramid,
                     &self.camera,
                     reloc.config(),
+                    reloc.shift_yaw_rad(ranked.shift),
                 );
                 let Some(v) = verdict else {
                     self.worker.recycle(kf);

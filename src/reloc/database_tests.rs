@@ -6,7 +6,7 @@ use nalgebra::{Translation3, UnitQuaternion};
 
 use super::database::{RelocDatabase, RelocDbError, RelocEntry};
 use super::descriptor::Descriptor;
-use super::recover::{top_k, SearchRegion, MAX_TOP_K};
+use super::recover::{top_k, Ranked, SearchRegion, MAX_TOP_K};
 use crate::geometry::{PinholeCamera, Pose};
 
 fn camera() -> PinholeCamera {
@@ -126,23 +126,27 @@ fn top_k_ranks_by_hamming_and_respects_the_radius() {
         }
         e.descriptor = Descriptor(words);
     }
-    let mut best = [(0u32, 0u32); MAX_TOP_K];
-    let n = top_k(&d, &query, SearchRegion::Everywhere, 5, &mut best);
+    let mut best = [Ranked::default(); MAX_TOP_K];
+    let n = top_k(&d, &[query], SearchRegion::Everywhere, 5, &mut best);
     assert_eq!(n, 5);
-    let dists: Vec<u32> = best[..n].iter().map(|b| b.0).collect();
+    let dists: Vec<u32> = best[..n].iter().map(|b| b.distance).collect();
     assert_eq!(dists, vec![1, 2, 3, 4, 5]);
-    for &(dist, i) in &best[..n] {
-        assert_eq!(query.hamming(&d.entries[i as usize].descriptor), dist);
+    for b in &best[..n] {
+        assert_eq!(query.hamming(&d.entries[b.index as usize].descriptor), b.distance);
     }
+    // With a second query shift that matches entry 0 exactly, entry 0 comes first.
+    let exact = d.entries[0].descriptor;
+    let n = top_k(&d, &[query, exact], SearchRegion::Everywhere, 3, &mut best);
+    assert_eq!((n, best[0].distance, best[0].index, best[0].shift), (3, 0, 0, 1));
     // Entries lie at x = 0.5 i; within 1.1 m of x = 10 are i = 18..=22.
     let region = SearchRegion::Near {
         center_m: nalgebra::Vector3::new(10.0, 1.0, 1.4),
         radius_m: 1.1,
     };
-    let n = top_k(&d, &query, region, 10, &mut best);
+    let n = top_k(&d, &[query], region, 10, &mut best);
     assert_eq!(n, 5);
-    let mut idx: Vec<u32> = best[..n].iter().map(|b| b.1).collect();
-    assert!(best[..n].windows(2).all(|w| w[0].0 <= w[1].0));
+    let mut idx: Vec<u32> = best[..n].iter().map(|b| b.index).collect();
+    assert!(best[..n].windows(2).all(|w| w[0].distance <= w[1].distance));
     idx.sort_unstable();
     assert_eq!(idx, vec![18, 19, 20, 21, 22]);
 }

@@ -31,6 +31,12 @@ const BLUR_PASSES: usize = 3;
 /// Border kept free of comparison pixels (blur and distortion edge effects).
 const BORDER: i64 = 3;
 
+/// Horizontal shifts at which the query descriptor is also computed,
+/// thumbnail pixels (about 7 degrees each for the presets' lens): a view
+/// that is a few degrees of yaw off a database view still matches, and the
+/// best shift tells the alignment where to start.
+pub const QUERY_SHIFTS_PX: [i32; 3] = [0, -7, 7];
+
 /// A 256-bit binary descriptor of a whole image.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
 pub struct Descriptor(pub [u64; 4]);
@@ -174,6 +180,24 @@ impl Thumbnailer {
         self.blurred = wide_v;
         self.tmp2 = wide_m;
         self.finish(min_std)
+    }
+
+    /// The descriptor of the last image with its comparison pattern moved
+    /// `dx` thumbnail pixels to the right (clamped at the borders).
+    pub fn shifted(&self, dx: i32) -> Descriptor {
+        let w = THUMB_W as i32;
+        let mut bits = [0u64; 4];
+        let at = |i: u16| {
+            let (x, y) = (i as i32 % w, i as i32 / w);
+            let xs = (x + dx).clamp(0, w - 1);
+            self.blurred[(y * w + xs) as usize]
+        };
+        for (i, &(a, b)) in self.pairs.iter().enumerate() {
+            if at(a) < at(b) {
+                bits[i / 64] |= 1 << (i % 64);
+            }
+        }
+        Descriptor(bits)
     }
 
     fn finish(&mut self, min_std: f32) -> Option<Descriptor> {

@@ -15,7 +15,31 @@ use crate::track::{AlignQuality, Aligner, Alignment, Keyframe, Pyramid};
 
 use super::config::RelocConfig;
 use super::database::{RelocDatabase, RelocDbError};
-use super::descriptor::{Descriptor, Thumbnailer};
+use super::descriptor::{Descriptor, Thumbnailer, QUERY_SHIFTS_PX, THUMB_W};
+
+/// One search result.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Ranked {
+    /// Hamming distance (the smallest over the query shifts).
+    pub distance: u32,
+    /// Database entry index.
+    pub index: u32,
+    /// Index into [`QUERY_SHIFTS_PX`] of the shift that matched best.
+    pub shift: u8,
+}
+
+impl Default for Ranked {
+    fn default() -> Self {
+        Self {
+            distance: u32::MAX,
+            index: 0,
+            shift: 0,
+        }
+    }
+}
+
+/// The query descriptors at every shift of [`QUERY_SHIFTS_PX`].
+pub type Query = [Descriptor; QUERY_SHIFTS_PX.len()];
 
 /// Most candidates one search returns.
 pub const MAX_TOP_K: usize = 64;
@@ -41,9 +65,9 @@ pub struct Relocalizer {
     db: RelocDatabase,
     config: RelocConfig,
     thumbnailer: Thumbnailer,
-    best: [(u32, u32); MAX_TOP_K],
+    best: [Ranked; MAX_TOP_K],
     n_best: usize,
-    candidates: [u32; MAX_TOP_K],
+    camera: PinholeCamera,
 }
 
 impl Relocalizer {
@@ -60,9 +84,9 @@ impl Relocalizer {
             db,
             config: config.clone(),
             thumbnailer: Thumbnailer::new(),
-            best: [(u32::MAX, 0); MAX_TOP_K],
+            best: [Ranked::default(); MAX_TOP_K],
             n_best: 0,
-            candidates: [0; MAX_TOP_K],
+            camera: *camera,
         })
     }
 
@@ -81,44 +105,56 @@ impl Relocalizer {
         self.config.search_radius_m + self.config.max_speed_m_s * lost_s.max(0.0)
     }
 
-    /// Descriptor of a camera frame; `None` when it has too little contrast.
+    /// Descriptors of a camera frame at every query shift; `None` when it
+    /// has too little contrast.
     pub fn describe(
         &mut self,
         pixels: &[u8],
         width: usize,
         height: usize,
         stride: usize,
-    ) -> Option<Descriptor> {
+    ) -> Option<Query> {
         self.thumbnailer
-            .describe_u8(pixels, width, height, stride, self.config.min_contrast)
+            .describe_u8(pixels, width, height, stride, self.config.min_contrast)?;
+        let t = &self.thumbnailer;
+        Some(QUERY_SHIFTS_PX.map(|dx| t.shifted(dx)))
     }
 
-    /// Indices of the `top_k` entries in `region` nearest to `query` by
-    /// Hamming distance, best first (fewer when the region holds fewer).
-    pub fn search(&mut self, query: &Descriptor, region: SearchRegion) -> &[u32] {
+    /// The `top_k` entries in `region` nearest to `query` by Hamming
+    /// distance, best first (fewer when the region holds fewer).
+    pub fn search(&mut self, query: &Query, region: SearchRegion) -> &[Ranked] {
         let k = (self.config.top_k as usize).clamp(1, MAX_TOP_K);
         let n = top_k(&self.db, query, region, k, &mut self.best);
         self.n_best = n;
-        for (c, &(_, i)) in self.candidates.iter_mut().zip(&self.best[..n]) {
-            *c = i;
-        }
-        &self.candidates[..n]
+        &self.best[..n]
     }
 
     /// Hamming distance of the `rank`-th candidate of the last search.
     pub fn distance_of_rank(&self, rank: usize) -> Option<u32> {
-        self.best[..self.n_best].get(rank).map(|b| b.0)
+        self.best[..self.n_best].get(rank).map(|b| b.distance)
+    }
+
+    /// Yaw of the query relative to a candidate that matched at `shift`
+    /// (an index into [`QUERY_SHIFTS_PX`]), radians, about the camera's
+    /// vertical axis (positive: the query looks further right).
+    pub fn shift_yaw_rad(&self, shift: u8) -> f64 {
+        let dx = QUERY_SHIFTS_PX.get(shift as usize).copied().unwrap_or(0) as f64;
+        let fx_thumb = self.camera.fx * THUMB_W as f64 / self.camera.width.max(1) as f64;
+        // Sampling the query dx pixels to the right matches the entry: the
+        // scene moved right in the query, so the query looks further left.
+        -(dx / fx_thumb).atan()
     }
 }
 
-/// The `k` entries of `db` in `region` nearest to `query`, written to
-/// `best[..returned]` as `(distance, index)`, best first; ties by index.
+/// The `k` entries of `db` in `region` nearest to `query` (the smallest
+/// distance over its shifts), written to `best[..returned]`, best first;
+/// ties by index.
 pub fn top_k(
     db: &RelocDatabase,
-    query: &Descriptor,
+    query: &[Descriptor],
     region: SearchRegion,
     k: usize,
-    best: &mut [(u32, u32); MAX_TOP_K],
+    best: &mut [Ranked; MAX_TOP_K],
 ) -> usize {
     let k = k.clamp(1, MAX_TOP_K);
     let mut n = 0usize;
@@ -130,17 +166,27 @@ pub fn top_k(
         if near && (e.world_from_camera.translation.vector - center).norm_squared() > r2 {
             continue;
         }
-        let d = query.hamming(&e.descriptor);
-        if n == k && d >= best[k - 1].0 {
+        let (mut d, mut shift) = (u32::MAX, 0u8);
+        for (s, q) in query.iter().enumerate() {
+            let ds = q.hamming(&e.descriptor);
+            if ds < d {
+                (d, shift) = (ds, s as u8);
+            }
+        }
+        if n == k && d >= best[k - 1].distance {
             continue;
         }
         // Insertion into the sorted list.
         let mut j = if n < k { n } else { k - 1 };
-        while j > 0 && best[j - 1].0 > d {
+        while j > 0 && best[j - 1].distance > d {
             best[j] = best[j - 1];
             j -= 1;
         }
-        best[j] = (d, i as u32);
+        best[j] = Ranked {
+            distance: d,
+            index: i as u32,
+            shift,
+        };
         n = (n + 1).min(k);
     }
     n
@@ -215,12 +261,13 @@ pub fn passes_gate(q: &AlignQuality, config: &RelocConfig) -> bool {
         && q.residual_rms.is_finite()
 }
 
-/// Initial yaw offsets tried per candidate, radians: the candidate's own
-/// yaw, then half a grid yaw step either way (the true yaw is at most that
-/// far from the nearest database yaw).
-pub fn start_yaws_rad(config: &RelocConfig) -> [f64; 3] {
+/// Initial yaw offsets tried per candidate, radians: the yaw the search
+/// matched at (`shift_yaw_rad`), the candidate's own yaw, then half a grid
+/// yaw step either way (the true yaw is at most that far from the nearest
+/// database yaw).
+pub fn start_yaws_rad(config: &RelocConfig, shift_yaw_rad: f64) -> [f64; 4] {
     let half = std::f64::consts::PI / config.yaw_steps.max(1) as f64;
-    [0.0, half, -half]
+    [shift_yaw_rad, 0.0, half, -half]
 }
 
 /// Aligns `frame` against the candidate `keyframe` rendered at a database
@@ -233,13 +280,18 @@ pub fn verify_candidate(
     frame: &Pyramid,
     camera: &PinholeCamera,
     config: &RelocConfig,
+    shift_yaw_rad: f64,
 ) -> Option<Verified> {
     let mut best: Option<Verified> = None;
-    for yaw in start_yaws_rad(config) {
-        // Camera y points down: a yaw to the left is a negative rotation about y.
+    for (i, yaw) in start_yaws_rad(config, shift_yaw_rad).into_iter().enumerate() {
+        if i == 1 && shift_yaw_rad == 0.0 {
+            continue;
+        }
+        // Camera y points down: turning right (z toward +x) is a positive
+        // rotation about y.
         let keyframe_from_camera = Pose::from_parts(
             Translation3::identity(),
-            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -yaw),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw),
         );
         let a = aligner.align(keyframe, frame, camera, keyframe_from_camera.inverse());
         let world_from_camera = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
