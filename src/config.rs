@@ -615,8 +615,8 @@ mod tests {
     fn reloc_section_is_validated() {
         let err = Config::parse("[reloc]\ntop_k = 0\n", Path::new("s.toml")).expect_err("top_k");
         assert!(err.to_string().contains("reloc.top_k"), "{err}");
-        let err = Config::parse("[reloc]\nheights_m = []\n", Path::new("s.toml"))
-            .expect_err("heights");
+        let err =
+            Config::parse("[reloc]\nheights_m = []\n", Path::new("s.toml")).expect_err("heights");
         assert!(err.to_string().contains("reloc.heights_m"), "{err}");
         let err = Config::parse("[reloc]\ngrid_spacing = 1.0\n", Path::new("s.toml"))
             .expect_err("unknown key");

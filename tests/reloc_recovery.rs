@@ -3,6 +3,8 @@
 //! recover within 50 frames (1 s) of the end of the fault at a pose within
 //! 5 cm of the truth, and increment `reset_counter`.
 
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
 use std::path::Path;
 use std::sync::Arc;
 
@@ -142,10 +144,16 @@ fn check(report: &OfflineReport, ds: &Dataset, what: &str, fault_end: usize) {
         assert!(err_m < 0.05, "{what}: frame {i} pose off by {err_m:.3} m");
     }
     let tracked: Vec<bool> = report.tracked.iter().map(|t| t.1).collect();
-    assert!(tracked[..FAULT_START].iter().all(|&t| t), "{what}: tracks before the fault");
+    assert!(
+        tracked[..FAULT_START].iter().all(|&t| t),
+        "{what}: tracks before the fault"
+    );
     let first_lost = (FAULT_START..FRAMES).find(|&i| !tracked[i]);
     let first_lost = first_lost.unwrap_or_else(|| panic!("{what}: never reported lost"));
-    assert!(first_lost <= FAULT_START + 2, "{what}: lost only at frame {first_lost}");
+    assert!(
+        first_lost <= FAULT_START + 2,
+        "{what}: lost only at frame {first_lost}"
+    );
     let recovered = (first_lost.max(fault_end)..FRAMES).find(|&i| tracked[i]);
     let recovered = recovered.unwrap_or_else(|| panic!("{what}: never recovered"));
     assert!(
@@ -184,7 +192,11 @@ fn recovers_after_blackout_and_teleport() {
     // (b) teleport: at FAULT_START the images jump 80 frames (1.6 s, about
     // 0.8 m) ahead along the trajectory; the fault is that one jump.
     let ds = spliced(&fx, &tmp.path().join("teleport"), |i| {
-        Some(if i < FAULT_START { i } else { (i + 80).min(FRAMES - 1) })
+        Some(if i < FAULT_START {
+            i
+        } else {
+            (i + 80).min(FRAMES - 1)
+        })
     });
     let report = run(&fx, &ds);
     check(&report, &ds, "teleport", FAULT_START);

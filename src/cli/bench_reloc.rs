@@ -89,7 +89,9 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
     let (z_lo, z_hi) = rc
         .heights_m
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &h| (a.min(h), b.max(h)));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &h| {
+            (a.min(h), b.max(h))
+        });
     let pitch_mid = rc.pitches_deg.iter().sum::<f64>() / rc.pitches_deg.len() as f64;
     let mut rng = SplitMix64::new(seed ^ 0x7e10c);
     let (mut done, mut tries) = (0usize, 0usize);
@@ -122,7 +124,8 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
         pyramid.fill_from_u8(frame.data(), frame.width());
 
         let t_query = Instant::now();
-        let Some(query) = reloc.describe(frame.data(), frame.width(), frame.height(), frame.width())
+        let Some(query) =
+            reloc.describe(frame.data(), frame.width(), frame.height(), frame.width())
         else {
             rejected += 1;
             continue;
@@ -144,17 +147,35 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                 .min_by(|a, b| score(a.1).total_cmp(&score(b.1)))
                 .map(|(i, e)| (i, *e))
                 .unwrap_or((0, db.entries[0]));
-            let ham = |d: &crate::reloc::Descriptor| query.iter().map(|q| q.hamming(d)).min().unwrap_or(256);
+            let ham = |d: &crate::reloc::Descriptor| {
+                query.iter().map(|q| q.hamming(d)).min().unwrap_or(256)
+            };
             let oh = ham(&oracle.descriptor);
-            let rank = db.entries.iter().filter(|e| ham(&e.descriptor) < oh).count();
+            let rank = db
+                .entries
+                .iter()
+                .filter(|e| ham(&e.descriptor) < oh)
+                .count();
             let od = truth.inverse() * oracle.world_from_camera;
             let tcam = crate::reloc::grid::thumb_render_camera(&camera);
             let mut tv = RenderedView::for_camera(&tcam);
             map_r.render(&truth, &tcam, &mut tv)?;
             let mut th = crate::reloc::Thumbnailer::new();
-            let same = th.describe_f32(tv.gray.data(), Some(tv.depth_m.data()), tv.gray.width(), tv.gray.height(), 0.0);
+            let same = th.describe_f32(
+                tv.gray.data(),
+                Some(tv.depth_m.data()),
+                tv.gray.width(),
+                tv.gray.height(),
+                0.0,
+            );
             let mut th2 = crate::reloc::Thumbnailer::new();
-            let qv = th2.describe_f32(qview.gray.data(), None, qview.gray.width(), qview.gray.height(), 0.0);
+            let qv = th2.describe_f32(
+                qview.gray.data(),
+                None,
+                qview.gray.width(),
+                qview.gray.height(),
+                0.0,
+            );
             map_r.render(&oracle.world_from_camera, &pinhole, &mut kview)?;
             keyframe.prepare(&kview, oracle.world_from_camera, 0, &tracker);
             for yaw in crate::reloc::recover::start_yaws_rad(rc, 0.0) {
@@ -165,10 +186,20 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                 let a = aligner.align(&keyframe, &pyramid, &camera, kfc.inverse());
                 let wc = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
                 let e = truth.inverse() * wc;
-                let ncc = crate::reloc::recover::correlation(&keyframe, &pyramid, &camera, &a.camera_from_keyframe, 1);
+                let ncc = crate::reloc::recover::correlation(
+                    &keyframe,
+                    &pyramid,
+                    &camera,
+                    &a.camera_from_keyframe,
+                    1,
+                );
                 eprintln!("   oracle align yaw0 {:.1}: err {:.3} m {:.2} deg, inl {:.2} vis {:.2} res {:.1} ncc {:?}", yaw.to_degrees(), e.translation.vector.norm(), e.rotation.angle().to_degrees(), a.quality.inlier_ratio, a.quality.visible_ratio, a.quality.residual_rms, ncc);
             }
-            eprintln!("   same-pose ham {:?}  undistorted-clean ham {:?}", same.map(|d| d.hamming(&query[0])), same.zip(qv).map(|(a,b)| a.hamming(&b)));
+            eprintln!(
+                "   same-pose ham {:?}  undistorted-clean ham {:?}",
+                same.map(|d| d.hamming(&query[0])),
+                same.zip(qv).map(|(a, b)| a.hamming(&b))
+            );
             eprintln!(
                 "q{done}: top1 ham {:?} oracle#{oi} ham {oh} rank {rank} (dist {:.2} m, {:.1} deg)",
                 reloc.distance_of_rank(0),
@@ -184,7 +215,8 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
             renders += 1;
             keyframe.prepare(&kview, world_from_keyframe, c as u64, &tracker);
             let yaw0 = reloc.shift_yaw_rad(r.shift);
-            if let Some(v) = verify_candidate(&mut aligner, &keyframe, &pyramid, &camera, rc, yaw0) {
+            if let Some(v) = verify_candidate(&mut aligner, &keyframe, &pyramid, &camera, rc, yaw0)
+            {
                 verdict = Some(v);
                 break;
             }

@@ -10,8 +10,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::config::Config;
 use crate::dataset::Dataset;
-use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 use crate::localizer::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport};
+use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 
 use super::pose_arg::parse_pose;
 

@@ -57,10 +57,7 @@ fn build(args: &BuildArgs) -> Result<()> {
         }
         None => config.camera.intrinsics,
     };
-    let map_path = args
-        .map
-        .clone()
-        .unwrap_or_else(|| config.map.mesh.clone());
+    let map_path = args.map.clone().unwrap_or_else(|| config.map.mesh.clone());
     let mesh = Arc::new(
         crate::map::load_obj(&map_path)
             .with_context(|| format!("loading map {}", map_path.display()))?,

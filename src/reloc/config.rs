@@ -95,7 +95,10 @@ impl RelocConfig {
         if self.heights_m.is_empty() || self.heights_m.iter().any(|h| !h.is_finite()) {
             return Err((
                 "heights_m",
-                format!("expected at least one finite height, found {:?}", self.heights_m),
+                format!(
+                    "expected at least one finite height, found {:?}",
+                    self.heights_m
+                ),
             ));
         }
         if !(1..=360).contains(&self.yaw_steps) {

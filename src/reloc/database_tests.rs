@@ -59,7 +59,10 @@ fn corrupt_byte_is_a_checksum_error_naming_the_file() {
     let err = RelocDatabase::from_bytes(&bytes, Path::new("/data/x.rdb")).expect_err("corrupt");
     assert!(matches!(err, RelocDbError::Checksum { .. }), "{err}");
     let msg = err.to_string();
-    assert!(msg.contains("/data/x.rdb") && msg.contains("corrupt"), "{msg}");
+    assert!(
+        msg.contains("/data/x.rdb") && msg.contains("corrupt"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -87,7 +90,10 @@ fn bad_magic_and_version_are_named() {
     let mut bytes = db(2).to_bytes();
     bytes[8] = 99;
     let err = RelocDatabase::from_bytes(&bytes, Path::new("m.rdb")).expect_err("version");
-    assert!(matches!(err, RelocDbError::Version { found: 99, .. }), "{err}");
+    assert!(
+        matches!(err, RelocDbError::Version { found: 99, .. }),
+        "{err}"
+    );
     assert!(err.to_string().contains("version 99"));
 }
 
@@ -100,9 +106,7 @@ fn missing_file_is_an_io_error_naming_it() {
 #[test]
 fn other_map_or_other_camera_is_a_mismatch() {
     let d = db(3);
-    let err = d
-        .check_compatible(&camera(), 42)
-        .expect_err("other map");
+    let err = d.check_compatible(&camera(), 42).expect_err("other map");
     assert!(matches!(err, RelocDbError::MapMismatch { .. }), "{err}");
     assert!(err.to_string().contains("mem.rdb"));
     let other = PinholeCamera::new(640, 512, 400.0, 420.0, 319.5, 255.5);
@@ -132,12 +136,18 @@ fn top_k_ranks_by_hamming_and_respects_the_radius() {
     let dists: Vec<u32> = best[..n].iter().map(|b| b.distance).collect();
     assert_eq!(dists, vec![1, 2, 3, 4, 5]);
     for b in &best[..n] {
-        assert_eq!(query.hamming(&d.entries[b.index as usize].descriptor), b.distance);
+        assert_eq!(
+            query.hamming(&d.entries[b.index as usize].descriptor),
+            b.distance
+        );
     }
     // With a second query shift that matches entry 0 exactly, entry 0 comes first.
     let exact = d.entries[0].descriptor;
     let n = top_k(&d, &[query, exact], SearchRegion::Everywhere, 3, &mut best);
-    assert_eq!((n, best[0].distance, best[0].index, best[0].shift), (3, 0, 0, 1));
+    assert_eq!(
+        (n, best[0].distance, best[0].index, best[0].shift),
+        (3, 0, 0, 1)
+    );
     // Entries lie at x = 0.5 i; within 1.1 m of x = 10 are i = 18..=22.
     let region = SearchRegion::Near {
         center_m: nalgebra::Vector3::new(10.0, 1.0, 1.4),

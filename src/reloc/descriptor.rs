@@ -203,7 +203,12 @@ impl Thumbnailer {
     fn finish(&mut self, min_std: f32) -> Option<Descriptor> {
         let n = self.thumb.len() as f32;
         let mean = self.thumb.iter().sum::<f32>() / n;
-        let var = self.thumb.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n;
+        let var = self
+            .thumb
+            .iter()
+            .map(|v| (v - mean) * (v - mean))
+            .sum::<f32>()
+            / n;
         if !(var.is_finite() && var.sqrt() >= min_std) {
             return None;
         }
@@ -297,11 +302,10 @@ mod tests {
         assert_eq!(da, db);
         assert_eq!(da.hamming(&db), 0);
         // Gain and bias change no comparison (ties aside).
-        let brighter: Vec<u8> = img
-            .iter()
-            .map(|&v| (v as f32 * 0.8 + 20.0) as u8)
-            .collect();
-        let dc = a.describe_u8(&brighter, 640, 512, 640, 2.0).expect("contrast");
+        let brighter: Vec<u8> = img.iter().map(|&v| (v as f32 * 0.8 + 20.0) as u8).collect();
+        let dc = a
+            .describe_u8(&brighter, 640, 512, 640, 2.0)
+            .expect("contrast");
         assert!(da.hamming(&dc) < 8, "{}", da.hamming(&dc));
     }
 
@@ -325,7 +329,9 @@ mod tests {
     #[test]
     fn flat_or_small_frames_have_no_descriptor() {
         let mut t = Thumbnailer::new();
-        assert!(t.describe_u8(&[0u8; 640 * 512], 640, 512, 640, 2.0).is_none());
+        assert!(t
+            .describe_u8(&[0u8; 640 * 512], 640, 512, 640, 2.0)
+            .is_none());
         assert!(t.describe_u8(&[0u8; 10], 640, 512, 640, 2.0).is_none());
         assert!(t.describe_u8(&[7u8; 40 * 30], 40, 30, 40, 2.0).is_none());
     }

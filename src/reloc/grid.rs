@@ -178,15 +178,13 @@ pub fn build_database_in(
                     continue;
                 }
                 let (w, h) = (view.gray.width(), view.gray.height());
-                if let Some(descriptor) =
-                    thumbnailer.describe_f32(
-                        view.gray.data(),
-                        Some(view.depth_m.data()),
-                        w,
-                        h,
-                        config.min_contrast,
-                    )
-                {
+                if let Some(descriptor) = thumbnailer.describe_f32(
+                    view.gray.data(),
+                    Some(view.depth_m.data()),
+                    w,
+                    h,
+                    config.min_contrast,
+                ) {
                     position_entries.push(RelocEntry {
                         world_from_camera,
                         descriptor,

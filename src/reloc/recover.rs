@@ -226,7 +226,8 @@ pub fn correlation(
             kp.p_keyframe[1] as f64,
             kp.p_keyframe[2] as f64,
         );
-        let Some(uv) = cam.project(&(camera_from_keyframe * nalgebra::Point3::from(p)).coords) else {
+        let Some(uv) = cam.project(&(camera_from_keyframe * nalgebra::Point3::from(p)).coords)
+        else {
             continue;
         };
         let Some(v) = image.bilinear(uv.x as f32, uv.y as f32) else {
@@ -283,7 +284,10 @@ pub fn verify_candidate(
     shift_yaw_rad: f64,
 ) -> Option<Verified> {
     let mut best: Option<Verified> = None;
-    for (i, yaw) in start_yaws_rad(config, shift_yaw_rad).into_iter().enumerate() {
+    for (i, yaw) in start_yaws_rad(config, shift_yaw_rad)
+        .into_iter()
+        .enumerate()
+    {
         if i == 1 && shift_yaw_rad == 0.0 {
             continue;
         }
@@ -311,9 +315,9 @@ pub fn verify_candidate(
         if !ncc.is_some_and(|c| c >= config.min_correlation) {
             continue;
         }
-        let better = best.as_ref().is_none_or(|b| {
-            a.quality.inlier_ratio > b.alignment.quality.inlier_ratio
-        });
+        let better = best
+            .as_ref()
+            .is_none_or(|b| a.quality.inlier_ratio > b.alignment.quality.inlier_ratio);
         if better {
             best = Some(Verified {
                 world_from_camera,
