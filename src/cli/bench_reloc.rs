@@ -19,7 +19,7 @@ use crate::config::{Config, TrackerConfig};
 use crate::geometry::Pose;
 use crate::imgproc::{ImageF32, ImageU8};
 use crate::localizer::offline::median_p99;
-use crate::reloc::recover::{top_k, Ranked, MAX_TOP_K};
+use crate::reloc::recover::{Ranked, SearchIndex, MAX_TOP_K};
 use crate::reloc::{build_database, verify_candidate, Relocalizer, SearchRegion};
 use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderedView, Renderer};
@@ -217,12 +217,13 @@ fn search_timing(db: &crate::reloc::RelocDatabase, k: usize, seed: u64) {
     };
     let queries: Vec<[crate::reloc::Descriptor; 3]> =
         (0..1000).map(|_| [random(), random(), random()]).collect();
+    let index = SearchIndex::new(&big);
     let mut best = [Ranked::default(); MAX_TOP_K];
     let mut samples_ms = Vec::with_capacity(queries.len());
     let mut checksum = 0u64;
     for q in &queries {
         let t = Instant::now();
-        let n = top_k(&big, q, SearchRegion::Everywhere, k, &mut best);
+        let n = index.top_k(q, SearchRegion::Everywhere, k, &mut best);
         samples_ms.push(t.elapsed().as_secs_f64() * 1e3);
         checksum = checksum.wrapping_add(best[..n].iter().map(|b| b.index as u64).sum::<u64>());
     }

@@ -6,7 +6,7 @@ use nalgebra::{Translation3, UnitQuaternion};
 
 use super::database::{RelocDatabase, RelocDbError, RelocEntry};
 use super::descriptor::Descriptor;
-use super::recover::{top_k, Ranked, SearchRegion, MAX_TOP_K};
+use super::recover::{Ranked, SearchIndex, SearchRegion, MAX_TOP_K};
 use crate::geometry::{PinholeCamera, Pose};
 
 fn camera() -> PinholeCamera {
@@ -131,7 +131,9 @@ fn top_k_ranks_by_hamming_and_respects_the_radius() {
         e.descriptor = Descriptor(words);
     }
     let mut best = [Ranked::default(); MAX_TOP_K];
-    let n = top_k(&d, &[query], SearchRegion::Everywhere, 5, &mut best);
+    let index = SearchIndex::new(&d);
+    assert_eq!(index.len(), 40);
+    let n = index.top_k(&[query], SearchRegion::Everywhere, 5, &mut best);
     assert_eq!(n, 5);
     let dists: Vec<u32> = best[..n].iter().map(|b| b.distance).collect();
     assert_eq!(dists, vec![1, 2, 3, 4, 5]);
@@ -143,7 +145,7 @@ fn top_k_ranks_by_hamming_and_respects_the_radius() {
     }
     // With a second query shift that matches entry 0 exactly, entry 0 comes first.
     let exact = d.entries[0].descriptor;
-    let n = top_k(&d, &[query, exact], SearchRegion::Everywhere, 3, &mut best);
+    let n = index.top_k(&[query, exact], SearchRegion::Everywhere, 3, &mut best);
     assert_eq!(
         (n, best[0].distance, best[0].index, best[0].shift),
         (3, 0, 0, 1)
@@ -153,7 +155,7 @@ fn top_k_ranks_by_hamming_and_respects_the_radius() {
         center_m: nalgebra::Vector3::new(10.0, 1.0, 1.4),
         radius_m: 1.1,
     };
-    let n = top_k(&d, &[query], region, 10, &mut best);
+    let n = index.top_k(&[query], region, 10, &mut best);
     assert_eq!(n, 5);
     let mut idx: Vec<u32> = best[..n].iter().map(|b| b.index).collect();
     assert!(best[..n].windows(2).all(|w| w[0].distance <= w[1].distance));
