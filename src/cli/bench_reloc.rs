@@ -187,7 +187,10 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
         rc.top_k
     );
     global.print("whole map", done);
-    window.print("2 m window (paper protocol; centre = truth + up to 0.5 m)", done);
+    window.print(
+        "2 m window (paper protocol; centre = truth + up to 0.5 m)",
+        done,
+    );
     search_timing(&db, rc.top_k as usize, seed);
     Ok(())
 }
