@@ -73,7 +73,7 @@ impl Default for RelocConfig {
             min_inlier_ratio: 0.7,
             min_visible_ratio: 0.5,
             max_residual: 12.0,
-            min_correlation: 0.85,
+            min_correlation: 0.8,
             track_min_correlation: 0.5,
             verify_frames: 1,
             resume_window_s: 0.2,
