@@ -43,7 +43,7 @@ pub struct Descriptor(pub [u64; 4]);
 
 impl Descriptor {
     /// Number of differing bits.
-    #[inline]
+    #[inline(always)]
     pub fn hamming(&self, other: &Descriptor) -> u32 {
         (self.0[0] ^ other.0[0]).count_ones()
             + (self.0[1] ^ other.0[1]).count_ones()

@@ -184,8 +184,39 @@ impl SearchIndex {
 
     /// The `k` entries in `region` nearest to `query` (the smallest distance
     /// over its shifts), written to `best[..returned]`, best first; ties by
-    /// index.
+    /// index. Uses the CPU's popcount instruction where there is one.
     pub fn top_k(
+        &self,
+        query: &[Descriptor],
+        region: SearchRegion,
+        k: usize,
+        best: &mut [Ranked; MAX_TOP_K],
+    ) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("popcnt") {
+                // SAFETY: the CPU supports popcnt, checked just above.
+                return unsafe { self.top_k_popcnt(query, region, k, best) };
+            }
+        }
+        self.scan(query, region, k, best)
+    }
+
+    /// [`Self::scan`] compiled with the popcnt instruction.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "popcnt")]
+    unsafe fn top_k_popcnt(
+        &self,
+        query: &[Descriptor],
+        region: SearchRegion,
+        k: usize,
+        best: &mut [Ranked; MAX_TOP_K],
+    ) -> usize {
+        self.scan(query, region, k, best)
+    }
+
+    #[inline(always)]
+    fn scan(
         &self,
         query: &[Descriptor],
         region: SearchRegion,
