@@ -88,6 +88,8 @@ pub struct Config {
     pub mavlink: crate::mavlink_io::MavlinkConfig,
     /// Inter-process transport (iceoryx2).
     pub ipc: IpcConfig,
+    /// Relocalization: database grid, search and acceptance gate.
+    pub reloc: crate::reloc::RelocConfig,
 }
 
 /// `[keyframe]`: the keyframe policy and the lost test.
@@ -388,6 +390,9 @@ impl Config {
         if let Err((key, reason)) = self.mavlink.validate() {
             return Err(invalid(&format!("mavlink.{key}"), reason));
         }
+        if let Err((key, reason)) = self.reloc.validate() {
+            return Err(invalid(&format!("reloc.{key}"), reason));
+        }
         let t = &self.tracker;
         let checks: [(&str, bool, String); 7] = [
             (
@@ -606,6 +611,25 @@ mod tests {
         )
         .expect_err("two angles");
         assert!(err.to_string().contains("rpy_deg"), "{err}");
+    }
+
+    #[test]
+    fn shipped_reloc_section_is_the_default() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/star.toml");
+        let c = Config::load(&path).expect("config/star.toml must be valid");
+        assert_eq!(c.reloc, crate::reloc::RelocConfig::default());
+    }
+
+    #[test]
+    fn reloc_section_is_validated() {
+        let err = Config::parse("[reloc]\ntop_k = 0\n", Path::new("s.toml")).expect_err("top_k");
+        assert!(err.to_string().contains("reloc.top_k"), "{err}");
+        let err =
+            Config::parse("[reloc]\nheights_m = []\n", Path::new("s.toml")).expect_err("heights");
+        assert!(err.to_string().contains("reloc.heights_m"), "{err}");
+        let err = Config::parse("[reloc]\ngrid_spacing = 1.0\n", Path::new("s.toml"))
+            .expect_err("unknown key");
+        assert!(err.to_string().contains("grid_spacing"), "{err}");
     }
 
     #[test]

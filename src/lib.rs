@@ -16,6 +16,7 @@ pub mod ipc;
 pub mod localizer;
 pub mod map;
 pub mod mavlink_io;
+pub mod reloc;
 pub mod render;
 pub mod service;
 pub mod synth;

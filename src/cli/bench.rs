@@ -9,6 +9,8 @@
 //!   thread from the identity, and prints time and error per pair and in
 //!   summary. `scripts/bench_vs_opencv.py` runs OpenCV's RGB odometry on the
 //!   same pairs and prints both side by side.
+//! - `star bench reloc`: relocalization success rate and timings on the
+//!   synthetic realistic scene ([`super::bench_reloc`]).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -53,6 +55,19 @@ pub enum BenchCommand {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
+    /// Relocalization on the synthetic realistic scene: success rate,
+    /// retrieval distance, search and recovery time.
+    Reloc {
+        /// Configuration file (its `[reloc]` section); default settings otherwise.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Number of query poses.
+        #[arg(long, default_value_t = 100)]
+        queries: usize,
+        /// Seed of the scene and the queries.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
 }
 
 /// The camera of the benchmark pairs (the synthetic presets' intrinsics).
@@ -65,6 +80,11 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Pairs { out, count, seed } => write_pairs(out, *count, *seed),
         BenchCommand::Track { pairs, csv } => track_pairs(pairs, csv.as_deref()),
+        BenchCommand::Reloc {
+            config,
+            queries,
+            seed,
+        } => super::bench_reloc::run(config.as_deref(), *queries, *seed),
     }
 }
 

@@ -11,6 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::config::Config;
 use crate::dataset::Dataset;
 use crate::localizer::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport};
+use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 
 use super::pose_arg::parse_pose;
 
@@ -38,6 +39,9 @@ pub struct LocalizeArgs {
     /// Deliver frames at the recorded rate, as a live camera would.
     #[arg(long)]
     pub realtime: bool,
+    /// Relocalization database (`star reloc build`): relocalize when lost.
+    #[arg(long)]
+    pub reloc: Option<PathBuf>,
 }
 
 /// Runs `star localize`.
@@ -52,12 +56,27 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         .map
         .clone()
         .unwrap_or_else(|| args.dataset.join("map").join("map.obj"));
-    let renderer = make_renderer(&map_path, &config)?;
+    let mesh = Arc::new(
+        crate::map::load_obj(&map_path)
+            .with_context(|| format!("loading map {}", map_path.display()))?,
+    );
+    let relocalizer = match &args.reloc {
+        Some(path) => {
+            let db = RelocDatabase::read(path)?;
+            db.check_compatible(dataset.camera(), map_fingerprint(&mesh))?;
+            Some(Relocalizer::new(db, &config.reloc, dataset.camera())?)
+        }
+        None => None,
+    };
+    let kind = config.render.renderer;
+    let renderer = crate::render::select::make_renderer(kind, mesh)
+        .with_context(|| format!("starting the `{kind:?}` renderer"))?;
     let init_pose = args.init_pose.as_deref().map(parse_pose).transpose()?;
     let options = OfflineOptions {
         init_pose,
         max_frames: args.max_frames,
         realtime: args.realtime,
+        relocalizer,
     };
     let n = options
         .max_frames
@@ -122,6 +141,14 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
         "  quality over tracked frames: lowest inlier ratio {:.3}, lowest correlation {:.3}",
         report.min_inlier_ratio, report.min_correlation
     );
+    if report.reloc_attempts > 0 || report.relocalizations > 0 {
+        println!(
+            "  relocalization: {} attempts, {} relocalized (reset_counter {})",
+            report.reloc_attempts,
+            report.relocalizations,
+            report.reset_counters.last().copied().unwrap_or(0)
+        );
+    }
     if let Some(e) = &report.evaluation {
         println!(
             "  ATE (no alignment, {} matched): translation rmse {:.2} cm, mean {:.2} cm, max {:.2} cm; rotation rmse {:.3} deg, max {:.3} deg",

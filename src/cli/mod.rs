@@ -9,12 +9,14 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench;
+mod bench_reloc;
 mod camera;
 mod check_config;
 mod doctor;
 mod eval;
 pub mod localize;
 mod pose_arg;
+mod reloc;
 mod render;
 mod replay;
 mod synth;
@@ -61,6 +63,9 @@ pub enum Command {
         #[arg(long, default_value_t = crate::eval::DEFAULT_MAX_DT_S)]
         max_dt: f64,
     },
+    /// Relocalization database (`star reloc build --map MESH -o DB`).
+    #[command(subcommand)]
+    Reloc(reloc::RelocCommand),
     /// Synthesize a TUM-layout dataset (images, depth, ground truth, map) from a preset.
     Synth(synth::SynthArgs),
     /// Run the camera process: read a camera and publish frames over iceoryx2.
@@ -104,6 +109,7 @@ pub fn main() -> ExitCode {
             max_dt,
         } => eval::run(&gt, &est, delta, max_dt),
         Command::Synth(args) => synth::run(&args),
+        Command::Reloc(cmd) => reloc::run(&cmd),
         Command::Camera(args) => camera::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Doctor { config } => doctor::run(config.as_deref()),

@@ -9,10 +9,17 @@
 //! render: when a new keyframe is due, it is requested and tracking goes on
 //! against the old one until the new one is ready.
 //!
-//! After [`Localizer::start`], [`Localizer::process_frame`] allocates nothing.
+//! While lost, with a relocalization database set
+//! ([`Localizer::set_relocalizer`]), the loop searches the database and
+//! renders and verifies candidates on the render thread, blocking in the
+//! lost state only ([`relocalize`]).
+//!
+//! After [`Localizer::start`], [`Localizer::process_frame`] allocates nothing
+//! while tracking.
 
 pub mod offline;
 pub mod policy;
+mod relocalize;
 pub mod worker;
 
 use nalgebra::Matrix6;
@@ -116,6 +123,12 @@ pub struct LoopStats {
     pub stale_frames: u64,
     /// Largest keyframe age seen, seconds.
     pub max_keyframe_age_s: f64,
+    /// Relocalization attempts (lost frames searched in the database).
+    pub reloc_attempts: u64,
+    /// Candidate keyframes rendered and aligned for relocalization.
+    pub reloc_candidates: u64,
+    /// Relocalizations accepted and verified (tracking restarted).
+    pub relocalizations: u64,
 }
 
 /// The STAR loop.
@@ -137,6 +150,12 @@ pub struct Localizer {
     state: TrackState,
     reset_counter: u8,
     stats: LoopStats,
+    /// Relocalization database and search state, when set.
+    reloc: Option<Box<crate::reloc::Relocalizer>>,
+    /// Capture time of the last tracked frame before the current loss.
+    lost_since_ns: Option<u64>,
+    /// Frames still to verify after an accepted relocalization.
+    verify_left: u32,
 }
 
 impl Localizer {
@@ -191,6 +210,9 @@ impl Localizer {
                 keyframes: 1,
                 ..LoopStats::default()
             },
+            reloc: None,
+            lost_since_ns: None,
+            verify_left: 0,
         })
     }
 
@@ -276,7 +298,9 @@ impl Localizer {
             && q.inlier_ratio >= self.policy.lost_inlier_ratio
             && q.visible_ratio >= self.policy.lost_visible_ratio
             && q.correlation >= self.policy.lost_min_correlation
-            && jump_m <= self.policy.lost_max_jump_m as f64;
+            && jump_m <= self.policy.lost_max_jump_m as f64
+            && self.may_resume(capture_ns, &q)
+            && self.correlation_ok(&result.camera_from_keyframe);
 
         let keyframe_age_s = capture_ns.saturating_sub(self.keyframe.requested_at_ns) as f64 * 1e-9;
         self.stats.frames += 1;
@@ -306,22 +330,42 @@ impl Localizer {
                     jump_m,
                     "tracking lost"
                 );
+                self.lost_since_ns = Some(self.last.map_or(capture_ns, |(t, _)| t));
+            }
+            if self.verify_left > 0 {
+                tracing::warn!("relocalization not confirmed by the next frame; still lost");
+                self.verify_left = 0;
             }
             self.state = TrackState::Lost;
             self.stats.lost_frames += 1;
             // Keep predicting from the last good pose; the velocity decays.
             self.velocity *= 0.5;
+            if self.reloc.is_some() && self.reloc_due(capture_ns) {
+                self.relocalize(pixels, stride, capture_ns);
+                out.reset_counter = self.reset_counter;
+            }
             return Ok(out);
         }
-        if self.state == TrackState::Lost {
-            tracing::info!("tracking resumed");
-        }
-        self.state = TrackState::Tracking;
         if dt_s > 0.0 {
             let step = log_se3(&(prev_pose.inverse() * world_from_camera));
             self.velocity = step / dt_s;
         }
         self.last = Some((capture_ns, world_from_camera));
+        if self.verify_left > 0 {
+            // Confirming a relocalization: no pose until it is confirmed.
+            self.verify_left -= 1;
+            if self.verify_left > 0 {
+                self.stats.lost_frames += 1;
+                return Ok(out);
+            }
+            self.confirm_relocalization();
+            out.reset_counter = self.reset_counter;
+        }
+        if self.state == TrackState::Lost {
+            tracing::info!("tracking resumed");
+        }
+        self.state = TrackState::Tracking;
+        self.lost_since_ns = None;
         let cov_delta = Matrix6::from_fn(|r, c| result.covariance_delta[r][c]);
         let adj = adjoint(&result.camera_from_keyframe);
         out.state = TrackState::Tracking;

@@ -23,6 +23,9 @@ pub enum OfflineError {
     /// The loop could not start.
     #[error(transparent)]
     Localizer(#[from] LocalizerError),
+    /// The relocalization database does not fit this camera.
+    #[error(transparent)]
+    Reloc(#[from] crate::reloc::RelocDbError),
 }
 
 /// Options of an offline run.
@@ -34,6 +37,8 @@ pub struct OfflineOptions {
     pub max_frames: Option<usize>,
     /// Pace frames at the recorded rate (as a live camera would deliver them).
     pub realtime: bool,
+    /// Relocalize from this database when lost.
+    pub relocalizer: Option<crate::reloc::Relocalizer>,
 }
 
 /// What an offline run produced.
@@ -49,6 +54,15 @@ pub struct OfflineReport {
     pub frames: usize,
     /// Frames in the lost state.
     pub lost_frames: usize,
+    /// Per processed frame: the `reset_counter` it carried (in frame order,
+    /// parallel to `track_ms`).
+    pub reset_counters: Vec<u8>,
+    /// Per processed frame: its dataset time and whether a pose was output.
+    pub tracked: Vec<(f64, bool)>,
+    /// Relocalizations accepted and confirmed.
+    pub relocalizations: u64,
+    /// Relocalization attempts (lost frames searched).
+    pub reloc_attempts: u64,
     /// Keyframes rendered.
     pub keyframes: u64,
     /// Frames tracked while a newer keyframe was pending.
@@ -95,6 +109,9 @@ pub fn localize_dataset(
         init,
         to_ns(first_stamp_s).saturating_sub(1),
     )?;
+    if let Some(r) = &options.relocalizer {
+        localizer.set_relocalizer(r.clone())?;
+    }
     let mut image = ImageU8::new(camera.width as usize, camera.height as usize, 0);
     let mut scratch = Vec::new();
     let mut report = OfflineReport {
@@ -103,6 +120,10 @@ pub fn localize_dataset(
         bad_frames: Vec::new(),
         frames: 0,
         lost_frames: 0,
+        reset_counters: Vec::with_capacity(n),
+        tracked: Vec::with_capacity(n),
+        relocalizations: 0,
+        reloc_attempts: 0,
         keyframes: 0,
         stale_frames: 0,
         max_keyframe_age_s: 0.0,
@@ -142,6 +163,10 @@ pub fn localize_dataset(
             Ok(out) => {
                 report.frames += 1;
                 report.track_ms.push(ms);
+                report.reset_counters.push(out.reset_counter);
+                report
+                    .tracked
+                    .push((stamp_s, out.world_from_camera.is_some()));
                 for (l, p) in points.iter_mut().enumerate() {
                     p.push(out.quality.points_used[l]);
                 }
@@ -164,6 +189,8 @@ pub fn localize_dataset(
     }
     let stats = localizer.stats();
     report.keyframes = stats.keyframes;
+    report.relocalizations = stats.relocalizations;
+    report.reloc_attempts = stats.reloc_attempts;
     report.stale_frames = stats.stale_frames;
     report.max_keyframe_age_s = stats.max_keyframe_age_s;
     report.median_points = points

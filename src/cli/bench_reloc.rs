@@ -1,0 +1,285 @@
+//! `star bench reloc`: relocalization on the synthetic realistic scene
+//! (prints figures, never pass/fail).
+//!
+//! Builds a database for the map mesh of the `realistic` preset's scene
+//! (CPU renderer), then queries random free poses rendered from the truth
+//! mesh (occluders, no map holes) through the lens distortion and the
+//! realistic sensor model, and reports the success rate (accepted pose
+//! within 5 cm and 2 degrees of the truth), false accepts, the distance
+//! from the query to the best-ranked keyframe, the search time over 10k
+//! keyframes, and the recovery time (search + render + align).
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use nalgebra::{Translation3, Vector3};
+
+use crate::config::{Config, TrackerConfig};
+use crate::geometry::Pose;
+use crate::imgproc::{ImageF32, ImageU8};
+use crate::localizer::offline::median_p99;
+use crate::reloc::recover::{Ranked, SearchIndex, MAX_TOP_K};
+use crate::reloc::{build_database, verify_candidate, Relocalizer, SearchRegion};
+use crate::render::cpu::CpuRenderer;
+use crate::render::{RenderedView, Renderer};
+use crate::synth::corrupt::{DistortionWarp, SensorModel};
+use crate::synth::look::camera_rotation;
+use crate::synth::preset::Preset;
+use crate::synth::sequence::preset_scene;
+use crate::synth::SplitMix64;
+use crate::track::{Aligner, Keyframe, Pyramid};
+
+/// Runs the benchmark with `queries` random poses.
+pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> Result<()> {
+    let config = match config_path {
+        Some(p) => Config::load(p)?,
+        None => Config::default(),
+    };
+    let rc = &config.reloc;
+    if queries == 0 {
+        anyhow::bail!("--queries must be at least 1");
+    }
+    let preset = Preset::by_name("realistic").context("preset `realistic`")?;
+    let scene = preset_scene(&preset, seed);
+    let camera = preset.camera;
+    let map = Arc::new(scene.map.clone());
+    let mut map_r = CpuRenderer::new(map.clone())?;
+
+    let t0 = Instant::now();
+    let bar = indicatif::ProgressBar::new(0);
+    let db = build_database(&map, &camera, &mut map_r, rc, &mut |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })?;
+    bar.finish_and_clear();
+    let build_s = t0.elapsed().as_secs_f64();
+    println!(
+        "reloc bench: realistic scene seed {seed}, map {} triangles, camera {}x{}",
+        map.triangle_count(),
+        camera.width,
+        camera.height
+    );
+    println!(
+        "  database: {} keyframes (grid {} m, heights {:?} m, {} yaws, pitches {:?} deg), built in {build_s:.1} s with the CPU renderer",
+        db.entries.len(),
+        rc.grid_spacing_m,
+        rc.heights_m,
+        rc.yaw_steps,
+        rc.pitches_deg
+    );
+
+    // Queries: truth mesh, distortion, sensor model.
+    let mut truth_r = CpuRenderer::new(Arc::new(scene.truth.clone()))?;
+    let warp = DistortionWarp::new(&camera)?;
+    let render_camera = *warp.render_camera();
+    let sensor = SensorModel::new(preset.photometric, &camera, seed);
+    let mut qview = RenderedView::for_camera(&render_camera);
+    let mut warped = ImageF32::new(0, 0, 0.0);
+    let mut frame = ImageU8::new(0, 0, 0);
+    let pinhole = camera.pinhole();
+    let tracker = TrackerConfig::default();
+    let mut kview = RenderedView::for_camera(&pinhole);
+    let mut keyframe = Keyframe::new(&pinhole, &tracker);
+    let mut aligner = Aligner::new(&tracker);
+    let mut pyramid = Pyramid::new(
+        camera.width as usize,
+        camera.height as usize,
+        tracker.pyramid_levels as usize,
+    );
+    let mut reloc = Relocalizer::new(db.clone(), rc, &camera)?;
+
+    let (z_lo, z_hi) = rc
+        .heights_m
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &h| {
+            (a.min(h), b.max(h))
+        });
+    let pitch_mid = rc.pitches_deg.iter().sum::<f64>() / rc.pitches_deg.len() as f64;
+    let mut rng = SplitMix64::new(seed ^ 0x7e10c);
+    let (mut done, mut tries) = (0usize, 0usize);
+    let mut global = Tally::default();
+    let mut window = Tally::default();
+    while done < queries && tries < queries * 100 {
+        tries += 1;
+        let p = Vector3::new(
+            rng.range(scene.free_min_m[0], scene.free_max_m[0]),
+            rng.range(scene.free_min_m[1], scene.free_max_m[1]),
+            rng.range(z_lo, z_hi),
+        );
+        if !scene.is_free([p.x, p.y, p.z], 0.4) {
+            continue;
+        }
+        let yaw = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
+        let pitch = (pitch_mid + rng.range(-5.0, 5.0)).to_radians();
+        let truth = Pose::from_parts(Translation3::from(p), camera_rotation(yaw, pitch, 0.0));
+        truth_r.render(&truth, &render_camera, &mut qview)?;
+        let hits = qview.depth_m.data().iter().filter(|&&d| d > 0.0).count();
+        if hits < qview.depth_m.data().len() * 6 / 10 {
+            continue;
+        }
+        done += 1;
+        warp.warp_gray(&qview.gray, &mut warped);
+        sensor.apply(&warped, done as u64, rng.range(0.0, 60.0), &mut frame);
+        pyramid.fill_from_u8(frame.data(), frame.width());
+        // The paper's protocol: a 2 m window around where the vehicle was
+        // last known (here the truth displaced by up to 0.5 m).
+        let center_m = p + Vector3::new(rng.range(-0.5, 0.5), rng.range(-0.5, 0.5), 0.0);
+        let regions = [
+            (SearchRegion::Everywhere, &mut global),
+            (
+                SearchRegion::Near {
+                    center_m,
+                    radius_m: 2.0,
+                },
+                &mut window,
+            ),
+        ];
+        for (region, tally) in regions {
+            let t_query = Instant::now();
+            let Some(query) =
+                reloc.describe(frame.data(), frame.width(), frame.height(), frame.width())
+            else {
+                tally.rejected += 1;
+                continue;
+            };
+            let candidates: Vec<Ranked> = reloc.search(&query, region).to_vec();
+            if let Some(first) = candidates.first() {
+                let e = &db.entries[first.index as usize];
+                tally
+                    .retrieved_m
+                    .push((e.world_from_camera.translation.vector - p).norm());
+            }
+            let mut verdict = None;
+            for r in &candidates {
+                let world_from_keyframe = db.entries[r.index as usize].world_from_camera;
+                map_r.render(&world_from_keyframe, &pinhole, &mut kview)?;
+                tally.renders += 1;
+                keyframe.prepare(&kview, world_from_keyframe, r.index as u64, &tracker);
+                let yaw0 = reloc.shift_yaw_rad(r.shift);
+                if let Some(v) =
+                    verify_candidate(&mut aligner, &keyframe, &pyramid, &camera, rc, yaw0)
+                {
+                    verdict = Some(v);
+                    break;
+                }
+            }
+            let ms = t_query.elapsed().as_secs_f64() * 1e3;
+            tally.recovery_ms.push(ms);
+            match verdict {
+                None => tally.rejected += 1,
+                Some(v) => {
+                    let err = truth.inverse() * v.world_from_camera;
+                    let err_m = err.translation.vector.norm();
+                    let err_deg = err.rotation.angle().to_degrees();
+                    if err_m <= 0.05 && err_deg <= 2.0 {
+                        tally.success += 1;
+                        tally.success_ms.push(ms);
+                    } else {
+                        tally.wrong.push((err_m, err_deg));
+                    }
+                }
+            }
+        }
+    }
+    println!(
+        "  queries: {done} random free poses (clearance 0.4 m, z {z_lo}..{z_hi} m, yaw any, pitch {pitch_mid}+-5 deg, >= 60 % of the view on the map), truth mesh + distortion + realistic sensor model; top_k {}",
+        rc.top_k
+    );
+    global.print("whole map", done);
+    window.print(
+        "2 m window (paper protocol; centre = truth + up to 0.5 m)",
+        done,
+    );
+    search_timing(&db, rc.top_k as usize, seed);
+    Ok(())
+}
+
+/// Times the whole-map search over 10k keyframes (the database replicated
+/// when smaller).
+fn search_timing(db: &crate::reloc::RelocDatabase, k: usize, seed: u64) {
+    const TARGET: usize = 10_000;
+    let mut big = db.clone();
+    if big.entries.is_empty() {
+        println!("  search: empty database");
+        return;
+    }
+    let replicated = big.entries.len() < TARGET;
+    while big.entries.len() < TARGET {
+        let n = (TARGET - big.entries.len()).min(db.entries.len());
+        big.entries.extend_from_slice(&db.entries[..n]);
+    }
+    let mut rng = SplitMix64::new(seed ^ 0x5ea6c4);
+    let mut random = || {
+        crate::reloc::Descriptor([
+            rng.next_u64(),
+            rng.next_u64(),
+            rng.next_u64(),
+            rng.next_u64(),
+        ])
+    };
+    let queries: Vec<[crate::reloc::Descriptor; 3]> =
+        (0..1000).map(|_| [random(), random(), random()]).collect();
+    let index = SearchIndex::new(&big);
+    let mut best = [Ranked::default(); MAX_TOP_K];
+    let mut samples_ms = Vec::with_capacity(queries.len());
+    let mut checksum = 0u64;
+    for q in &queries {
+        let t = Instant::now();
+        let n = index.top_k(q, SearchRegion::Everywhere, k, &mut best);
+        samples_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        checksum = checksum.wrapping_add(best[..n].iter().map(|b| b.index as u64).sum::<u64>());
+    }
+    let (med, p99) = median_p99(&samples_ms);
+    println!(
+        "  search over {} keyframes{} (top {k}, 3 query shifts, 1000 queries): median {med:.4} ms, p99 {p99:.4} ms (checksum {checksum})",
+        big.entries.len(),
+        if replicated {
+            format!(" ({} replicated to 10k)", db.entries.len())
+        } else {
+            String::new()
+        }
+    );
+}
+
+/// Figures of one search mode.
+#[derive(Debug, Default)]
+struct Tally {
+    success: usize,
+    rejected: usize,
+    wrong: Vec<(f64, f64)>,
+    retrieved_m: Vec<f64>,
+    recovery_ms: Vec<f64>,
+    success_ms: Vec<f64>,
+    renders: usize,
+}
+
+impl Tally {
+    fn print(&self, what: &str, done: usize) {
+        let pct = |n: usize| 100.0 * n as f64 / done.max(1) as f64;
+        println!("  search {what}:");
+        println!(
+            "    success (accepted, within 5 cm / 2 deg): {}/{done} = {:.1} %   no pose: {} = {:.1} %   accepted but off: {} = {:.1} %",
+            self.success,
+            pct(self.success),
+            self.rejected,
+            pct(self.rejected),
+            self.wrong.len(),
+            pct(self.wrong.len())
+        );
+        for (m, deg) in &self.wrong {
+            println!("      accepted but off by {:.3} m, {:.2} deg", m, deg);
+        }
+        let mean_m = self.retrieved_m.iter().sum::<f64>() / self.retrieved_m.len().max(1) as f64;
+        let (med_m, p99_m) = median_p99(&self.retrieved_m);
+        println!(
+            "    query -> best-ranked keyframe distance: mean {mean_m:.3} m, median {med_m:.3} m, p99 {p99_m:.3} m ({} candidate renders)",
+            self.renders
+        );
+        let (med, p99) = median_p99(&self.recovery_ms);
+        let (smed, sp99) = median_p99(&self.success_ms);
+        println!(
+            "    recovery time (describe + search + render + align, CPU renderer, 640x512): all queries median {med:.1} ms, p99 {p99:.1} ms; successful ones median {smed:.1} ms, p99 {sp99:.1} ms"
+        );
+    }
+}

@@ -1,0 +1,200 @@
+//! Relocalization inside the STAR loop: what [`Localizer`] does with a
+//! [`Relocalizer`] while lost.
+//!
+//! Each lost frame (after `reloc.resume_window_s`) with enough contrast is
+//! described and searched: first within `search_radius_m + max_speed_m_s x
+//! (time lost)` of the last tracked position, then over the whole map. The
+//! top-k candidates are rendered on the render thread (the lost frame waits
+//! for them; tracking never does) and aligned with the tracker's aligner;
+//! the first that passes the strict gate becomes the keyframe and the
+//! prediction. Its pose is not output yet: the next `verify_frames` frames
+//! must track through the same gate, and only then is a pose output and
+//! `reset_counter` incremented. A wrong but confident pose would need to
+//! fool the gate on consecutive frames.
+
+use crate::reloc::recover::{correlation, passes_gate, Ranked, MAX_TOP_K};
+use crate::reloc::{verify_candidate, RelocDbError, Relocalizer, SearchRegion};
+use crate::track::AlignQuality;
+
+use super::worker::RenderRequest;
+use super::{Localizer, TrackState};
+
+impl Localizer {
+    /// Enables relocalization with `relocalizer`; errors when its database
+    /// was built for other intrinsics.
+    pub fn set_relocalizer(&mut self, relocalizer: Relocalizer) -> Result<(), RelocDbError> {
+        let db = relocalizer.database();
+        db.check_compatible(&self.camera, db.map_fingerprint)?;
+        tracing::info!(
+            keyframes = db.entries.len(),
+            top_k = relocalizer.config().top_k,
+            "relocalization enabled"
+        );
+        self.reloc = Some(Box::new(relocalizer));
+        Ok(())
+    }
+
+    /// True when a relocalization database is set.
+    pub fn has_relocalizer(&self) -> bool {
+        self.reloc.is_some()
+    }
+
+    /// Whether a frame that passed the ordinary lost test may be output.
+    pub(super) fn may_resume(&self, capture_ns: u64, q: &AlignQuality) -> bool {
+        let Some(reloc) = &self.reloc else {
+            return true;
+        };
+        if self.verify_left > 0 {
+            return passes_gate(q, reloc.config());
+        }
+        if self.state == TrackState::Tracking {
+            return true;
+        }
+        self.lost_s(capture_ns) <= reloc.config().resume_window_s
+    }
+
+    /// With relocalization enabled, tracking also needs the keyframe points
+    /// to correlate with the frame at the aligned pose (`reloc.
+    /// track_min_correlation`): a frame from elsewhere (a teleport, a
+    /// look-alike wall) can pass the inlier test with an affine photometric
+    /// fit, but does not correlate.
+    pub(super) fn correlation_ok(&self, camera_from_keyframe: &crate::geometry::Pose) -> bool {
+        let Some(reloc) = &self.reloc else {
+            return true;
+        };
+        let ncc = correlation(
+            &self.keyframe,
+            &self.pyramid,
+            &self.camera,
+            camera_from_keyframe,
+            1,
+        );
+        tracing::trace!(?ncc, "tracking correlation");
+        let ok = ncc.is_some_and(|c| c >= reloc.config().track_min_correlation);
+        if !ok && self.state == TrackState::Tracking {
+            tracing::debug!(?ncc, "frame does not correlate with the keyframe");
+        }
+        ok
+    }
+
+    /// True when a lost frame should be searched in the database.
+    pub(super) fn reloc_due(&self, capture_ns: u64) -> bool {
+        self.reloc
+            .as_ref()
+            .is_some_and(|r| self.lost_s(capture_ns) > r.config().resume_window_s)
+    }
+
+    fn lost_s(&self, capture_ns: u64) -> f64 {
+        self.lost_since_ns
+            .map_or(0.0, |t| capture_ns.saturating_sub(t) as f64 * 1e-9)
+    }
+
+    /// A relocalization was confirmed: count it and mark the discontinuity.
+    pub(super) fn confirm_relocalization(&mut self) {
+        self.reset_counter = self.reset_counter.wrapping_add(1);
+        self.stats.relocalizations += 1;
+        tracing::info!(
+            reset_counter = self.reset_counter,
+            "relocalized: tracking restarted"
+        );
+    }
+
+    /// Searches, renders and verifies candidates for the frame already in
+    /// `self.pyramid`; on success the candidate becomes the keyframe and the
+    /// prediction, and verification starts.
+    pub(super) fn relocalize(&mut self, pixels: &[u8], stride: usize, capture_ns: u64) {
+        let Some(mut reloc) = self.reloc.take() else {
+            return;
+        };
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let Some(query) = reloc.describe(pixels, w, h, stride) else {
+            tracing::debug!("lost frame without contrast; not searched");
+            self.reloc = Some(reloc);
+            return;
+        };
+        self.stats.reloc_attempts += 1;
+        // The render thread must be idle: take (and drop) a pending keyframe.
+        if self.pending {
+            match self.worker.wait_result() {
+                Ok(kf) => self.worker.recycle(kf),
+                Err(_) => self.stats.render_failures += 1,
+            }
+            self.pending = false;
+        }
+        let near = self.last.map(|(_, pose)| SearchRegion::Near {
+            center_m: pose.translation.vector,
+            radius_m: reloc.radius_m(self.lost_s(capture_ns)),
+        });
+        let mut tried = [u32::MAX; 2 * MAX_TOP_K];
+        let mut n_tried = 0usize;
+        for region in [near, Some(SearchRegion::Everywhere)].into_iter().flatten() {
+            let mut candidates = [Ranked::default(); MAX_TOP_K];
+            let found = reloc.search(&query, region);
+            let n = found.len();
+            candidates[..n].copy_from_slice(found);
+            for ranked in &candidates[..n] {
+                let c = ranked.index;
+                if tried[..n_tried].contains(&c) || n_tried >= tried.len() {
+                    continue;
+                }
+                tried[n_tried] = c;
+                n_tried += 1;
+                let Some(entry) = reloc.database().entries.get(c as usize) else {
+                    continue;
+                };
+                let requested = self.worker.try_request(RenderRequest {
+                    world_from_keyframe: entry.world_from_camera,
+                    id: self.next_keyframe_id,
+                    requested_at_ns: capture_ns,
+                });
+                if !requested {
+                    break;
+                }
+                self.next_keyframe_id += 1;
+                self.stats.reloc_candidates += 1;
+                let kf = match self.worker.wait_result() {
+                    Ok(kf) => kf,
+                    Err(e) => {
+                        self.stats.render_failures += 1;
+                        tracing::warn!(error = %e, "relocalization render failed");
+                        continue;
+                    }
+                };
+                let verdict = verify_candidate(
+                    &mut self.aligner,
+                    &kf,
+                    &self.pyramid,
+                    &self.camera,
+                    reloc.config(),
+                    reloc.shift_yaw_rad(ranked.shift),
+                );
+                let Some(v) = verdict else {
+                    self.worker.recycle(kf);
+                    continue;
+                };
+                tracing::info!(
+                    candidate = c,
+                    inliers = v.alignment.quality.inlier_ratio,
+                    visible = v.alignment.quality.visible_ratio,
+                    residual = v.alignment.quality.residual_rms,
+                    "relocalization candidate accepted; verifying"
+                );
+                let old = std::mem::replace(&mut self.keyframe, kf);
+                self.worker.recycle(old);
+                self.stats.keyframes += 1;
+                self.last = Some((capture_ns, v.world_from_camera));
+                self.velocity = nalgebra::Vector6::zeros();
+                self.verify_left = reloc.config().verify_frames;
+                if self.verify_left == 0 {
+                    self.confirm_relocalization();
+                    self.state = TrackState::Tracking;
+                    self.lost_since_ns = None;
+                }
+                self.reloc = Some(reloc);
+                return;
+            }
+        }
+        tracing::debug!(candidates = n_tried, "relocalization failed for this frame");
+        self.reloc = Some(reloc);
+    }
+}

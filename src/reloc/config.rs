@@ -1,0 +1,212 @@
+//! The `[reloc]` configuration section: how `star reloc build` places the
+//! virtual cameras, and how the STAR loop searches, verifies and accepts a
+//! relocalization while lost.
+//!
+//! Takes TOML (through [`crate::config::Config`]), gives out a validated
+//! [`RelocConfig`]; [`RelocConfig::validate`] names the key and the reason.
+
+use serde::{Deserialize, Serialize};
+
+/// `[reloc]`: database grid, search and acceptance gate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RelocConfig {
+    /// Horizontal grid spacing of the virtual cameras, meters.
+    pub grid_spacing_m: f64,
+    /// Camera heights (world z), meters.
+    pub heights_m: Vec<f64>,
+    /// Number of yaw angles per position, evenly spaced over 360 degrees.
+    pub yaw_steps: u32,
+    /// Camera pitch angles, degrees (negative looks down).
+    pub pitches_deg: Vec<f64>,
+    /// Grid positions keep this distance from the mesh bounds, meters.
+    pub bounds_margin_m: f64,
+    /// A virtual camera is kept only if this fraction of its render sees the map.
+    pub min_valid_fraction: f64,
+    /// ... and its nearest rendered depth is at least this, meters (not
+    /// inside or against geometry).
+    pub min_depth_m: f64,
+    /// Candidates rendered and aligned per relocalization attempt.
+    pub top_k: u32,
+    /// Search radius around the last tracked position right after the
+    /// failure, meters; it grows by `max_speed_m_s` per second lost.
+    pub search_radius_m: f64,
+    /// Fastest plausible motion while lost, m/s (search radius growth).
+    pub max_speed_m_s: f64,
+    /// Frames whose thumbnail standard deviation is below this (gray levels)
+    /// are not searched (black, saturated or covered frames).
+    pub min_contrast: f32,
+    /// Acceptance gate: smallest inlier ratio of the candidate alignment.
+    pub min_inlier_ratio: f32,
+    /// Acceptance gate: smallest fraction of candidate points visible.
+    pub min_visible_ratio: f32,
+    /// Acceptance gate: largest inlier residual RMS, gray levels.
+    pub max_residual: f32,
+    /// Acceptance gate: smallest normalized cross-correlation between the
+    /// candidate's points and the frame at the aligned pose.
+    pub min_correlation: f32,
+    /// With relocalization enabled, ordinary tracking is also lost when the
+    /// keyframe points correlate less than this with the frame.
+    pub track_min_correlation: f32,
+    /// Frames after an accepted relocalization that must track through the
+    /// same gate before a pose is output again.
+    pub verify_frames: u32,
+    /// Within this time of the failure, ordinary tracking may resume on its
+    /// own; afterwards only an accepted relocalization restarts it, seconds.
+    pub resume_window_s: f64,
+}
+
+impl Default for RelocConfig {
+    fn default() -> Self {
+        Self {
+            grid_spacing_m: 0.5,
+            heights_m: vec![1.0, 1.4, 1.8],
+            yaw_steps: 16,
+            pitches_deg: vec![-5.0],
+            bounds_margin_m: 0.3,
+            min_valid_fraction: 0.8,
+            min_depth_m: 0.4,
+            top_k: 4,
+            search_radius_m: 0.5,
+            max_speed_m_s: 2.0,
+            min_contrast: 4.0,
+            min_inlier_ratio: 0.7,
+            min_visible_ratio: 0.5,
+            max_residual: 12.0,
+            min_correlation: 0.8,
+            track_min_correlation: 0.5,
+            verify_frames: 1,
+            resume_window_s: 0.2,
+        }
+    }
+}
+
+impl RelocConfig {
+    /// Checks every value; on error gives the key (without `reloc.`) and why.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
+        if !(pos(self.grid_spacing_m) && self.grid_spacing_m >= 0.05) {
+            return Err((
+                "grid_spacing_m",
+                format!("expected >= 0.05, found {}", self.grid_spacing_m),
+            ));
+        }
+        if self.heights_m.is_empty() || self.heights_m.iter().any(|h| !h.is_finite()) {
+            return Err((
+                "heights_m",
+                format!(
+                    "expected at least one finite height, found {:?}",
+                    self.heights_m
+                ),
+            ));
+        }
+        if !(1..=360).contains(&self.yaw_steps) {
+            return Err((
+                "yaw_steps",
+                format!("expected 1..=360, found {}", self.yaw_steps),
+            ));
+        }
+        if self.pitches_deg.is_empty()
+            || self
+                .pitches_deg
+                .iter()
+                .any(|p| !(p.is_finite() && p.abs() < 90.0))
+        {
+            return Err((
+                "pitches_deg",
+                format!(
+                    "expected at least one pitch in (-90, 90), found {:?}",
+                    self.pitches_deg
+                ),
+            ));
+        }
+        let checks: [(&'static str, bool, String); 13] = [
+            (
+                "track_min_correlation",
+                self.track_min_correlation.is_finite()
+                    && (-1.0..=1.0).contains(&self.track_min_correlation),
+                format!("expected -1..=1, found {}", self.track_min_correlation),
+            ),
+            (
+                "min_correlation",
+                self.min_correlation.is_finite() && (-1.0..=1.0).contains(&self.min_correlation),
+                format!("expected -1..=1, found {}", self.min_correlation),
+            ),
+            (
+                "bounds_margin_m",
+                self.bounds_margin_m.is_finite() && self.bounds_margin_m >= 0.0,
+                format!("expected >= 0, found {}", self.bounds_margin_m),
+            ),
+            (
+                "min_valid_fraction",
+                self.min_valid_fraction.is_finite()
+                    && (0.0..=1.0).contains(&self.min_valid_fraction),
+                format!("expected 0..=1, found {}", self.min_valid_fraction),
+            ),
+            (
+                "min_depth_m",
+                self.min_depth_m.is_finite() && self.min_depth_m >= 0.0,
+                format!("expected >= 0, found {}", self.min_depth_m),
+            ),
+            (
+                "top_k",
+                (1..=64).contains(&self.top_k),
+                format!("expected 1..=64, found {}", self.top_k),
+            ),
+            (
+                "search_radius_m",
+                pos(self.search_radius_m),
+                format!("expected > 0, found {}", self.search_radius_m),
+            ),
+            (
+                "max_speed_m_s",
+                self.max_speed_m_s.is_finite() && self.max_speed_m_s >= 0.0,
+                format!("expected >= 0, found {}", self.max_speed_m_s),
+            ),
+            (
+                "min_contrast",
+                self.min_contrast.is_finite() && self.min_contrast >= 0.0,
+                format!("expected >= 0, found {}", self.min_contrast),
+            ),
+            (
+                "min_inlier_ratio",
+                unit(self.min_inlier_ratio),
+                format!("expected 0..=1, found {}", self.min_inlier_ratio),
+            ),
+            (
+                "min_visible_ratio",
+                unit(self.min_visible_ratio),
+                format!("expected 0..=1, found {}", self.min_visible_ratio),
+            ),
+            (
+                "max_residual",
+                self.max_residual.is_finite() && self.max_residual > 0.0,
+                format!("expected > 0, found {}", self.max_residual),
+            ),
+            (
+                "resume_window_s",
+                self.resume_window_s.is_finite() && self.resume_window_s >= 0.0,
+                format!("expected >= 0, found {}", self.resume_window_s),
+            ),
+        ];
+        for (key, ok, reason) in checks {
+            if !ok {
+                return Err((key, reason));
+            }
+        }
+        if self.verify_frames > 50 {
+            return Err((
+                "verify_frames",
+                format!("expected 0..=50, found {}", self.verify_frames),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Yaw angles of the grid, radians.
+    pub fn yaws_rad(&self) -> impl Iterator<Item = f64> + '_ {
+        let n = self.yaw_steps.max(1);
+        (0..n).map(move |i| i as f64 * std::f64::consts::TAU / n as f64)
+    }
+}

@@ -1,0 +1,348 @@
+//! The whole-image descriptor of relocalization: an 80x64 thumbnail,
+//! blurred, and 256 BRIEF-style pairwise intensity comparisons on a fixed,
+//! seeded pattern, packed into `[u64; 4]` and compared by Hamming distance.
+//!
+//! Takes an 8-bit camera frame or a rendered gray image of any size (area
+//! resampled to the thumbnail); gives out a [`Descriptor`]. Comparisons are
+//! invariant to any increasing photometric change (gain, bias, gamma), and
+//! the blur makes them tolerant of noise and of small viewpoint changes.
+//! All buffers live in [`Thumbnailer`], so computing a descriptor allocates
+//! nothing after construction.
+
+use crate::synth::SplitMix64;
+
+/// Thumbnail width, pixels.
+pub const THUMB_W: usize = 80;
+/// Thumbnail height, pixels.
+pub const THUMB_H: usize = 64;
+/// Bits per descriptor.
+pub const DESCRIPTOR_BITS: usize = 256;
+/// Seed of the comparison pattern (part of the database format: changing it
+/// changes every descriptor, so the database version must change too).
+pub const PATTERN_SEED: u64 = 0x5354_4152_524c_4331;
+/// Largest offset between the two pixels of a comparison, thumbnail pixels.
+const MAX_PAIR_OFFSET: i64 = 32;
+/// Smallest offset (L1) between the two pixels of a comparison.
+const MIN_PAIR_OFFSET: i64 = 8;
+/// Box radius of the blur, thumbnail pixels.
+const BLUR_RADIUS: i64 = 2;
+/// Box blur passes (3 passes of radius 2: about a Gaussian of sigma 2.4 px).
+const BLUR_PASSES: usize = 3;
+/// Border kept free of comparison pixels (blur and distortion edge effects).
+const BORDER: i64 = 3;
+
+/// Horizontal shifts at which the query descriptor is also computed,
+/// thumbnail pixels (about 7 degrees each for the presets' lens): a view
+/// that is a few degrees of yaw off a database view still matches, and the
+/// best shift tells the alignment where to start.
+pub const QUERY_SHIFTS_PX: [i32; 3] = [0, -7, 7];
+
+/// A 256-bit binary descriptor of a whole image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
+pub struct Descriptor(pub [u64; 4]);
+
+impl Descriptor {
+    /// Number of differing bits.
+    #[inline(always)]
+    pub fn hamming(&self, other: &Descriptor) -> u32 {
+        (self.0[0] ^ other.0[0]).count_ones()
+            + (self.0[1] ^ other.0[1]).count_ones()
+            + (self.0[2] ^ other.0[2]).count_ones()
+            + (self.0[3] ^ other.0[3]).count_ones()
+    }
+}
+
+/// Computes descriptors; owns the thumbnail buffers and the pattern.
+#[derive(Debug, Clone)]
+pub struct Thumbnailer {
+    thumb: Vec<f32>,
+    blurred: Vec<f32>,
+    tmp: Vec<f32>,
+    tmp2: Vec<f32>,
+    mask: Vec<f32>,
+    pairs: Vec<(u16, u16)>,
+}
+
+impl Default for Thumbnailer {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Thumbnailer {
+    /// Allocates the buffers and draws the fixed comparison pattern.
+    pub fn new() -> Self {
+        let mut rng = SplitMix64::new(PATTERN_SEED);
+        let mut pairs = Vec::with_capacity(DESCRIPTOR_BITS);
+        let (w, h) = (THUMB_W as i64, THUMB_H as i64);
+        while pairs.len() < DESCRIPTOR_BITS {
+            let x0 = BORDER + rng.below((w - 2 * BORDER) as usize) as i64;
+            let y0 = BORDER + rng.below((h - 2 * BORDER) as usize) as i64;
+            let dx = rng.below((2 * MAX_PAIR_OFFSET + 1) as usize) as i64 - MAX_PAIR_OFFSET;
+            let dy = rng.below((2 * MAX_PAIR_OFFSET + 1) as usize) as i64 - MAX_PAIR_OFFSET;
+            let (x1, y1) = (x0 + dx, y0 + dy);
+            if x1 < BORDER || y1 < BORDER || x1 >= w - BORDER || y1 >= h - BORDER {
+                continue;
+            }
+            if dx.abs() + dy.abs() < MIN_PAIR_OFFSET {
+                continue;
+            }
+            pairs.push(((y0 * w + x0) as u16, (y1 * w + x1) as u16));
+        }
+        Self {
+            thumb: vec![0.0; THUMB_W * THUMB_H],
+            blurred: vec![0.0; THUMB_W * THUMB_H],
+            tmp: vec![0.0; THUMB_W * THUMB_H],
+            tmp2: vec![0.0; THUMB_W * THUMB_H],
+            mask: vec![0.0; THUMB_W * THUMB_H],
+            pairs,
+        }
+    }
+
+    /// The last thumbnail (before blurring), row-major `THUMB_W x THUMB_H`.
+    pub fn thumbnail(&self) -> &[f32] {
+        &self.thumb
+    }
+
+    /// Descriptor of an 8-bit gray image with row stride `stride`. `None`
+    /// when the image is too small or has too little contrast (standard
+    /// deviation of the thumbnail below `min_std`, e.g. a black frame).
+    pub fn describe_u8(
+        &mut self,
+        pixels: &[u8],
+        width: usize,
+        height: usize,
+        stride: usize,
+        min_std: f32,
+    ) -> Option<Descriptor> {
+        if width < THUMB_W || height < THUMB_H || stride < width {
+            return None;
+        }
+        if pixels.len() < stride * (height - 1) + width {
+            return None;
+        }
+        area_resample(&mut self.thumb, width, height, |x, y| {
+            pixels[y * stride + x] as f32
+        });
+        self.finish(min_std)
+    }
+
+    /// Descriptor of a gray image stored as `f32` row-major `width x height`.
+    /// With `depth_m`, pixels without depth (map holes, unmapped space) are
+    /// filled from their valid neighbourhood instead of counting as black.
+    pub fn describe_f32(
+        &mut self,
+        gray: &[f32],
+        depth_m: Option<&[f32]>,
+        width: usize,
+        height: usize,
+        min_std: f32,
+    ) -> Option<Descriptor> {
+        if width < THUMB_W / 2 || height < THUMB_H / 2 || gray.len() < width * height {
+            return None;
+        }
+        let Some(depth) = depth_m.filter(|d| d.len() >= width * height) else {
+            area_resample(&mut self.thumb, width, height, |x, y| gray[y * width + x]);
+            return self.finish(min_std);
+        };
+        let hit = |x: usize, y: usize| crate::render::RenderedView::is_hit(depth[y * width + x]);
+        // Normalized convolution: blur(gray * mask) / blur(mask).
+        area_resample(&mut self.thumb, width, height, |x, y| {
+            if hit(x, y) {
+                gray[y * width + x]
+            } else {
+                0.0
+            }
+        });
+        area_resample(&mut self.mask, width, height, |x, y| {
+            if hit(x, y) {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        let mut wide_v = std::mem::take(&mut self.blurred);
+        let mut wide_m = std::mem::take(&mut self.tmp2);
+        blur(&self.thumb, &mut wide_v, &mut self.tmp, 4);
+        blur(&self.mask, &mut wide_m, &mut self.tmp, 4);
+        for (i, v) in self.thumb.iter_mut().enumerate() {
+            let m = self.mask[i];
+            if m < 0.999 {
+                let fill = if wide_m[i] > 1e-3 {
+                    wide_v[i] / wide_m[i]
+                } else {
+                    0.0
+                };
+                // The valid part of the pixel keeps its value.
+                *v += (1.0 - m) * fill;
+            }
+        }
+        self.blurred = wide_v;
+        self.tmp2 = wide_m;
+        self.finish(min_std)
+    }
+
+    /// The descriptor of the last image with its comparison pattern moved
+    /// `dx` thumbnail pixels to the right (clamped at the borders).
+    pub fn shifted(&self, dx: i32) -> Descriptor {
+        let w = THUMB_W as i32;
+        let mut bits = [0u64; 4];
+        let at = |i: u16| {
+            let (x, y) = (i as i32 % w, i as i32 / w);
+            let xs = (x + dx).clamp(0, w - 1);
+            self.blurred[(y * w + xs) as usize]
+        };
+        for (i, &(a, b)) in self.pairs.iter().enumerate() {
+            if at(a) < at(b) {
+                bits[i / 64] |= 1 << (i % 64);
+            }
+        }
+        Descriptor(bits)
+    }
+
+    fn finish(&mut self, min_std: f32) -> Option<Descriptor> {
+        let n = self.thumb.len() as f32;
+        let mean = self.thumb.iter().sum::<f32>() / n;
+        let var = self
+            .thumb
+            .iter()
+            .map(|v| (v - mean) * (v - mean))
+            .sum::<f32>()
+            / n;
+        if !(var.is_finite() && var.sqrt() >= min_std) {
+            return None;
+        }
+        blur(&self.thumb, &mut self.blurred, &mut self.tmp, BLUR_PASSES);
+        let mut bits = [0u64; 4];
+        for (i, &(a, b)) in self.pairs.iter().enumerate() {
+            let (va, vb) = (self.blurred[a as usize], self.blurred[b as usize]);
+            if va < vb {
+                bits[i / 64] |= 1 << (i % 64);
+            }
+        }
+        Some(Descriptor(bits))
+    }
+}
+
+/// Area resampling of a `width x height` image (read through `at`) into the
+/// `THUMB_W x THUMB_H` buffer `out`: each thumbnail pixel averages the
+/// source pixels whose centers fall in its footprint (point sampling when
+/// the source is smaller than the thumbnail).
+fn area_resample(out: &mut [f32], width: usize, height: usize, at: impl Fn(usize, usize) -> f32) {
+    for ty in 0..THUMB_H {
+        let y0 = ty * height / THUMB_H;
+        let y1 = ((ty + 1) * height / THUMB_H).max(y0 + 1).min(height);
+        for tx in 0..THUMB_W {
+            let x0 = tx * width / THUMB_W;
+            let x1 = ((tx + 1) * width / THUMB_W).max(x0 + 1).min(width);
+            let mut sum = 0.0f32;
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    sum += at(x, y);
+                }
+            }
+            out[ty * THUMB_W + tx] = sum / ((y1 - y0) * (x1 - x0)) as f32;
+        }
+    }
+}
+
+/// Separable box blur of radius [`BLUR_RADIUS`], [`BLUR_PASSES`] times
+/// (about a Gaussian), clamped at the borders; `tmp` is scratch.
+fn blur(input: &[f32], out: &mut [f32], tmp: &mut [f32], passes: usize) {
+    let (w, h) = (THUMB_W as i64, THUMB_H as i64);
+    let r = BLUR_RADIUS;
+    let norm = 1.0 / (2 * r + 1) as f32;
+    out.copy_from_slice(input);
+    for _ in 0..passes {
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0.0;
+                for dx in -r..=r {
+                    s += out[(y * w + (x + dx).clamp(0, w - 1)) as usize];
+                }
+                tmp[(y * w + x) as usize] = s * norm;
+            }
+        }
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0.0;
+                for dy in -r..=r {
+                    s += tmp[((y + dy).clamp(0, h - 1) * w + x) as usize];
+                }
+                out[(y * w + x) as usize] = s * norm;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pattern(w: usize, h: usize, phase: f32) -> Vec<u8> {
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let v = 128.0
+                    + 60.0 * (x * 0.031 + phase).sin()
+                    + 50.0 * (y * 0.047 - 0.5 * phase).cos()
+                    + 30.0 * ((x + y) * 0.013 + phase * 2.0).sin();
+                v.clamp(0.0, 255.0) as u8
+            })
+            .collect()
+    }
+
+    #[test]
+    fn descriptor_is_deterministic_and_photometrically_invariant() {
+        let img = pattern(640, 512, 0.0);
+        let mut a = Thumbnailer::new();
+        let mut b = Thumbnailer::new();
+        let da = a.describe_u8(&img, 640, 512, 640, 2.0).expect("contrast");
+        let db = b.describe_u8(&img, 640, 512, 640, 2.0).expect("contrast");
+        assert_eq!(da, db);
+        assert_eq!(da.hamming(&db), 0);
+        // Gain and bias change no comparison (ties aside).
+        let brighter: Vec<u8> = img.iter().map(|&v| (v as f32 * 0.8 + 20.0) as u8).collect();
+        let dc = a
+            .describe_u8(&brighter, 640, 512, 640, 2.0)
+            .expect("contrast");
+        assert!(da.hamming(&dc) < 8, "{}", da.hamming(&dc));
+    }
+
+    #[test]
+    fn hamming_ranks_similar_views_first() {
+        let mut t = Thumbnailer::new();
+        let base = t
+            .describe_u8(&pattern(640, 512, 0.0), 640, 512, 640, 2.0)
+            .expect("base");
+        let near = t
+            .describe_u8(&pattern(640, 512, 0.1), 640, 512, 640, 2.0)
+            .expect("near");
+        let far = t
+            .describe_u8(&pattern(640, 512, 2.0), 640, 512, 640, 2.0)
+            .expect("far");
+        assert!(base.hamming(&near) < base.hamming(&far));
+        assert!(base.hamming(&far) > 40, "{}", base.hamming(&far));
+        assert_eq!(Descriptor([u64::MAX; 4]).hamming(&Descriptor([0; 4])), 256);
+    }
+
+    #[test]
+    fn flat_or_small_frames_have_no_descriptor() {
+        let mut t = Thumbnailer::new();
+        assert!(t
+            .describe_u8(&[0u8; 640 * 512], 640, 512, 640, 2.0)
+            .is_none());
+        assert!(t.describe_u8(&[0u8; 10], 640, 512, 640, 2.0).is_none());
+        assert!(t.describe_u8(&[7u8; 40 * 30], 40, 30, 40, 2.0).is_none());
+    }
+
+    #[test]
+    fn u8_and_f32_inputs_agree() {
+        let img = pattern(320, 256, 0.3);
+        let f: Vec<f32> = img.iter().map(|&v| v as f32).collect();
+        let mut t = Thumbnailer::new();
+        let a = t.describe_u8(&img, 320, 256, 320, 2.0).expect("u8");
+        let b = t.describe_f32(&f, None, 320, 256, 2.0).expect("f32");
+        assert_eq!(a, b);
+    }
+}

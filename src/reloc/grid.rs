@@ -1,0 +1,206 @@
+//! Building the relocalization database (`star reloc build`): virtual
+//! cameras on a grid in the map's free space, rendered through any
+//! [`Renderer`] and described by their thumbnails.
+//!
+//! Takes the map mesh, the camera, a renderer and the `[reloc]` section;
+//! gives out a [`RelocDatabase`]. Positions lie on a horizontal grid inside
+//! the mesh bounds (shrunk by `bounds_margin_m`) at the configured heights;
+//! each position gets `yaw_steps` yaws times the configured pitches. A
+//! position is dropped when any of its views has geometry nearer than
+//! `min_depth_m` (inside or against furniture); a view is dropped when less
+//! than `min_valid_fraction` of it sees the map (outside, or facing a hole).
+//! Views are rendered at twice the thumbnail size, which is all the
+//! descriptor needs and keeps the build fast.
+
+use nalgebra::{Translation3, Vector3};
+
+use crate::geometry::{PinholeCamera, Pose};
+use crate::map::Mesh;
+use crate::render::{RenderError, RenderedView, Renderer};
+use crate::synth::look::camera_rotation;
+
+use super::config::RelocConfig;
+use super::database::{map_fingerprint, RelocDatabase, RelocEntry};
+use super::descriptor::{Thumbnailer, THUMB_H, THUMB_W};
+
+/// Errors building a database.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    /// The mesh has no vertices.
+    #[error("the map mesh is empty")]
+    EmptyMap,
+    /// The grid has no position inside the mesh bounds.
+    #[error("no grid position fits inside the map bounds {min:?}..{max:?} with margin {margin_m} m at heights {heights_m:?}")]
+    NoPositions {
+        /// Lower bound of the mesh, meters.
+        min: [f32; 3],
+        /// Upper bound of the mesh, meters.
+        max: [f32; 3],
+        /// The margin.
+        margin_m: f64,
+        /// The heights asked for.
+        heights_m: Vec<f64>,
+    },
+    /// A render failed.
+    #[error("rendering a database view at {position_m:?}")]
+    Render {
+        /// Where the camera was.
+        position_m: [f64; 3],
+        /// The renderer's error.
+        #[source]
+        source: RenderError,
+    },
+}
+
+/// The camera the database views are rendered with: `camera` (pinhole part)
+/// scaled to twice the thumbnail size, pixel centers at integers.
+pub fn thumb_render_camera(camera: &PinholeCamera) -> PinholeCamera {
+    let (w, h) = (2 * THUMB_W as u32, 2 * THUMB_H as u32);
+    let sx = w as f64 / camera.width.max(1) as f64;
+    let sy = h as f64 / camera.height.max(1) as f64;
+    PinholeCamera::new(
+        w,
+        h,
+        camera.fx * sx,
+        camera.fy * sy,
+        (camera.cx + 0.5) * sx - 0.5,
+        (camera.cy + 0.5) * sy - 0.5,
+    )
+}
+
+/// Grid positions (world, meters) inside the bounds of `mesh`, or inside
+/// `region` (`[min, max]` corners, meters) when given.
+pub fn grid_positions(
+    mesh: &Mesh,
+    config: &RelocConfig,
+    region: Option<([f32; 3], [f32; 3])>,
+) -> Result<Vec<Vector3<f64>>, BuildError> {
+    let (min, max) = match region {
+        Some(r) => r,
+        None => mesh.bounds().ok_or(BuildError::EmptyMap)?,
+    };
+    let m = config.bounds_margin_m;
+    let lo = Vector3::new(min[0] as f64 + m, min[1] as f64 + m, min[2] as f64 + m);
+    let hi = Vector3::new(max[0] as f64 - m, max[1] as f64 - m, max[2] as f64 - m);
+    let step = config.grid_spacing_m;
+    let axis = |lo: f64, hi: f64| -> Vec<f64> {
+        if hi < lo {
+            return Vec::new();
+        }
+        // Center the grid in the span.
+        let n = ((hi - lo) / step).floor() as usize + 1;
+        let start = lo + 0.5 * ((hi - lo) - (n - 1) as f64 * step);
+        (0..n).map(|i| start + i as f64 * step).collect()
+    };
+    let (xs, ys) = (axis(lo.x, hi.x), axis(lo.y, hi.y));
+    let mut out = Vec::new();
+    for &z in config.heights_m.iter().filter(|&&z| z >= lo.z && z <= hi.z) {
+        for &y in &ys {
+            for &x in &xs {
+                out.push(Vector3::new(x, y, z));
+            }
+        }
+    }
+    if out.is_empty() {
+        return Err(BuildError::NoPositions {
+            min,
+            max,
+            margin_m: m,
+            heights_m: config.heights_m.clone(),
+        });
+    }
+    Ok(out)
+}
+
+/// Views per grid position.
+pub fn views_per_position(config: &RelocConfig) -> usize {
+    config.yaw_steps as usize * config.pitches_deg.len()
+}
+
+/// Builds the database for `mesh` seen by `camera`, rendering through
+/// `renderer` (which must draw `mesh`). `progress` gets the number of
+/// positions done and the total.
+pub fn build_database(
+    mesh: &Mesh,
+    camera: &PinholeCamera,
+    renderer: &mut dyn Renderer,
+    config: &RelocConfig,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<RelocDatabase, BuildError> {
+    build_database_in(mesh, camera, renderer, config, None, progress)
+}
+
+/// [`build_database`] with the grid limited to `region` (`[min, max]`
+/// corners, world, meters) instead of the mesh bounds.
+pub fn build_database_in(
+    mesh: &Mesh,
+    camera: &PinholeCamera,
+    renderer: &mut dyn Renderer,
+    config: &RelocConfig,
+    region: Option<([f32; 3], [f32; 3])>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<RelocDatabase, BuildError> {
+    let positions = grid_positions(mesh, config, region)?;
+    let render_camera = thumb_render_camera(camera);
+    let mut view = RenderedView::for_camera(&render_camera);
+    let mut thumbnailer = Thumbnailer::new();
+    let mut entries = Vec::new();
+    let mut position_entries = Vec::with_capacity(views_per_position(config));
+    let n_pixels = (render_camera.width * render_camera.height) as f64;
+    for (done, p) in positions.iter().enumerate() {
+        position_entries.clear();
+        let mut free = true;
+        'views: for &pitch_deg in &config.pitches_deg {
+            for yaw_rad in config.yaws_rad() {
+                let world_from_camera = Pose::from_parts(
+                    Translation3::from(*p),
+                    camera_rotation(yaw_rad, pitch_deg.to_radians(), 0.0),
+                );
+                renderer
+                    .render(&world_from_camera, &render_camera, &mut view)
+                    .map_err(|source| BuildError::Render {
+                        position_m: [p.x, p.y, p.z],
+                        source,
+                    })?;
+                let mut hits = 0usize;
+                let mut nearest_m = f32::INFINITY;
+                for &d in view.depth_m.data() {
+                    if RenderedView::is_hit(d) {
+                        hits += 1;
+                        nearest_m = nearest_m.min(d);
+                    }
+                }
+                if (nearest_m as f64) < config.min_depth_m {
+                    free = false;
+                    break 'views;
+                }
+                if (hits as f64) < config.min_valid_fraction * n_pixels {
+                    continue;
+                }
+                let (w, h) = (view.gray.width(), view.gray.height());
+                if let Some(descriptor) = thumbnailer.describe_f32(
+                    view.gray.data(),
+                    Some(view.depth_m.data()),
+                    w,
+                    h,
+                    config.min_contrast,
+                ) {
+                    position_entries.push(RelocEntry {
+                        world_from_camera,
+                        descriptor,
+                    });
+                }
+            }
+        }
+        if free {
+            entries.extend_from_slice(&position_entries);
+        }
+        progress(done + 1, positions.len());
+    }
+    Ok(RelocDatabase {
+        camera: *camera,
+        map_fingerprint: map_fingerprint(mesh),
+        entries,
+        path: std::path::PathBuf::new(),
+    })
+}

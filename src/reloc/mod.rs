@@ -1,0 +1,26 @@
+//! Relocalization (paper section II-D, issue 5): recovering the pose after
+//! tracking is lost, from a database of rendered views of the map.
+//!
+//! - [`descriptor`]: 80x64 thumbnail and 256-bit binary descriptor.
+//! - [`database`]: keyframe poses and descriptors; the versioned, checksummed
+//!   file and its checks (magic, version, length, checksum, map, camera).
+//! - [`grid`]: `star reloc build`: virtual cameras on a grid in free space.
+//! - [`recover`]: the online side: radius-bounded Hamming search and the
+//!   strict acceptance gate; the STAR loop ([`crate::localizer`]) renders
+//!   and aligns the candidates.
+//! - [`config`]: the `[reloc]` section.
+
+pub mod config;
+pub mod database;
+pub mod descriptor;
+pub mod grid;
+pub mod recover;
+
+#[cfg(test)]
+mod database_tests;
+
+pub use config::RelocConfig;
+pub use database::{map_fingerprint, RelocDatabase, RelocDbError, RelocEntry};
+pub use descriptor::{Descriptor, Thumbnailer, THUMB_H, THUMB_W};
+pub use grid::{build_database, build_database_in, BuildError};
+pub use recover::{verify_candidate, Relocalizer, SearchRegion, Verified};

@@ -1,0 +1,409 @@
+//! Online relocalization: the search and the acceptance test the STAR loop
+//! runs while lost.
+//!
+//! Takes the current camera frame, the last tracked position and the time
+//! since the failure; gives out the database keyframes to try (the top-k by
+//! Hamming distance within a radius that grows with the time lost, or over
+//! the whole map), and, once a candidate is rendered, the verdict of
+//! [`verify_candidate`]: the aligned pose if it passes the strict gate.
+//! After [`Relocalizer::new`] nothing here allocates.
+
+use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+use crate::geometry::{PinholeCamera, Pose};
+use crate::track::{AlignQuality, Aligner, Alignment, Keyframe, Pyramid};
+
+use super::config::RelocConfig;
+use super::database::{RelocDatabase, RelocDbError};
+use super::descriptor::{Descriptor, Thumbnailer, QUERY_SHIFTS_PX, THUMB_W};
+
+/// One search result.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Ranked {
+    /// Hamming distance (the smallest over the query shifts).
+    pub distance: u32,
+    /// Database entry index.
+    pub index: u32,
+    /// Index into [`QUERY_SHIFTS_PX`] of the shift that matched best.
+    pub shift: u8,
+}
+
+impl Default for Ranked {
+    fn default() -> Self {
+        Self {
+            distance: u32::MAX,
+            index: 0,
+            shift: 0,
+        }
+    }
+}
+
+/// The query descriptors at every shift of [`QUERY_SHIFTS_PX`].
+pub type Query = [Descriptor; QUERY_SHIFTS_PX.len()];
+
+/// Most candidates one search returns.
+pub const MAX_TOP_K: usize = 64;
+
+/// Where to search.
+#[derive(Debug, Clone, Copy)]
+pub enum SearchRegion {
+    /// Entries within `radius_m` of `center_m`.
+    Near {
+        /// Last tracked position, world, meters.
+        center_m: Vector3<f64>,
+        /// Search radius, meters.
+        radius_m: f64,
+    },
+    /// The whole database.
+    Everywhere,
+}
+
+/// The search side of relocalization: database, descriptor scratch and the
+/// candidate list.
+#[derive(Debug, Clone)]
+pub struct Relocalizer {
+    db: RelocDatabase,
+    index: SearchIndex,
+    config: RelocConfig,
+    thumbnailer: Thumbnailer,
+    best: [Ranked; MAX_TOP_K],
+    n_best: usize,
+    camera: PinholeCamera,
+}
+
+impl Relocalizer {
+    /// Takes `db` for use with `camera`; errors when the database was built
+    /// for other intrinsics (check the map with
+    /// [`RelocDatabase::check_compatible`] where the map is at hand).
+    pub fn new(
+        db: RelocDatabase,
+        config: &RelocConfig,
+        camera: &PinholeCamera,
+    ) -> Result<Self, RelocDbError> {
+        db.check_compatible(camera, db.map_fingerprint)?;
+        Ok(Self {
+            index: SearchIndex::new(&db),
+            db,
+            config: config.clone(),
+            thumbnailer: Thumbnailer::new(),
+            best: [Ranked::default(); MAX_TOP_K],
+            n_best: 0,
+            camera: *camera,
+        })
+    }
+
+    /// The database.
+    pub fn database(&self) -> &RelocDatabase {
+        &self.db
+    }
+
+    /// The `[reloc]` settings in use.
+    pub fn config(&self) -> &RelocConfig {
+        &self.config
+    }
+
+    /// The search radius after `lost_s` seconds lost.
+    pub fn radius_m(&self, lost_s: f64) -> f64 {
+        self.config.search_radius_m + self.config.max_speed_m_s * lost_s.max(0.0)
+    }
+
+    /// Descriptors of a camera frame at every query shift; `None` when it
+    /// has too little contrast.
+    pub fn describe(
+        &mut self,
+        pixels: &[u8],
+        width: usize,
+        height: usize,
+        stride: usize,
+    ) -> Option<Query> {
+        self.thumbnailer
+            .describe_u8(pixels, width, height, stride, self.config.min_contrast)?;
+        let t = &self.thumbnailer;
+        Some(QUERY_SHIFTS_PX.map(|dx| t.shifted(dx)))
+    }
+
+    /// The `top_k` entries in `region` nearest to `query` by Hamming
+    /// distance, best first (fewer when the region holds fewer).
+    pub fn search(&mut self, query: &Query, region: SearchRegion) -> &[Ranked] {
+        let k = (self.config.top_k as usize).clamp(1, MAX_TOP_K);
+        let n = self.index.top_k(query, region, k, &mut self.best);
+        self.n_best = n;
+        &self.best[..n]
+    }
+
+    /// Hamming distance of the `rank`-th candidate of the last search.
+    pub fn distance_of_rank(&self, rank: usize) -> Option<u32> {
+        self.best[..self.n_best].get(rank).map(|b| b.distance)
+    }
+
+    /// Yaw of the query relative to a candidate that matched at `shift`
+    /// (an index into [`QUERY_SHIFTS_PX`]), radians, about the camera's
+    /// vertical axis (positive: the query looks further right).
+    pub fn shift_yaw_rad(&self, shift: u8) -> f64 {
+        let dx = QUERY_SHIFTS_PX.get(shift as usize).copied().unwrap_or(0) as f64;
+        let fx_thumb = self.camera.fx * THUMB_W as f64 / self.camera.width.max(1) as f64;
+        // Sampling the query dx pixels to the right matches the entry: the
+        // scene moved right in the query, so the query looks further left.
+        -(dx / fx_thumb).atan()
+    }
+}
+
+/// The database laid out for search: descriptors and positions in two
+/// contiguous arrays (a scan touches 44 bytes per entry, not the whole entry).
+#[derive(Debug, Clone, Default)]
+pub struct SearchIndex {
+    descriptors: Vec<Descriptor>,
+    positions_m: Vec<[f32; 3]>,
+}
+
+impl SearchIndex {
+    /// Copies the descriptors and positions of `db`.
+    pub fn new(db: &RelocDatabase) -> Self {
+        Self {
+            descriptors: db.entries.iter().map(|e| e.descriptor).collect(),
+            positions_m: db
+                .entries
+                .iter()
+                .map(|e| {
+                    let t = e.world_from_camera.translation.vector;
+                    [t.x as f32, t.y as f32, t.z as f32]
+                })
+                .collect(),
+        }
+    }
+
+    /// Number of entries.
+    pub fn len(&self) -> usize {
+        self.descriptors.len()
+    }
+
+    /// True when there are no entries.
+    pub fn is_empty(&self) -> bool {
+        self.descriptors.is_empty()
+    }
+
+    /// The `k` entries in `region` nearest to `query` (the smallest distance
+    /// over its shifts), written to `best[..returned]`, best first; ties by
+    /// index. Uses the CPU's popcount instruction where there is one.
+    pub fn top_k(
+        &self,
+        query: &[Descriptor],
+        region: SearchRegion,
+        k: usize,
+        best: &mut [Ranked; MAX_TOP_K],
+    ) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("popcnt") {
+                // SAFETY: the CPU supports popcnt, checked just above.
+                return unsafe { self.top_k_popcnt(query, region, k, best) };
+            }
+        }
+        self.scan(query, region, k, best)
+    }
+
+    /// [`Self::scan`] compiled with the popcnt instruction.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "popcnt")]
+    unsafe fn top_k_popcnt(
+        &self,
+        query: &[Descriptor],
+        region: SearchRegion,
+        k: usize,
+        best: &mut [Ranked; MAX_TOP_K],
+    ) -> usize {
+        self.scan(query, region, k, best)
+    }
+
+    #[inline(always)]
+    fn scan(
+        &self,
+        query: &[Descriptor],
+        region: SearchRegion,
+        k: usize,
+        best: &mut [Ranked; MAX_TOP_K],
+    ) -> usize {
+        let k = k.clamp(1, MAX_TOP_K);
+        let mut n = 0usize;
+        let (center, r2, near) = match region {
+            SearchRegion::Near { center_m, radius_m } => (
+                [center_m.x as f32, center_m.y as f32, center_m.z as f32],
+                (radius_m * radius_m) as f32,
+                true,
+            ),
+            SearchRegion::Everywhere => ([0.0; 3], 0.0, false),
+        };
+        for (i, (desc, pos)) in self.descriptors.iter().zip(&self.positions_m).enumerate() {
+            if near {
+                let d2 = (pos[0] - center[0]).powi(2)
+                    + (pos[1] - center[1]).powi(2)
+                    + (pos[2] - center[2]).powi(2);
+                if d2 > r2 {
+                    continue;
+                }
+            }
+            let (mut d, mut shift) = (u32::MAX, 0u8);
+            for (s, q) in query.iter().enumerate() {
+                let ds = q.hamming(desc);
+                if ds < d {
+                    (d, shift) = (ds, s as u8);
+                }
+            }
+            if n == k && d >= best[k - 1].distance {
+                continue;
+            }
+            // Insertion into the sorted list.
+            let mut j = if n < k { n } else { k - 1 };
+            while j > 0 && best[j - 1].distance > d {
+                best[j] = best[j - 1];
+                j -= 1;
+            }
+            best[j] = Ranked {
+                distance: d,
+                index: i as u32,
+                shift,
+            };
+            n = (n + 1).min(k);
+        }
+        n
+    }
+}
+
+/// A candidate that passed the gate.
+#[derive(Debug, Clone, Copy)]
+pub struct Verified {
+    /// The aligned camera pose.
+    pub world_from_camera: Pose,
+    /// The alignment.
+    pub alignment: Alignment,
+}
+
+/// Zero-mean normalized cross-correlation between the keyframe points of
+/// pyramid level `level` and the frame intensities where they project at
+/// `camera_from_keyframe`; `None` with fewer than 50 visible points. A wrong
+/// pose on a look-alike surface can fit an affine photometric model with
+/// small residuals; it does not correlate.
+pub fn correlation(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+    level: usize,
+) -> Option<f32> {
+    let kl = keyframe.levels.get(level)?;
+    if level >= frame.len() {
+        return None;
+    }
+    let image = frame.level(level);
+    let cam = camera.scaled_to_level(level as u32);
+    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0f64, 0f64, 0f64, 0f64, 0f64);
+    for kp in &kl.points {
+        let p = Vector3::new(
+            kp.p_keyframe[0] as f64,
+            kp.p_keyframe[1] as f64,
+            kp.p_keyframe[2] as f64,
+        );
+        let Some(uv) = cam.project(&(camera_from_keyframe * nalgebra::Point3::from(p)).coords)
+        else {
+            continue;
+        };
+        let Some(v) = image.bilinear(uv.x as f32, uv.y as f32) else {
+            continue;
+        };
+        let (a, b) = (kp.gray as f64, v as f64);
+        n += 1;
+        sa += a;
+        sb += b;
+        saa += a * a;
+        sbb += b * b;
+        sab += a * b;
+    }
+    if n < 50 {
+        return None;
+    }
+    let nf = n as f64;
+    let cov = sab - sa * sb / nf;
+    let va = saa - sa * sa / nf;
+    let vb = sbb - sb * sb / nf;
+    if !(va > 0.0 && vb > 0.0) {
+        return None;
+    }
+    Some((cov / (va * vb).sqrt()) as f32)
+}
+
+/// True when `q` passes the relocalization gate of `config`.
+pub fn passes_gate(q: &AlignQuality, config: &RelocConfig) -> bool {
+    q.inlier_ratio >= config.min_inlier_ratio
+        && q.visible_ratio >= config.min_visible_ratio
+        && q.residual_rms <= config.max_residual
+        && q.residual_rms.is_finite()
+}
+
+/// Initial yaw offsets tried per candidate, radians: the yaw the search
+/// matched at (`shift_yaw_rad`), the candidate's own yaw, then half a grid
+/// yaw step either way (the true yaw is at most that far from the nearest
+/// database yaw).
+pub fn start_yaws_rad(config: &RelocConfig, shift_yaw_rad: f64) -> [f64; 4] {
+    let half = std::f64::consts::PI / config.yaw_steps.max(1) as f64;
+    [shift_yaw_rad, 0.0, half, -half]
+}
+
+/// Aligns `frame` against the candidate `keyframe` rendered at a database
+/// pose, from the keyframe pose and from rotations of it about the camera's
+/// vertical axis, and returns the best alignment that passes the gate and
+/// stays within two grid spacings of the candidate.
+pub fn verify_candidate(
+    aligner: &mut Aligner,
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    config: &RelocConfig,
+    shift_yaw_rad: f64,
+) -> Option<Verified> {
+    let mut best: Option<Verified> = None;
+    for (i, yaw) in start_yaws_rad(config, shift_yaw_rad)
+        .into_iter()
+        .enumerate()
+    {
+        if i == 1 && shift_yaw_rad == 0.0 {
+            continue;
+        }
+        // Camera y points down: turning right (z toward +x) is a positive
+        // rotation about y.
+        let keyframe_from_camera = Pose::from_parts(
+            Translation3::identity(),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw),
+        );
+        let a = aligner.align(keyframe, frame, camera, keyframe_from_camera.inverse());
+        let world_from_camera = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
+        let finite = world_from_camera
+            .translation
+            .vector
+            .iter()
+            .chain(world_from_camera.rotation.coords.iter())
+            .all(|v| v.is_finite());
+        let moved_m = a.camera_from_keyframe.translation.vector.norm();
+        if !(a.valid && finite && passes_gate(&a.quality, config))
+            || moved_m > 2.0 * config.grid_spacing_m
+        {
+            continue;
+        }
+        let ncc = correlation(keyframe, frame, camera, &a.camera_from_keyframe, 1);
+        if !ncc.is_some_and(|c| c >= config.min_correlation) {
+            continue;
+        }
+        let better = best
+            .as_ref()
+            .is_none_or(|b| a.quality.inlier_ratio > b.alignment.quality.inlier_ratio);
+        if better {
+            best = Some(Verified {
+                world_from_camera,
+                alignment: a,
+            });
+        }
+        if a.quality.inlier_ratio >= 0.9 {
+            break;
+        }
+    }
+    best
+}

@@ -1,0 +1,203 @@
+//! End-to-end relocalization on a short synthetic sequence: a 1 s blackout
+//! and a teleport. The tracker must report lost, output no pose while lost,
+//! recover within 50 frames (1 s) of the end of the fault at a pose within
+//! 5 cm of the truth, and increment `reset_counter`.
+
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+use std::path::Path;
+use std::sync::Arc;
+
+use star::config::Config;
+use star::dataset::{write_gray8, Dataset, Trajectory};
+use star::imgproc::ImageU8;
+use star::localizer::offline::{localize_dataset, OfflineOptions, OfflineReport};
+use star::reloc::{build_database_in, RelocConfig, RelocDatabase, Relocalizer};
+use star::render::cpu::CpuRenderer;
+use star::synth::preset::Preset;
+use star::synth::sequence::{write_sequence, SequenceOptions};
+
+const FRAMES: usize = 200;
+const FAULT_START: usize = 50;
+
+/// One synthetic sequence (realistic preset) and a small database over the
+/// region it flies through, shared by both cases.
+struct Fixture {
+    _tmp: tempfile::TempDir,
+    root: std::path::PathBuf,
+    gt: Trajectory,
+    db: RelocDatabase,
+    config: Config,
+}
+
+fn fixture() -> Fixture {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let root = tmp.path().join("seq");
+    let options = SequenceOptions {
+        preset: Preset::by_name("realistic").expect("preset"),
+        seed: 3,
+        frames: FRAMES,
+        write_depth: false,
+    };
+    write_sequence(&root, &options, &mut |_| {}).expect("sequence");
+    let ds = Dataset::open(&root).expect("dataset");
+    let gt = ds.ground_truth.clone().expect("ground truth");
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in &gt.poses {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p.translation.vector[k] as f32);
+            hi[k] = hi[k].max(p.translation.vector[k] as f32);
+        }
+    }
+    let mean_z = gt.poses.iter().map(|p| p.translation.z).sum::<f64>() / gt.len() as f64;
+    let mut config = Config::default();
+    config.render.renderer = star::config::RendererKind::Cpu;
+    config.reloc = RelocConfig {
+        grid_spacing_m: 0.3,
+        heights_m: vec![mean_z],
+        yaw_steps: 24,
+        bounds_margin_m: 0.0,
+        ..RelocConfig::default()
+    };
+    let pad = 0.3;
+    let region = (
+        [lo[0] - pad, lo[1] - pad, (mean_z - 0.1) as f32],
+        [hi[0] + pad, hi[1] + pad, (mean_z + 0.1) as f32],
+    );
+    let mesh = Arc::new(star::map::load_obj(&root.join("map").join("map.obj")).expect("map"));
+    let mut renderer = CpuRenderer::new(mesh.clone()).expect("renderer");
+    let db = build_database_in(
+        &mesh,
+        ds.camera(),
+        &mut renderer,
+        &config.reloc,
+        Some(region),
+        &mut |_, _| {},
+    )
+    .expect("database");
+    assert!(db.entries.len() > 100, "{} entries", db.entries.len());
+    Fixture {
+        _tmp: tmp,
+        root,
+        gt,
+        db,
+        config,
+    }
+}
+
+/// Writes a dataset at `dir` whose frame `i` shows `source(i)` (a frame index
+/// of the fixture sequence, or `None` for black) at the original stamps,
+/// with ground truth to match.
+fn spliced(fx: &Fixture, dir: &Path, source: impl Fn(usize) -> Option<usize>) -> Dataset {
+    std::fs::create_dir_all(dir).expect("dir");
+    std::fs::copy(fx.root.join("camera.toml"), dir.join("camera.toml")).expect("camera");
+    let black = dir.join("black.png");
+    write_gray8(&black, &ImageU8::new(640, 512, 0)).expect("black");
+    let ds = Dataset::open(&fx.root).expect("dataset");
+    let mut rgb = String::from("# timestamp filename\n");
+    let mut gt = Trajectory::default();
+    for i in 0..FRAMES {
+        let stamp_s = ds.frames[i].timestamp_s;
+        match source(i) {
+            Some(j) => {
+                let path = fx.root.join(&ds.frames[j].path);
+                rgb.push_str(&format!("{stamp_s:.6} {}\n", path.display()));
+                gt.push(stamp_s, fx.gt.poses[j]);
+            }
+            None => {
+                rgb.push_str(&format!("{stamp_s:.6} {}\n", black.display()));
+                // The truth still moves on during a blackout.
+                gt.push(stamp_s, fx.gt.poses[i]);
+            }
+        }
+    }
+    std::fs::write(dir.join("rgb.txt"), rgb).expect("rgb.txt");
+    gt.write(&dir.join("groundtruth.txt")).expect("gt");
+    Dataset::open(dir).expect("spliced dataset")
+}
+
+fn run(fx: &Fixture, ds: &Dataset) -> OfflineReport {
+    let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
+    let renderer = Box::new(CpuRenderer::new(Arc::new(mesh)).expect("renderer"));
+    let reloc = Relocalizer::new(fx.db.clone(), &fx.config.reloc, ds.camera()).expect("reloc");
+    let options = OfflineOptions {
+        relocalizer: Some(reloc),
+        ..OfflineOptions::default()
+    };
+    localize_dataset(ds, renderer, &fx.config, &options, |_| {}).expect("localize")
+}
+
+/// Checks the acceptance criteria on a run with a fault in
+/// `FAULT_START..fault_end` (`fault_end` = first frame after the fault).
+fn check(report: &OfflineReport, ds: &Dataset, what: &str, fault_end: usize) {
+    assert_eq!(report.frames, FRAMES, "{what}: every frame processed");
+    let gt = ds.ground_truth.as_ref().expect("gt");
+    // Every output pose is within 5 cm of the truth: no wrong pose, ever.
+    for (stamp_s, pose) in report.estimate.stamps_s.iter().zip(&report.estimate.poses) {
+        let i = gt
+            .stamps_s
+            .iter()
+            .position(|t| (t - stamp_s).abs() < 1e-6)
+            .expect("stamp in gt");
+        let err_m = (gt.poses[i].translation.vector - pose.translation.vector).norm();
+        assert!(err_m < 0.05, "{what}: frame {i} pose off by {err_m:.3} m");
+    }
+    let tracked: Vec<bool> = report.tracked.iter().map(|t| t.1).collect();
+    assert!(
+        tracked[..FAULT_START].iter().all(|&t| t),
+        "{what}: tracks before the fault"
+    );
+    let first_lost = (FAULT_START..FRAMES).find(|&i| !tracked[i]);
+    let first_lost = first_lost.unwrap_or_else(|| panic!("{what}: never reported lost"));
+    assert!(
+        first_lost <= FAULT_START + 2,
+        "{what}: lost only at frame {first_lost}"
+    );
+    let recovered = (first_lost.max(fault_end)..FRAMES).find(|&i| tracked[i]);
+    let recovered = recovered.unwrap_or_else(|| panic!("{what}: never recovered"));
+    assert!(
+        recovered <= fault_end + 50,
+        "{what}: recovered at frame {recovered}, more than 50 frames after the fault"
+    );
+    assert_eq!(report.reset_counters[FAULT_START - 1], 0, "{what}");
+    assert!(
+        report.reset_counters[recovered] >= 1,
+        "{what}: reset_counter incremented on recovery"
+    );
+    assert!(report.relocalizations >= 1, "{what}");
+    // The counter never increments while tracking without a fault.
+    assert!(report.reset_counters[..FAULT_START].iter().all(|&c| c == 0));
+    eprintln!(
+        "{what}: lost {} frames, recovered at frame {recovered} ({} frames after the fault), {} attempts",
+        report.lost_frames,
+        recovered - fault_end,
+        report.reloc_attempts
+    );
+}
+
+#[test]
+fn recovers_after_blackout_and_teleport() {
+    let fx = fixture();
+    let tmp = tempfile::tempdir().expect("tmp");
+
+    // (a) 1 s blackout: 50 black frames from FAULT_START.
+    let fault_end = FAULT_START + 50;
+    let ds = spliced(&fx, &tmp.path().join("blackout"), |i| {
+        (!(FAULT_START..fault_end).contains(&i)).then_some(i)
+    });
+    let report = run(&fx, &ds);
+    check(&report, &ds, "blackout", fault_end);
+
+    // (b) teleport: at FAULT_START the images jump 80 frames (1.6 s, about
+    // 0.8 m) ahead along the trajectory; the fault is that one jump.
+    let ds = spliced(&fx, &tmp.path().join("teleport"), |i| {
+        Some(if i < FAULT_START {
+            i
+        } else {
+            (i + 80).min(FRAMES - 1)
+        })
+    });
+    let report = run(&fx, &ds);
+    check(&report, &ds, "teleport", FAULT_START);
+}
