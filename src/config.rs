@@ -256,6 +256,9 @@ pub struct TrackerConfig {
     pub outlier_cut: f32,
     /// A residual below this counts as an inlier in the quality figures.
     pub inlier_threshold: f32,
+    /// Initial pose of `star track` / `star run`, `world_from_camera` in TUM
+    /// order `[tx, ty, tz, qx, qy, qz, qw]`; absent: `--init-pose` must give it.
+    pub init_pose: Option<[f64; 7]>,
 }
 
 impl Default for TrackerConfig {
@@ -271,6 +274,7 @@ impl Default for TrackerConfig {
             huber_min: 4.0,
             outlier_cut: 40.0,
             inlier_threshold: 20.0,
+            init_pose: None,
         }
     }
 }
@@ -430,6 +434,15 @@ impl Config {
                 ),
             ),
         ];
+        if let Some(p) = &t.init_pose {
+            let q_norm = (p[3] * p[3] + p[4] * p[4] + p[5] * p[5] + p[6] * p[6]).sqrt();
+            if p.iter().any(|v| !v.is_finite()) || q_norm < 1e-6 {
+                return Err(invalid(
+                    "tracker.init_pose",
+                    format!("expected finite [tx, ty, tz, qx, qy, qz, qw] with a non-zero quaternion, found {p:?}"),
+                ));
+            }
+        }
         let k = &self.keyframe;
         let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
         let positive = |v: f32| v.is_finite() && v > 0.0;
