@@ -114,6 +114,7 @@ impl Tracker {
             previous: None,
             keyframe_id: 0,
             localizer_rejects: 0,
+            publisher_changes: 0,
         };
         let mut first_frame_at: Option<Instant> = None;
         let mut last_frame_at = Instant::now();
@@ -125,6 +126,12 @@ impl Tracker {
                 let now = Instant::now();
                 first_frame_at.get_or_insert(now);
                 last_frame_at = now;
+                let changes = self.subscriber.stats().publisher_changes;
+                if silent || changes != state.publisher_changes {
+                    // A gap or a new camera: the velocity is stale.
+                    self.localizer.forget_motion();
+                    state.publisher_changes = changes;
+                }
                 if silent {
                     info!("camera frames resumed");
                     silent = false;
@@ -278,6 +285,7 @@ struct LoopState {
     previous: Option<TrackState>,
     keyframe_id: u64,
     localizer_rejects: u64,
+    publisher_changes: u64,
 }
 
 fn log_state_change(previous: Option<TrackState>, out: &FrameOutput) {
