@@ -90,12 +90,13 @@ def write_subset(src, dst, order):
     return dst
 
 
-@pytest.fixture(scope="session")
-def pingpong(dataset, tmp_path_factory):
-    """The sequence forward then backward: looping it is continuous motion."""
-    n = FRAMES
-    order = list(range(n)) + list(range(n - 2, 0, -1))
-    return write_subset(dataset, tmp_path_factory.mktemp("data") / "pingpong", order)
+def pingpong(dataset, dst, frames):
+    """`frames` frames of the sequence played forward, backward, forward...:
+    continuous motion for as long as needed, without `--loop` (whose wrap
+    is a jump the tracker cannot follow without relocalization)."""
+    bounce = list(range(FRAMES)) + list(range(FRAMES - 2, 0, -1))
+    order = (bounce * (frames // len(bounce) + 1))[:frames]
+    return write_subset(dataset, dst, order)
 
 
 def free_udp_port():

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import (FPS, FRAMES, SPEED, pose_error, read_tum, tum_matrix, vpe_world_from_camera,
+from conftest import (FPS, FRAMES, SPEED, pingpong, pose_error, read_tum, tum_matrix, vpe_world_from_camera,
                       write_subset)
 
 POSITION_TOL_M = 0.03
@@ -146,11 +146,11 @@ def test_camera_restart(rig, autopilot, dataset, tmp_path):
 
 # (4) autopilot link absent, appears, disappears, returns -------------------
 
-def test_link_absent_appears_disappears(rig, autopilot, pingpong):
-    rig.dataset = pingpong
+def test_link_absent_appears_disappears(rig, autopilot, dataset, tmp_path):
+    rig.dataset = pingpong(dataset, tmp_path / "pingpong", int(10 * FPS * SPEED))
     rig.write_config()
     track = rig.start_tracker()
-    rig.start_camera(pingpong, loop=True)
+    rig.start_camera()
     time.sleep(1.5)  # no autopilot yet
     assert track.poll() is None
     autopilot.up()
@@ -214,15 +214,15 @@ def rss_kib(pid):
 
 
 @pytest.mark.soak
-def test_soak(rig, autopilot, pingpong):
+def test_soak(rig, autopilot, dataset, tmp_path):
     """STAR_SOAK_S seconds (default 15; CI sets 120) at 50 Hz: no RSS growth,
     at most 0.1 % of frames dropped."""
     duration_s = float(os.environ.get("STAR_SOAK_S", "15"))
-    rig.dataset = pingpong
+    rig.dataset = pingpong(dataset, tmp_path / "pingpong", int((duration_s + 5) * FPS * SPEED))
     rig.write_config()
     autopilot.up()
     track = rig.start_tracker()
-    camera = rig.start_camera(pingpong, loop=True)
+    camera = rig.start_camera()
     samples = []
     end = time.monotonic() + duration_s
     while time.monotonic() < end:
@@ -246,7 +246,7 @@ def test_soak(rig, autopilot, pingpong):
     # RSS: after the first quarter (warm-up), no growth beyond 2 MiB.
     warm = samples[len(samples) // 4:]
     growth = max(warm) - warm[0]
-    assert growth <= 2048, f"RSS grew by {growth} KiB: {warm[0]} -> {max(warm)} KiB"
+    assert growth <= 2048, f"RSS grew by {growth} KiB: {warm[0]} -> {max(warm)} KiB; samples {samples}"
     vpes = autopilot.of_type("VISION_POSITION_ESTIMATE")
     assert len(vpes) >= 0.95 * processed, f"{len(vpes)} poses for {processed} frames"
     del fields
