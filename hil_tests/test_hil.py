@@ -279,3 +279,20 @@ def test_v4l2loopback_path(rig, autopilot, dataset):
     assert track.poll() is None
     assert len(autopilot.of_type("VISION_POSITION_ESTIMATE")) > 0
     assert math.isfinite(0.0)
+
+
+def test_wrong_size_frames_are_rejected_and_counted(rig):
+    """(5, continued) A camera publishing frames of another size: the tracker
+    rejects and counts them, keeps running, and exits cleanly."""
+    track = rig.start_tracker()
+    camera = rig.spawn(["camera", "--config", str(rig.config), "--source", "pattern:320x240",
+                        "--frames", "20"], "camera")
+    assert camera.wait(timeout=20) == 0
+    time.sleep(0.5)
+    assert track.poll() is None, "tracker died on bad frames"
+    track.send_signal(signal.SIGTERM)
+    out = summary_line(track)
+    assert track.returncode == 0
+    rejected = int(out.split("rejected ")[1].split()[0])
+    assert rejected >= 10, out
+    assert "frames processed 0" in out, out
