@@ -613,6 +613,26 @@ mod tests {
     }
 
     #[test]
+    fn init_pose_is_optional_and_validated() {
+        let c = Config::parse(
+            "[tracker]\ninit_pose = [1.0, 2.0, 1.5, 0.0, 0.0, 0.0, 1.0]\n",
+            Path::new("a.toml"),
+        )
+        .expect("valid pose");
+        assert_eq!(
+            c.tracker.init_pose,
+            Some([1.0, 2.0, 1.5, 0.0, 0.0, 0.0, 1.0])
+        );
+        for text in [
+            "[tracker]\ninit_pose = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]\n",
+            "[tracker]\ninit_pose = [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]\n",
+        ] {
+            let err = Config::parse(text, Path::new("a.toml")).expect_err(text);
+            assert!(err.to_string().contains("init_pose"), "{err}");
+        }
+    }
+
+    #[test]
     fn missing_file_names_path() {
         let err = Config::load(Path::new("/nonexistent/star.toml")).expect_err("missing");
         assert!(err.to_string().contains("/nonexistent/star.toml"));
