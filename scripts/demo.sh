@@ -13,6 +13,11 @@ frames="${STAR_DEMO_FRAMES:-500}"
 port="${STAR_DEMO_PORT:-14591}"
 python="${STAR_VENV:-$root/.venv}/bin/python"
 mkdir -p "$out"
+# Mesa's software Vulkan complains on stderr when this is unset (containers).
+if [[ -z "${XDG_RUNTIME_DIR:-}" ]]; then
+    export XDG_RUNTIME_DIR="/tmp/xdg-runtime-$(id -u)"
+    mkdir -p -m 700 "$XDG_RUNTIME_DIR"
+fi
 "$star" check-config "$root/config/star.toml" > /dev/null
 echo "demo: configuration ok"
 
