@@ -288,3 +288,104 @@ fn tracker_poses_decode_in_pymavlink() {
     let summary = records.iter().find(|r| r["kind"] == "summary").unwrap();
     assert_eq!(summary["bad_data"], 0, "{summary}");
 }
+
+#[test]
+fn star_run_tracks_a_replay_and_writes_the_trajectory() {
+    let dir = tempfile::tempdir().unwrap();
+    let tag = "run";
+    let _cleanup = common::Cleanup(common::prefix(tag));
+    let config = configs(dir.path(), tag, "enabled = false");
+    let est = dir.path().join("est.txt");
+    let src = format!("replay:{}", dataset().display());
+    let o = star(&[
+        "run",
+        "--config",
+        config.to_str().unwrap(),
+        "--source",
+        &src,
+        "--trajectory",
+        est.to_str().unwrap(),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{out}\n{}", stderr(&o));
+    assert!(out.contains("camera: frames published 60"), "{out}");
+    let o = star(&[
+        "eval",
+        dataset().join("groundtruth.txt").to_str().unwrap(),
+        est.to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{text}");
+    // "matched N of M estimate poses": most frames tracked, dataset stamps.
+    let matched: usize = text
+        .split("matched ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0);
+    assert!(matched >= 40, "{text}");
+    let ate_rmse_m: f64 = text
+        .lines()
+        .find(|l| l.starts_with("ATE translation"))
+        .and_then(|l| l.split_whitespace().nth(4))
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(f64::INFINITY);
+    assert!(ate_rmse_m < 0.03, "{text}");
+}
+
+#[test]
+fn star_track_notifies_systemd() {
+    use std::os::unix::net::UnixDatagram;
+    let dir = tempfile::tempdir().unwrap();
+    let tag = "notify";
+    let _cleanup = common::Cleanup(common::prefix(tag));
+    let config = configs(dir.path(), tag, "enabled = false");
+    let sock_path = dir.path().join("notify.sock");
+    let socket = UnixDatagram::bind(&sock_path).unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_millis(50)))
+        .unwrap();
+    let mut track = Command::new(STAR)
+        .args(["track", "--config", config.to_str().unwrap()])
+        .env("NOTIFY_SOCKET", &sock_path)
+        .env("WATCHDOG_USEC", "400000")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let src = format!("replay:{}", dataset().display());
+    let mut camera: Option<Child> = None;
+    let mut messages = Vec::new();
+    let mut buf = [0u8; 4096];
+    let end = Instant::now() + Duration::from_secs(60);
+    while Instant::now() < end {
+        if let Ok(n) = socket.recv(&mut buf) {
+            messages.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+        }
+        if camera.is_none() && messages.iter().any(|m| m.contains("READY=1")) {
+            let c = Command::new(STAR)
+                .args(["camera", "--config", config.to_str().unwrap()])
+                .args(["--source", &src, "--loop"])
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap();
+            camera = Some(c);
+        }
+        if messages.iter().any(|m| m.contains("STATUS=tracking")) {
+            break;
+        }
+    }
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(track.id() as i32, libc::SIGTERM) };
+    let status = track.wait().unwrap();
+    if let Some(mut c) = camera {
+        let _ = c.kill();
+        let _ = c.wait();
+    }
+    assert!(status.success());
+    let all = messages.join("|");
+    assert!(all.contains("READY=1"), "{all}");
+    assert!(all.contains("STATUS=tracking"), "{all}");
+    assert!(all.contains("fps, keyframe age"), "{all}");
+    assert!(all.contains("WATCHDOG=1"), "{all}");
+}
