@@ -259,7 +259,7 @@ impl Tracker {
                 TrackingState::Lost
             },
         );
-        msg.covariance = upper_triangle(&covariance_world);
+        msg.covariance = upper_triangle(&position_rotation_covariance(&pose, &out.covariance));
         msg.inlier_ratio = out.quality.inlier_ratio;
         msg.mean_residual = out.quality.residual_rms;
         msg.visible_fraction = out.quality.visible_ratio;
@@ -306,6 +306,17 @@ fn log_state_change(previous: Option<TrackState>, out: &FrameOutput) {
             "tracking lost; no pose is sent"
         ),
     }
+}
+
+/// Covariance of (world position, world-frame rotation vector) from the
+/// covariance of the right camera-frame twist: to first order the position
+/// moves by `R v` and the rotation by `R w`.
+fn position_rotation_covariance(world_from_camera: &Pose, camera: &Matrix6<f64>) -> Matrix6<f64> {
+    let r = world_from_camera.rotation.to_rotation_matrix().into_inner();
+    let mut j = Matrix6::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    j.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    j * camera * j.transpose()
 }
 
 fn rows(m: &Matrix6<f64>) -> [[f64; 6]; 6] {
