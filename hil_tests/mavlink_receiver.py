@@ -8,6 +8,8 @@ BAD_DATA record instead of being skipped silently), and plays the autopilot:
 - TIMESYNC requests every --timesync-period seconds;
 - answers to the link's TIMESYNC requests.
 
+SIGTERM stops it early (the summary is still written).
+
 Its clock is CLOCK_MONOTONIC + --clock-offset-ns, so the test can check that
 the link estimates the offset and applies it to `usec`.
 
@@ -23,6 +25,7 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 import time
 
@@ -64,11 +67,15 @@ def main():
     )
     print("ready", flush=True)
 
+    # SIGTERM ends the run early but still writes the summary.
+    stopped = []
+    signal.signal(signal.SIGTERM, lambda *_: stopped.append(True))
+
     bad_data, bad_reasons, received, v1 = 0, [], 0, 0
     end = time.monotonic() + args.duration
     next_heartbeat = next_timesync = time.monotonic()
     with open(args.out, "w") as out:
-        while time.monotonic() < end:
+        while time.monotonic() < end and not stopped:
             now = time.monotonic()
             # udpin learns its peers from what arrives (`clients` in current
             # pymavlink, `last_address` in older releases).

@@ -262,6 +262,9 @@ pub struct TrackerConfig {
     pub outlier_cut: f32,
     /// A residual below this counts as an inlier in the quality figures.
     pub inlier_threshold: f32,
+    /// Initial pose of `star track` / `star run`, `world_from_camera` in TUM
+    /// order `[tx, ty, tz, qx, qy, qz, qw]`; absent: `--init-pose` must give it.
+    pub init_pose: Option<[f64; 7]>,
 }
 
 impl Default for TrackerConfig {
@@ -277,6 +280,7 @@ impl Default for TrackerConfig {
             huber_min: 4.0,
             outlier_cut: 40.0,
             inlier_threshold: 20.0,
+            init_pose: None,
         }
     }
 }
@@ -439,6 +443,15 @@ impl Config {
                 ),
             ),
         ];
+        if let Some(p) = &t.init_pose {
+            let q_norm = (p[3] * p[3] + p[4] * p[4] + p[5] * p[5] + p[6] * p[6]).sqrt();
+            if p.iter().any(|v| !v.is_finite()) || q_norm < 1e-6 {
+                return Err(invalid(
+                    "tracker.init_pose",
+                    format!("expected finite [tx, ty, tz, qx, qy, qz, qw] with a non-zero quaternion, found {p:?}"),
+                ));
+            }
+        }
         let k = &self.keyframe;
         let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
         let positive = |v: f32| v.is_finite() && v > 0.0;
@@ -630,6 +643,26 @@ mod tests {
         let err = Config::parse("[reloc]\ngrid_spacing = 1.0\n", Path::new("s.toml"))
             .expect_err("unknown key");
         assert!(err.to_string().contains("grid_spacing"), "{err}");
+    }
+
+    #[test]
+    fn init_pose_is_optional_and_validated() {
+        let c = Config::parse(
+            "[tracker]\ninit_pose = [1.0, 2.0, 1.5, 0.0, 0.0, 0.0, 1.0]\n",
+            Path::new("a.toml"),
+        )
+        .expect("valid pose");
+        assert_eq!(
+            c.tracker.init_pose,
+            Some([1.0, 2.0, 1.5, 0.0, 0.0, 0.0, 1.0])
+        );
+        for text in [
+            "[tracker]\ninit_pose = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]\n",
+            "[tracker]\ninit_pose = [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]\n",
+        ] {
+            let err = Config::parse(text, Path::new("a.toml")).expect_err(text);
+            assert!(err.to_string().contains("init_pose"), "{err}");
+        }
     }
 
     #[test]

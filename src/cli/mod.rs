@@ -19,7 +19,10 @@ mod pose_arg;
 mod reloc;
 mod render;
 mod replay;
+mod run;
 mod synth;
+mod track;
+mod track_loop;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]
@@ -72,6 +75,11 @@ pub enum Command {
     Camera(camera::CameraArgs),
     /// Play a dataset into a v4l2loopback device (virtual camera) or onto iceoryx2.
     Replay(replay::ReplayArgs),
+    /// The tracker process: track iceoryx2 frames against the map, send
+    /// poses to the pose service and to the autopilot (MAVLink).
+    Track(track::TrackArgs),
+    /// Camera and tracker in one process (two threads, through iceoryx2).
+    Run(run::RunArgs),
     /// Check this machine: wgpu adapters, the renderer `auto` would choose,
     /// and a test render.
     Doctor {
@@ -113,6 +121,8 @@ pub fn main() -> ExitCode {
         Command::Camera(args) => camera::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Doctor { config } => doctor::run(config.as_deref()),
+        Command::Track(args) => track::run(&args),
+        Command::Run(args) => run::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

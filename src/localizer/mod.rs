@@ -231,6 +231,14 @@ impl Localizer {
         self.state
     }
 
+    /// Forgets the motion model: the next frame is predicted at the last
+    /// pose with zero velocity. For gaps in the frame stream (a camera
+    /// restart, a silent period), where the constant-velocity prediction
+    /// over the gap would be wrong.
+    pub fn forget_motion(&mut self) {
+        self.velocity = nalgebra::Vector6::zeros();
+    }
+
     /// The keyframe currently tracked against.
     pub fn keyframe(&self) -> &Keyframe {
         &self.keyframe

@@ -1,0 +1,100 @@
+//! `star run`: the camera and the tracker in one process, on two threads,
+//! still talking through iceoryx2 (the same code path as two processes).
+//!
+//! The tracker starts first (map, first keyframe, READY), then the camera
+//! thread; when the camera thread ends (a replay without loop), the tracker
+//! finishes the frames in flight and stops. With a `replay:` source the
+//! calibration is the dataset's `camera.toml`.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use tracing::{info, warn};
+
+use crate::camera::{open_source, run_camera, RunnerSettings, SourceUri};
+use crate::config::Config;
+use crate::ipc::{create_node, load_iceoryx_config, FramePublisher};
+
+use super::track::{finish, initial_pose, load_config, start, stop_when, TrackArgs};
+
+/// Options of `star run`.
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// Tracker options.
+    #[command(flatten)]
+    pub track: TrackArgs,
+    /// Camera source URI overriding `camera.source`.
+    #[arg(long)]
+    pub source: Option<String>,
+}
+
+/// Sets the flag when dropped (also when the camera thread panics).
+struct DoneFlag(Arc<AtomicBool>);
+
+impl Drop for DoneFlag {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Runs `star run`.
+pub fn run(args: &RunArgs) -> Result<()> {
+    let shutdown = crate::service::signals::install_shutdown_handler()?;
+    let mut config = load_config(&args.track)?;
+    if let Some(source) = &args.source {
+        config.camera.source = source.clone();
+    }
+    let uri = SourceUri::parse(&config.camera.source).context("camera source")?;
+    if let SourceUri::Replay(dir) = &uri {
+        let dataset = crate::dataset::Dataset::open(dir)
+            .with_context(|| format!("opening dataset {}", dir.display()))?;
+        config.camera.intrinsics = *dataset.camera();
+    }
+    let init_pose = initial_pose(args.track.init_pose.as_deref(), &config)?;
+    let tracker = start(&config, init_pose, shutdown.clone())?;
+    let done = Arc::new(AtomicBool::new(false));
+    let camera = {
+        let (config, shutdown, done) = (config.clone(), shutdown.clone(), done.clone());
+        std::thread::Builder::new()
+            .name("camera".into())
+            .spawn(move || {
+                let _done = DoneFlag(done);
+                if let Err(e) = camera_thread(&config, &uri, &shutdown) {
+                    warn!(error = format!("{e:#}"), "camera thread failed");
+                }
+            })
+            .context("starting the camera thread")?
+    };
+    let mut stop = stop_when(&args.track);
+    stop.source_done = Some(done);
+    let summary = tracker.run(&stop);
+    // Stop the camera too when the tracker ended first.
+    shutdown.store(true, Ordering::Relaxed);
+    let _ = camera.join();
+    finish(&summary?, args.track.trajectory.as_deref())
+}
+
+fn camera_thread(config: &Config, uri: &SourceUri, shutdown: &AtomicBool) -> Result<()> {
+    let settings = config.camera.source_settings();
+    let iox =
+        load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
+    let node = create_node("star-camera", &iox).context("iceoryx2 node")?;
+    let mut publisher = FramePublisher::new(&node).context("frame publisher")?;
+    info!(source = %uri, "camera thread started");
+    let stop = || shutdown.load(Ordering::Relaxed);
+    let summary = run_camera(
+        || open_source(uri, &settings),
+        &mut publisher,
+        &stop,
+        &RunnerSettings::default(),
+    )
+    .with_context(|| format!("camera {uri}"))?;
+    info!(
+        published = summary.stats.published,
+        ended = summary.ended,
+        "camera thread stopped"
+    );
+    println!("camera: frames published {}", summary.stats.published);
+    Ok(())
+}

@@ -1,0 +1,212 @@
+//! `star track`: the tracker process. Loads the config and the map, renders
+//! the first keyframe at the initial pose, then tracks the frames the camera
+//! process publishes on iceoryx2 and sends the poses to the pose service and
+//! to the autopilot (MAVLink), until SIGTERM/SIGINT.
+//!
+//! The initial pose comes from `--init-pose` or `tracker.init_pose`
+//! ([`initial_pose`]); relocalization can plug in there later.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use tracing::info;
+
+use crate::config::Config;
+use crate::geometry::Pose;
+use crate::ipc::{create_node, load_iceoryx_config, FrameSubscriber, PosePublisher};
+use crate::localizer::Localizer;
+use crate::mavlink_io::{monotonic_now_ns, MavlinkLink};
+use crate::service::{signals, Service};
+
+use super::localize::make_renderer;
+use super::pose_arg::parse_pose;
+use super::track_loop::{StopWhen, TrackSummary, Tracker};
+
+/// Options shared by `star track` and `star run`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct TrackArgs {
+    /// Configuration file (must exist).
+    #[arg(long, default_value = "/etc/star/star.toml")]
+    pub config: PathBuf,
+    /// Initial pose "tx ty tz qx qy qz qw" (world_from_camera, TUM order);
+    /// overrides `tracker.init_pose`.
+    #[arg(long)]
+    pub init_pose: Option<String>,
+    /// Map mesh overriding `map.mesh`.
+    #[arg(long)]
+    pub map: Option<PathBuf>,
+    /// MAVLink connection overriding `mavlink.connection`.
+    #[arg(long)]
+    pub mavlink: Option<String>,
+    /// Write the tracked poses here at exit (TUM format; replay sources are
+    /// stamped in dataset time).
+    #[arg(long)]
+    pub trajectory: Option<PathBuf>,
+    /// Stop after this many frames.
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Stop after this many seconds without a frame, once frames arrived.
+    #[arg(long)]
+    pub idle_exit_s: Option<f64>,
+}
+
+/// The initial pose: `--init-pose`, else `tracker.init_pose`.
+pub fn initial_pose(arg: Option<&str>, config: &Config) -> Result<Pose> {
+    if let Some(text) = arg {
+        return parse_pose(text).context("--init-pose");
+    }
+    match config.tracker.init_pose {
+        Some([tx, ty, tz, qx, qy, qz, qw]) => {
+            parse_pose(&format!("{tx} {ty} {tz} {qx} {qy} {qz} {qw}")).context("tracker.init_pose")
+        }
+        None => bail!("no initial pose: set `tracker.init_pose` in the config or pass --init-pose"),
+    }
+}
+
+/// Loads the config (which must exist) and applies the command-line overrides.
+pub fn load_config(args: &TrackArgs) -> Result<Config> {
+    let mut config =
+        Config::load(&args.config).with_context(|| format!("config {}", args.config.display()))?;
+    if let Some(map) = &args.map {
+        config.map.mesh = map.clone();
+    }
+    if let Some(connection) = &args.mavlink {
+        config.mavlink.connection = connection.clone();
+        config
+            .validate(&args.config)
+            .context("--mavlink connection")?;
+    }
+    if !config.map.mesh.is_file() {
+        bail!(
+            "map mesh {} does not exist (map.mesh in {}, or --map)",
+            config.map.mesh.display(),
+            args.config.display()
+        );
+    }
+    if let Some(s) = args.idle_exit_s {
+        if !(s.is_finite() && s > 0.0) {
+            bail!("--idle-exit-s must be positive, found {s}");
+        }
+    }
+    Ok(config)
+}
+
+/// Opens the ports, loads the map, renders the first keyframe, starts the
+/// MAVLink link and tells systemd the service is ready.
+pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Result<Tracker> {
+    let iox =
+        load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
+    let node = create_node("star-track", &iox).context("iceoryx2 node")?;
+    let subscriber = FrameSubscriber::new(&node).context("frame subscriber")?;
+    let poses = PosePublisher::new(&node).context("pose publisher")?;
+    let service = Service::start(shutdown.clone()).context("service thread")?;
+    let mesh = &config.map.mesh;
+    let renderer = make_renderer(mesh, config)?;
+    let localizer = Localizer::start(
+        renderer,
+        &config.camera.intrinsics,
+        &config.tracker,
+        &config.keyframe,
+        init_pose,
+        monotonic_now_ns(),
+    )
+    .context("starting the tracker")?;
+    let mavlink = if config.mavlink.enabled {
+        Some(MavlinkLink::spawn(&config.mavlink, shutdown.clone()).context("MAVLink link")?)
+    } else {
+        None
+    };
+    service.ready();
+    info!(
+        mesh = %mesh.display(),
+        renderer = localizer.renderer_name(),
+        "tracker ready; waiting for frames"
+    );
+    Ok(Tracker {
+        subscriber,
+        poses,
+        localizer,
+        mavlink,
+        service,
+        shutdown,
+        silence: Duration::from_millis(config.ipc.silence_timeout_ms),
+        init_pose,
+        _node: node,
+    })
+}
+
+/// The stop conditions given on the command line.
+pub fn stop_when(args: &TrackArgs) -> StopWhen {
+    StopWhen {
+        frames: args.frames,
+        idle: args.idle_exit_s.map(Duration::from_secs_f64),
+        source_done: None,
+        keep_trajectory: args.trajectory.is_some(),
+    }
+}
+
+/// Runs `star track`.
+pub fn run(args: &TrackArgs) -> Result<()> {
+    let shutdown = signals::install_shutdown_handler()?;
+    let config = load_config(args)?;
+    let init_pose = initial_pose(args.init_pose.as_deref(), &config)?;
+    let tracker = start(&config, init_pose, shutdown)?;
+    let summary = tracker.run(&stop_when(args))?;
+    finish(&summary, args.trajectory.as_deref())
+}
+
+/// Writes the trajectory (when asked) and prints the summary.
+pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
+    if let Some(path) = trajectory {
+        summary
+            .trajectory
+            .write(path)
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!(
+            "track: wrote {} poses to {}",
+            summary.trajectory.len(),
+            path.display()
+        );
+    }
+    let rate = if summary.frames > 0 {
+        100.0 * summary.tracked as f64 / summary.frames as f64
+    } else {
+        0.0
+    };
+    let fps = if summary.active_s > 0.0 {
+        summary.frames.saturating_sub(1) as f64 / summary.active_s
+    } else {
+        0.0
+    };
+    println!(
+        "track: frames processed {}  tracked {} ({rate:.1} %)  lost {}  rejected {}  dropped {}  camera restarts {}  keyframes {}  {fps:.1} fps  renderer {}",
+        summary.frames,
+        summary.tracked,
+        summary.lost,
+        summary.rejected,
+        summary.dropped,
+        summary.publisher_changes,
+        summary.keyframes,
+        summary.renderer
+    );
+    match &summary.link {
+        Some(s) => println!(
+            "track: MAVLink sent VISION_POSITION_ESTIMATE {}  ODOMETRY {}  HEARTBEAT {}  TIMESYNC requests {}  TIMESYNC replies {}; dropped: lost {} rate {} stale {} link {}; autopilot heartbeats {}",
+            s.vision_position_estimate_sent,
+            s.odometry_sent,
+            s.heartbeat_sent,
+            s.timesync_requests_sent,
+            s.timesync_replies_sent,
+            s.poses_dropped_lost,
+            s.poses_dropped_rate,
+            s.poses_dropped_stale,
+            s.poses_dropped_link,
+            s.autopilot_heartbeats
+        ),
+        None => println!("track: MAVLink disabled"),
+    }
+    Ok(())
+}
