@@ -1,6 +1,6 @@
-# The two commands of the README:
-#   make demo   set up what is missing, build, run the demo
-#   make test   set up what is missing, build once in release, run every test
+# Shortcuts for the README's two commands (which need no make):
+#   make demo   = scripts/demo.sh: set up what is missing, build, run the demo
+#   make test   = scripts/test.sh: set up, build once in release, run every test
 .PHONY: deps build demo test test-rust test-python install bench clean-shm
 
 CARGO ?= cargo
@@ -13,7 +13,7 @@ deps:
 build: deps
 	$(CARGO) build --release
 
-demo: build
+demo:
 	scripts/demo.sh
 
 test-rust: deps
@@ -24,7 +24,8 @@ test-python: build
 		$(VENV)/bin/python -m pytest -q hil_tests; \
 	else echo "hil_tests: no pytest tests yet"; fi
 
-test: test-rust test-python
+test:
+	scripts/test.sh
 
 bench: deps
 	$(CARGO) bench

@@ -64,6 +64,19 @@ def dataset(star_bin, tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="session")
+def reloc_db(star_bin, dataset):
+    """The relocalization database of the dataset's map (`star reloc build`)."""
+    db = dataset / "map.reloc"
+    if not db.exists():
+        subprocess.run(
+            [str(star_bin), "--log", "warn", "reloc", "build", "--map", str(dataset / "map" / "map.obj"),
+             "--camera", str(dataset / "camera.toml"), "-o", str(db)],
+            check=True, timeout=600,
+        )
+    return db
+
+
 def read_tum(path):
     """TUM trajectory -> (stamps (N,), poses (N, 7) as tx ty tz qx qy qz qw)."""
     rows = [line.split() for line in open(path) if line.strip() and not line.startswith("#")]
@@ -71,16 +84,23 @@ def read_tum(path):
     return data[:, 0], data[:, 1:8]
 
 
-def write_subset(src, dst, order):
+def write_subset(src, dst, order, black=()):
     """A dataset at `dst` playing the frames of `src` in `order` (indices), at
-    50 Hz; images and map are linked, not copied."""
+    50 Hz; images and map are linked, not copied. Positions listed in `black`
+    show an all-black image instead (a blackout: the camera still moves)."""
     dst.mkdir(parents=True, exist_ok=True)
     rgb = [line.split() for line in open(src / "rgb.txt") if line.strip() and not line.startswith("#")]
     stamps, poses = read_tum(src / "groundtruth.txt")
     t0 = float(rgb[0][0])
+    black = set(black)
+    if black:
+        import cv2
+        shape = cv2.imread(str(src / rgb[0][1]), cv2.IMREAD_GRAYSCALE).shape
+        assert cv2.imwrite(str(dst / "black.png"), np.zeros(shape, np.uint8))
     with open(dst / "rgb.txt", "w") as f:
         for i, k in enumerate(order):
-            f.write(f"{t0 + i / FPS:.6f} {src / rgb[k][1]}\n")
+            image = dst / "black.png" if i in black else src / rgb[k][1]
+            f.write(f"{t0 + i / FPS:.6f} {image}\n")
     with open(dst / "groundtruth.txt", "w") as f:
         for i, k in enumerate(order):
             f.write(f"{t0 + i / FPS:.6f} " + " ".join(f"{v:.9f}" for v in poses[k]) + "\n")

@@ -7,6 +7,13 @@
 #  3. ATE of the tracked trajectory against ground truth (`star eval`).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
+# Set-up and build are idempotent: a fresh machine with only Rust gets its
+# system packages and venv here (scripts/setup.sh), then a release build.
+if [[ -z "${STAR_DEMO_NO_SETUP:-}" ]]; then
+    export STAR_VENV="${STAR_VENV:-$root/.venv}"
+    "$root/scripts/setup.sh"
+    (cd "$root" && cargo build --release)
+fi
 star="$root/target/release/star"
 out="${STAR_DEMO_OUT:-$root/out/demo}"
 frames="${STAR_DEMO_FRAMES:-500}"

@@ -99,15 +99,6 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
     Ok(())
 }
 
-/// Loads the map and builds the configured renderer.
-pub fn make_renderer(map_path: &Path, config: &Config) -> Result<Box<dyn crate::render::Renderer>> {
-    let mesh = crate::map::load_obj(map_path)
-        .with_context(|| format!("loading map {}", map_path.display()))?;
-    let kind = config.render.renderer;
-    crate::render::select::make_renderer(kind, Arc::new(mesh))
-        .with_context(|| format!("starting the `{kind:?}` renderer"))
-}
-
 /// Median and 99th percentile of samples (0 when empty).
 pub fn median_p99_ms(samples: &[f64]) -> (f64, f64) {
     median_p99(samples)

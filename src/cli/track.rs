@@ -4,7 +4,8 @@
 //! to the autopilot (MAVLink), until SIGTERM/SIGINT.
 //!
 //! The initial pose comes from `--init-pose` or `tracker.init_pose`
-//! ([`initial_pose`]); relocalization can plug in there later.
+//! ([`initial_pose`]). With a relocalization database (`reloc.database` or
+//! `--reloc`), a lost tracker searches it and restarts on its own.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -19,9 +20,9 @@ use crate::geometry::Pose;
 use crate::ipc::{create_node, load_iceoryx_config, FrameSubscriber, PosePublisher};
 use crate::localizer::Localizer;
 use crate::mavlink_io::{monotonic_now_ns, MavlinkLink};
+use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 use crate::service::{signals, Service};
 
-use super::localize::make_renderer;
 use super::pose_arg::parse_pose;
 use super::track_loop::{StopWhen, TrackSummary, Tracker};
 
@@ -45,6 +46,10 @@ pub struct TrackArgs {
     /// stamped in dataset time).
     #[arg(long)]
     pub trajectory: Option<PathBuf>,
+    /// Relocalization database (`star reloc build`) overriding
+    /// `reloc.database`.
+    #[arg(long)]
+    pub reloc: Option<PathBuf>,
     /// Stop after this many frames.
     #[arg(long)]
     pub frames: Option<u64>,
@@ -79,6 +84,9 @@ pub fn load_config(args: &TrackArgs) -> Result<Config> {
             .validate(&args.config)
             .context("--mavlink connection")?;
     }
+    if let Some(db) = &args.reloc {
+        config.reloc.database = Some(db.clone());
+    }
     if !config.map.mesh.is_file() {
         bail!(
             "map mesh {} does not exist (map.mesh in {}, or --map)",
@@ -104,8 +112,25 @@ pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Res
     let poses = PosePublisher::new(&node).context("pose publisher")?;
     let service = Service::start(shutdown.clone()).context("service thread")?;
     let mesh = &config.map.mesh;
-    let renderer = make_renderer(mesh, config)?;
-    let localizer = Localizer::start(
+    let mesh_data = Arc::new(
+        crate::map::load_obj(mesh).with_context(|| format!("loading map {}", mesh.display()))?,
+    );
+    let relocalizer = match &config.reloc.database {
+        Some(path) => {
+            let db = RelocDatabase::read(path)?;
+            db.check_compatible(&config.camera.intrinsics, map_fingerprint(&mesh_data))?;
+            Some(Relocalizer::new(
+                db,
+                &config.reloc,
+                &config.camera.intrinsics,
+            )?)
+        }
+        None => None,
+    };
+    let kind = config.render.renderer;
+    let renderer = crate::render::select::make_renderer(kind, mesh_data)
+        .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+    let mut localizer = Localizer::start(
         renderer,
         &config.camera.intrinsics,
         &config.tracker,
@@ -114,6 +139,11 @@ pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Res
         monotonic_now_ns(),
     )
     .context("starting the tracker")?;
+    if let Some(r) = relocalizer {
+        localizer
+            .set_relocalizer(r)
+            .context("relocalization database")?;
+    }
     let mavlink = if config.mavlink.enabled {
         Some(MavlinkLink::spawn(&config.mavlink, shutdown.clone()).context("MAVLink link")?)
     } else {

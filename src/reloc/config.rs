@@ -11,6 +11,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RelocConfig {
+    /// Relocalization database (`star reloc build`) that `star track` and
+    /// `star run` load; none disables relocalization there.
+    pub database: Option<std::path::PathBuf>,
     /// Horizontal grid spacing of the virtual cameras, meters.
     pub grid_spacing_m: f64,
     /// Camera heights (world z), meters.
@@ -59,6 +62,7 @@ pub struct RelocConfig {
 impl Default for RelocConfig {
     fn default() -> Self {
         Self {
+            database: None,
             grid_spacing_m: 0.5,
             heights_m: vec![1.0, 1.4, 1.8],
             yaw_steps: 16,
