@@ -166,9 +166,7 @@ mesh = "{self.dataset / 'map' / 'map.obj'}"
 init_pose = [{init}]
 [mavlink]
 connection = "udpout:127.0.0.1:{self.port}"
-# A 50 Hz cap drops about a third of a 50 Hz camera whose capture times jitter
-# (samples 19.9 ms apart); the harness checks the camera rate, so cap above it.
-rate_hz = 60.0
+# rate_hz stays at its default, 50 Hz: the camera's own rate.
 [mavlink.ned_from_world]
 translation_m = {fmt(NED_FROM_WORLD['translation_m'])}
 rpy_deg = {fmt(NED_FROM_WORLD['rpy_deg'])}

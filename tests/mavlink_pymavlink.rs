@@ -290,6 +290,7 @@ fn vision_position_estimate_to_pymavlink() {
         "{stats:?}"
     );
     let mut last_usec = 0u64;
+    let mut first_usec: Option<u64> = None;
     let mut short_intervals = 0;
     let mut counters = Vec::new();
     for v in &vision {
@@ -318,19 +319,28 @@ fn vision_position_estimate_to_pymavlink() {
         // Yaw about the world origin moves the body at (2.9, 2.0) by 1e-4 * r^2 more.
         assert!((cov[0] - (0.01 + 1e-4 * 2.0 * 2.0)).abs() < 1e-7, "{cov:?}");
         assert!((cov[6] - (0.04 + 1e-4 * 2.9 * 2.9)).abs() < 1e-7, "{cov:?}");
-        // Rate cap on capture time: >= 20 ms apart, except where a better
-        // TIMESYNC sample moved the offset between two messages.
+        // Rate cap on capture time (a depth-two token bucket at 50 Hz): at
+        // least half an interval apart, except where a better TIMESYNC
+        // sample moved the offset between two messages.
         let usec = d["usec"].as_u64().unwrap();
-        if last_usec != 0 && usec < last_usec + 20_000 {
+        if last_usec != 0 && usec < last_usec + 10_000 {
             short_intervals += 1;
         }
+        first_usec.get_or_insert(usec);
         last_usec = usec;
         counters.push(d["reset_counter"].as_u64().unwrap());
     }
     assert!(
         short_intervals <= stats.timesync_samples,
-        "{short_intervals} intervals under 20 ms, {} offset updates",
+        "{short_intervals} intervals under 10 ms, {} offset updates",
         stats.timesync_samples
+    );
+    // ... and 50 Hz on average: publish_for offers 200 Hz.
+    let span_s = (last_usec - first_usec.unwrap_or(last_usec)) as f64 * 1e-6;
+    assert!(
+        vision.len() as f64 <= 50.0 * span_s + 5.0,
+        "{} messages in {span_s:.3} s over a 50 Hz cap",
+        vision.len()
     );
     // reset_counter: 0, then +1 (resumed after lost, tracker reset 0->1 in the
     // same sample), then +1 (tracker reset 1->2).
@@ -393,7 +403,7 @@ fn odometry_to_pymavlink() {
     assert!(odometry.len() >= 10, "{} messages", odometry.len());
     assert!(of_type(&records, "VISION_POSITION_ESTIMATE").is_empty());
     let h = std::f64::consts::FRAC_1_SQRT_2;
-    let mut last_usec = 0;
+    let mut usecs = Vec::with_capacity(odometry.len());
     for o in &odometry {
         let d = &o["fields"];
         assert_eq!(o["id"], 331);
@@ -412,13 +422,17 @@ fn odometry_to_pymavlink() {
         assert_eq!(d["vx"], "NaN", "velocity unknown");
         let cov = d["pose_covariance"].as_array().unwrap();
         assert!((f(&cov[0]) - 0.01).abs() < 1e-7 && (f(&cov[11]) - 0.01).abs() < 1e-7);
-        let usec = d["time_usec"].as_u64().unwrap();
-        if last_usec != 0 {
-            assert!(
-                usec >= last_usec + 33_333,
-                "30 Hz cap: {last_usec} -> {usec}"
-            );
-        }
-        last_usec = usec;
+        usecs.push(d["time_usec"].as_u64().unwrap());
     }
+    // The 30 Hz cap (a depth-two token bucket): never closer than half an
+    // interval, and at most one sample over 30 Hz across the run.
+    for w in usecs.windows(2) {
+        assert!(w[1] >= w[0] + 16_666, "30 Hz cap: {} -> {}", w[0], w[1]);
+    }
+    let span_s = (usecs[usecs.len() - 1] - usecs[0]) as f64 * 1e-6;
+    assert!(
+        usecs.len() as f64 <= 30.0 * span_s + 2.0,
+        "{} poses in {span_s:.3} s over a 30 Hz cap",
+        usecs.len()
+    );
 }

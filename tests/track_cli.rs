@@ -223,7 +223,7 @@ fn tracker_poses_decode_in_pymavlink() {
     let config = configs(
         dir.path(),
         tag,
-        &format!("connection = \"udpout:127.0.0.1:{port}\"\nrate_hz = 60.0"),
+        &format!("connection = \"udpout:127.0.0.1:{port}\""),
     );
     let cfg = config.to_str().unwrap();
     let (mut track, track_log) = spawn(&[

@@ -136,6 +136,8 @@ pub struct Localizer {
     camera: PinholeCamera,
     policy: KeyframeConfig,
     aligner: Aligner,
+    /// Aligns on every pyramid level, the extra coarse one included.
+    reloc_aligner: Aligner,
     pyramid: Pyramid,
     worker: RenderWorker,
     keyframe: Box<Keyframe>,
@@ -172,7 +174,10 @@ impl Localizer {
         if !pose_is_finite(&world_from_camera) {
             return Err(LocalizerError::BadInitialPose);
         }
-        let worker = RenderWorker::spawn(renderer, camera, tracker)?;
+        // Pyramids and keyframes carry one level more than tracking uses:
+        // relocalization's coarse search aligns on it.
+        let build = crate::track::build_config(tracker);
+        let worker = RenderWorker::spawn(renderer, camera, &build)?;
         worker.try_request(RenderRequest {
             world_from_keyframe: world_from_camera,
             id: 1,
@@ -190,10 +195,11 @@ impl Localizer {
             camera: *camera,
             policy: policy.clone(),
             aligner: Aligner::new(tracker),
+            reloc_aligner: Aligner::new(&build),
             pyramid: Pyramid::new(
                 camera.width as usize,
                 camera.height as usize,
-                tracker.pyramid_levels as usize,
+                build.pyramid_levels as usize,
             ),
             worker,
             keyframe,

@@ -12,8 +12,9 @@
 //! `reset_counter` incremented. A wrong but confident pose would need to
 //! fool the gate on consecutive frames.
 
+use crate::geometry::Pose;
 use crate::reloc::recover::{correlation, passes_gate, Ranked, MAX_TOP_K};
-use crate::reloc::{verify_candidate, RelocDbError, Relocalizer, SearchRegion};
+use crate::reloc::{try_candidate, RelocDbError, Relocalizer, SearchRegion};
 use crate::track::AlignQuality;
 
 use super::worker::RenderRequest;
@@ -142,34 +143,46 @@ impl Localizer {
                 let Some(entry) = reloc.database().entries.get(c as usize) else {
                     continue;
                 };
-                let requested = self.worker.try_request(RenderRequest {
-                    world_from_keyframe: entry.world_from_camera,
-                    id: self.next_keyframe_id,
-                    requested_at_ns: capture_ns,
-                });
-                if !requested {
-                    break;
-                }
-                self.next_keyframe_id += 1;
-                self.stats.reloc_candidates += 1;
-                let kf = match self.worker.wait_result() {
-                    Ok(kf) => kf,
-                    Err(e) => {
-                        self.stats.render_failures += 1;
-                        tracing::warn!(error = %e, "relocalization render failed");
-                        continue;
+                let world_from_candidate = entry.world_from_camera;
+                let mut refused = false;
+                let worker = &self.worker;
+                let stats = &mut self.stats;
+                let next_id = &mut self.next_keyframe_id;
+                let mut render = |world_from_keyframe: &Pose| {
+                    let requested = worker.try_request(RenderRequest {
+                        world_from_keyframe: *world_from_keyframe,
+                        id: *next_id,
+                        requested_at_ns: capture_ns,
+                    });
+                    if !requested {
+                        refused = true;
+                        return None;
+                    }
+                    *next_id += 1;
+                    stats.reloc_candidates += 1;
+                    match worker.wait_result() {
+                        Ok(kf) => Some(kf),
+                        Err(e) => {
+                            stats.render_failures += 1;
+                            tracing::warn!(error = %e, "relocalization render failed");
+                            None
+                        }
                     }
                 };
-                let verdict = verify_candidate(
-                    &mut self.aligner,
-                    &kf,
+                let found = try_candidate(
+                    &mut self.reloc_aligner,
                     &self.pyramid,
                     &self.camera,
                     reloc.config(),
+                    &world_from_candidate,
                     reloc.shift_yaw_rad(ranked.shift),
+                    &mut render,
+                    &mut |kf| worker.recycle(kf),
                 );
-                let Some(v) = verdict else {
-                    self.worker.recycle(kf);
+                let Some((v, kf)) = found else {
+                    if refused {
+                        break;
+                    }
                     continue;
                 };
                 tracing::info!(

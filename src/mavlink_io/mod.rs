@@ -9,8 +9,10 @@
 //! never allocates); gives out VISION_POSITION_ESTIMATE or ODOMETRY in local
 //! NED / body FRD, and [`LinkStats`].
 //!
-//! Sending rules: nothing is sent while tracking is lost; samples closer than
-//! `1 / rate_hz` in capture time to the last sent one are dropped; samples
+//! Sending rules: nothing is sent while tracking is lost; poses are capped at
+//! `rate_hz` on capture time by a token bucket of depth two (a camera at the
+//! cap whose capture times jitter keeps every frame; no two poses closer than
+//! half an interval); samples
 //! older than `max_pose_age_ms` when the link takes them are dropped, so a
 //! link that comes back gets the newest pose and never a burst of stale ones.
 //! `usec` is the capture time (CLOCK_MONOTONIC) plus the TIMESYNC offset once

@@ -48,6 +48,26 @@ pub struct RelocConfig {
     /// Acceptance gate: smallest normalized cross-correlation between the
     /// candidate's points and the frame at the aligned pose.
     pub min_correlation: f32,
+    /// Acceptance gate: range of the photometric gain (camera / map) of the
+    /// candidate alignment. A wrong pose on a look-alike surface fits by
+    /// crushing the contrast (gains of 0.3-0.5 seen); correct ones on the
+    /// `realistic` preset (gain drift +-30 %, vignetting) ranged 0.58-1.55.
+    pub min_gain: f32,
+    /// Upper end of that range.
+    pub max_gain: f32,
+    /// A candidate alignment short of the gate with at least this inlier
+    /// ratio is refined: a keyframe is rendered at the aligned pose and the
+    /// frame aligned again.
+    pub refine_min_inlier_ratio: f32,
+    /// Renders per candidate after the first, at most: refinements and the
+    /// confirmation render (0: accept straight from the database keyframe).
+    pub refine_renders: u32,
+    /// A pose is accepted only from an alignment that moved at most this far
+    /// from its keyframe (otherwise the keyframe is rendered again there),
+    /// meters ...
+    pub confirm_max_m: f64,
+    /// ... and degrees.
+    pub confirm_max_deg: f64,
     /// With relocalization enabled, ordinary tracking is also lost when the
     /// keyframe points correlate less than this with the frame.
     pub track_min_correlation: f32,
@@ -63,9 +83,9 @@ impl Default for RelocConfig {
     fn default() -> Self {
         Self {
             database: None,
-            grid_spacing_m: 0.5,
+            grid_spacing_m: 0.35,
             heights_m: vec![1.0, 1.4, 1.8],
-            yaw_steps: 16,
+            yaw_steps: 24,
             pitches_deg: vec![-5.0],
             bounds_margin_m: 0.3,
             min_valid_fraction: 0.8,
@@ -78,6 +98,12 @@ impl Default for RelocConfig {
             min_visible_ratio: 0.5,
             max_residual: 12.0,
             min_correlation: 0.8,
+            min_gain: 0.5,
+            max_gain: 2.0,
+            refine_min_inlier_ratio: 0.4,
+            refine_renders: 2,
+            confirm_max_m: 0.03,
+            confirm_max_deg: 1.5,
             track_min_correlation: 0.5,
             verify_frames: 1,
             resume_window_s: 0.2,
@@ -125,7 +151,38 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 13] = [
+        let checks: [(&'static str, bool, String); 18] = [
+            (
+                "confirm_max_m",
+                self.confirm_max_m.is_finite() && self.confirm_max_m > 0.0,
+                format!("expected > 0, found {}", self.confirm_max_m),
+            ),
+            (
+                "confirm_max_deg",
+                self.confirm_max_deg.is_finite() && self.confirm_max_deg > 0.0,
+                format!("expected > 0, found {}", self.confirm_max_deg),
+            ),
+            (
+                "max_gain",
+                self.min_gain.is_finite()
+                    && self.max_gain.is_finite()
+                    && self.min_gain > 0.0
+                    && self.max_gain > self.min_gain,
+                format!(
+                    "expected 0 < min_gain < max_gain, found {} and {}",
+                    self.min_gain, self.max_gain
+                ),
+            ),
+            (
+                "refine_min_inlier_ratio",
+                unit(self.refine_min_inlier_ratio),
+                format!("expected 0..=1, found {}", self.refine_min_inlier_ratio),
+            ),
+            (
+                "refine_renders",
+                self.refine_renders <= 8,
+                format!("expected 0..=8, found {}", self.refine_renders),
+            ),
             (
                 "track_min_correlation",
                 self.track_min_correlation.is_finite()

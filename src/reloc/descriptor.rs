@@ -61,6 +61,9 @@ pub struct Thumbnailer {
     tmp2: Vec<f32>,
     mask: Vec<f32>,
     pairs: Vec<(u16, u16)>,
+    /// For camera frames with lens distortion: where each pixel of the
+    /// pinhole thumbnail lies in the raw thumbnail (thumbnail pixels).
+    undistort: Option<Vec<[f32; 2]>>,
 }
 
 impl Default for Thumbnailer {
@@ -96,7 +99,40 @@ impl Thumbnailer {
             tmp2: vec![0.0; THUMB_W * THUMB_H],
             mask: vec![0.0; THUMB_W * THUMB_H],
             pairs,
+            undistort: None,
         }
+    }
+
+    /// A thumbnailer for raw frames of `camera`: [`Self::describe_u8`]
+    /// undistorts the thumbnail to the pinhole model of the database renders
+    /// (at the presets' k1 = -0.1 the corners move by 4 thumbnail pixels).
+    pub fn for_camera(camera: &crate::geometry::PinholeCamera) -> Self {
+        let mut t = Self::new();
+        if camera.distortion.is_zero() {
+            return t;
+        }
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let (sx, sy) = (THUMB_W as f64 / w, THUMB_H as f64 / h);
+        let mut map = Vec::with_capacity(THUMB_W * THUMB_H);
+        for ty in 0..THUMB_H {
+            for tx in 0..THUMB_W {
+                // Thumbnail pixel center -> full-resolution pinhole pixel.
+                let u = (tx as f64 + 0.5) / sx - 0.5;
+                let v = (ty as f64 + 0.5) / sy - 0.5;
+                let xn = nalgebra::Vector2::new(
+                    (u - camera.cx) / camera.fx,
+                    (v - camera.cy) / camera.fy,
+                );
+                let xd = camera.distortion.distort(xn);
+                let (ud, vd) = (camera.fx * xd.x + camera.cx, camera.fy * xd.y + camera.cy);
+                map.push([
+                    ((ud + 0.5) * sx - 0.5) as f32,
+                    ((vd + 0.5) * sy - 0.5) as f32,
+                ]);
+            }
+        }
+        t.undistort = Some(map);
+        t
     }
 
     /// The last thumbnail (before blurring), row-major `THUMB_W x THUMB_H`.
@@ -124,6 +160,23 @@ impl Thumbnailer {
         area_resample(&mut self.thumb, width, height, |x, y| {
             pixels[y * stride + x] as f32
         });
+        if let Some(map) = &self.undistort {
+            let raw = &self.thumb;
+            let at = |x: i64, y: i64| {
+                let xc = x.clamp(0, THUMB_W as i64 - 1) as usize;
+                let yc = y.clamp(0, THUMB_H as i64 - 1) as usize;
+                raw[yc * THUMB_W + xc]
+            };
+            for (out, &[x, y]) in self.tmp2.iter_mut().zip(map) {
+                let (x0, y0) = (x.floor(), y.floor());
+                let (fx, fy) = (x - x0, y - y0);
+                let (xi, yi) = (x0 as i64, y0 as i64);
+                let top = at(xi, yi) * (1.0 - fx) + at(xi + 1, yi) * fx;
+                let bottom = at(xi, yi + 1) * (1.0 - fx) + at(xi + 1, yi + 1) * fx;
+                *out = top * (1.0 - fy) + bottom * fy;
+            }
+            std::mem::swap(&mut self.thumb, &mut self.tmp2);
+        }
         self.finish(min_std)
     }
 

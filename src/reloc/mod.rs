@@ -23,4 +23,4 @@ pub use config::RelocConfig;
 pub use database::{map_fingerprint, RelocDatabase, RelocDbError, RelocEntry};
 pub use descriptor::{Descriptor, Thumbnailer, THUMB_H, THUMB_W};
 pub use grid::{build_database, build_database_in, BuildError};
-pub use recover::{verify_candidate, Relocalizer, SearchRegion, Verified};
+pub use recover::{try_candidate, verify_candidate, Relocalizer, SearchRegion, Verdict, Verified};

@@ -108,12 +108,33 @@ impl Aligner {
         camera: &PinholeCamera,
         camera_from_keyframe: Pose,
     ) -> Alignment {
-        let n_levels = keyframe.levels.len().min(frame.len()).min(MAX_LEVELS);
+        self.align_to_level(keyframe, frame, camera, camera_from_keyframe, 0)
+    }
+
+    /// [`Self::align`], stopping at pyramid level `finest_level` (0 is full
+    /// resolution); the quality and covariance are those of that level.
+    /// Relocalization runs many cheap coarse alignments from different
+    /// starts and finishes only the best at full resolution.
+    pub fn align_to_level(
+        &mut self,
+        keyframe: &Keyframe,
+        frame: &Pyramid,
+        camera: &PinholeCamera,
+        camera_from_keyframe: Pose,
+        finest_level: usize,
+    ) -> Alignment {
+        let n_levels = keyframe
+            .levels
+            .len()
+            .min(frame.len())
+            .min(self.config.pyramid_levels as usize)
+            .min(MAX_LEVELS);
         let mut pose = camera_from_keyframe;
         let (mut a, mut b) = (1.0f32, 0.0f32);
         let mut quality = AlignQuality::default();
         let mut final_eval: Option<Eval> = None;
-        for level in (0..n_levels).rev() {
+        let finest_level = finest_level.min(n_levels.saturating_sub(1));
+        for level in (finest_level..n_levels).rev() {
             let n_points = keyframe.levels[level].points.len();
             if n_points < self.config.min_points as usize {
                 continue;
@@ -160,7 +181,7 @@ impl Aligner {
             quality.points_used[level] = cur.visible as u32;
             a = cur.gain;
             b = cur.bias;
-            if level == 0 {
+            if level == finest_level {
                 final_eval = Some(cur);
             }
         }
@@ -175,7 +196,7 @@ impl Aligner {
         let Some(e) = final_eval else {
             return result;
         };
-        let n0 = keyframe.levels[0].points.len().max(1);
+        let n0 = keyframe.levels[finest_level].points.len().max(1);
         result.quality.visible_ratio = e.visible as f32 / n0 as f32;
         result.quality.inlier_ratio = e.inliers as f32 / e.visible.max(1) as f32;
         result.quality.residual_rms = (e.inlier_sq_sum / e.inliers.max(1) as f64).sqrt() as f32;
