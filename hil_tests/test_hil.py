@@ -103,11 +103,13 @@ def test_blackout_and_teleport_increments_reset_counter(rig, autopilot, dataset,
     track = rig.start_tracker("--idle-exit-s", "1")
     assert rig.start_camera(faulty).wait(timeout=30) == 0
     assert track.wait(timeout=30) == 0
+    out = track.stdout.read()
     autopilot.down()
     vpes = autopilot.of_type("VISION_POSITION_ESTIMATE")
     assert vpes, "no VISION_POSITION_ESTIMATE received"
     counters = [f["reset_counter"] for _, f in vpes]
-    assert counters[0] == 0 and counters[-1] == 1, f"reset_counter went {sorted(set(counters))}"
+    assert counters[0] == 0 and counters[-1] == 1, (
+        f"reset_counter went {sorted(set(counters))}: {out}\n{track.log_path.read_text()[-1500:]}")
     assert counters == sorted(counters), "reset_counter decreased"
     stamps, gt = read_tum(faulty / "groundtruth.txt")
     usec0 = vpes[0][1]["usec"]

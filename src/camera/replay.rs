@@ -3,8 +3,11 @@
 //! optionally looping.
 //!
 //! Takes in the dataset folder; gives out gray frames stamped with the
-//! monotonic time of publishing (`capture_ns`) and their dataset time
-//! (`dataset_stamp_ns`) so evaluation can associate poses with ground truth.
+//! monotonic time each was due on the replay schedule (`capture_ns`: the
+//! exposure time, as a V4L2 kernel timestamp marks capture rather than
+//! delivery, so a replay delayed by a busy machine still carries exact
+//! capture times) and their dataset time (`dataset_stamp_ns`) so evaluation
+//! can associate poses with ground truth.
 //! Decoding a PNG allocates; replay is a test tool, not the flight path.
 //!
 //! The frame list is read here with a minimal `rgb.txt` parser; when the
@@ -173,7 +176,7 @@ impl FrameSource for ReplaySource {
         if due > now {
             std::thread::sleep(Duration::from_nanos(due - now));
         }
-        slot.header.capture_ns = monotonic_now_ns();
+        slot.header.capture_ns = due;
         Ok(())
     }
 }

@@ -294,12 +294,30 @@ impl Localizer {
         let predicted = renormalized(prev_pose * exp_se3(&(self.velocity * dt_s.min(0.2))));
         let camera_from_keyframe = predicted.inverse() * self.keyframe.world_from_keyframe;
 
-        let result = self.aligner.align(
-            &self.keyframe,
-            &self.pyramid,
-            &self.camera,
-            camera_from_keyframe,
-        );
+        // The frame that verifies a relocalization comes after the time the
+        // search took (the vehicle moved on, 15 cm in 0.3 s at walking
+        // speed) with no velocity to predict from: it gets the same coarse
+        // multi-start search and gate as the candidate did.
+        let verifying = self.verify_left > 0;
+        let result = match self.verify_alignment().filter(|_| verifying) {
+            Some(a) => a,
+            None => {
+                let mut a = self.aligner.align(
+                    &self.keyframe,
+                    &self.pyramid,
+                    &self.camera,
+                    camera_from_keyframe,
+                );
+                // A verification frame passes only through the search.
+                a.valid &= !verifying;
+                a
+            }
+        };
+        let max_jump_m = if verifying {
+            f64::INFINITY // bounded by the search (two grid spacings)
+        } else {
+            self.policy.lost_max_jump_m as f64
+        };
         let world_from_camera =
             self.keyframe.world_from_keyframe * result.camera_from_keyframe.inverse();
         let jump_m = (predicted.inverse() * world_from_camera)
@@ -312,7 +330,7 @@ impl Localizer {
             && q.inlier_ratio >= self.policy.lost_inlier_ratio
             && q.visible_ratio >= self.policy.lost_visible_ratio
             && q.correlation >= self.policy.lost_min_correlation
-            && jump_m <= self.policy.lost_max_jump_m as f64
+            && jump_m <= max_jump_m
             && self.may_resume(capture_ns, &q)
             && self.correlation_ok(&result.camera_from_keyframe);
 
@@ -347,7 +365,15 @@ impl Localizer {
                 self.lost_since_ns = Some(self.last.map_or(capture_ns, |(t, _)| t));
             }
             if self.verify_left > 0 {
-                tracing::warn!("relocalization not confirmed by the next frame; still lost");
+                tracing::warn!(
+                    inliers = q.inlier_ratio,
+                    visible = q.visible_ratio,
+                    residual = q.residual_rms,
+                    correlation = q.correlation,
+                    jump_m,
+                    valid = result.valid,
+                    "relocalization not confirmed by the next frame; still lost"
+                );
                 self.verify_left = 0;
             }
             self.state = TrackState::Lost;

@@ -13,8 +13,11 @@
 //! fool the gate on consecutive frames.
 
 use crate::geometry::Pose;
+use crate::reloc::recover::start_yaws_rad;
 use crate::reloc::recover::{correlation, passes_gate, Ranked, MAX_TOP_K};
-use crate::reloc::{try_candidate, RelocDbError, Relocalizer, SearchRegion};
+use crate::reloc::{
+    try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict,
+};
 use crate::track::AlignQuality;
 
 use super::worker::RenderRequest;
@@ -38,6 +41,29 @@ impl Localizer {
     /// True when a relocalization database is set.
     pub fn has_relocalizer(&self) -> bool {
         self.reloc.is_some()
+    }
+
+    /// The frame in the pyramid aligned against the keyframe as a
+    /// relocalization candidate is (coarse multi-start search, strict gate);
+    /// `None` without a relocalizer, when not verifying, or when it fails.
+    pub(super) fn verify_alignment(&mut self) -> Option<crate::track::Alignment> {
+        if self.verify_left == 0 {
+            return None;
+        }
+        let reloc = self.reloc.as_ref()?;
+        let config = reloc.config();
+        let yaws = start_yaws_rad(config, 0.0);
+        match verify_candidate(
+            &mut self.reloc_aligner,
+            &self.keyframe,
+            &self.pyramid,
+            &self.camera,
+            config,
+            &yaws,
+        ) {
+            Verdict::Accepted(v) => Some(v.alignment),
+            _ => None,
+        }
     }
 
     /// Whether a frame that passed the ordinary lost test may be output.
