@@ -349,6 +349,9 @@ pub fn start_yaws_rad(config: &RelocConfig, shift_yaw_rad: f64) -> [f64; 4] {
 }
 
 /// What aligning a frame against one rendered keyframe gave.
+// Returned by value and dropped at once; boxing the large variant would
+// allocate on a path that must not.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy)]
 pub enum Verdict {
     /// Passed the gate.
