@@ -174,11 +174,21 @@ fn check_timesync_answers(records: &[Value]) {
     assert!(due.len() >= 4, "{} requests", due.len());
     let missed = due.iter().filter(|ts1| !answered.contains(ts1)).count();
     assert!(missed <= 1, "{missed} of {} requests unanswered", due.len());
-    // The answer with the shortest round trip bounds our clock's error.
+    // The answer with the shortest round trip bounds our clock's error,
+    // among those sent once our offset estimate had settled (answers of the
+    // first second may precede our own first TIMESYNC exchange, and carry
+    // the raw clock).
+    let first_heard = records
+        .iter()
+        .filter(|r| r["kind"] == "rx")
+        .map(|r| r["clock_ns"].as_i64().unwrap())
+        .min()
+        .unwrap();
     let best = answers
         .iter()
+        .filter(|a| a["clock_ns"].as_i64().unwrap() >= first_heard + 1_000_000_000)
         .min_by_key(|a| a["clock_ns"].as_i64().unwrap() - a["fields"]["ts1"].as_i64().unwrap())
-        .unwrap();
+        .expect("answers after the first second");
     let (tc1, ts1) = (f(&best["fields"]["tc1"]), f(&best["fields"]["ts1"]));
     let now = f(&best["clock_ns"]);
     let apparent_offset_ms = (tc1 - (ts1 + now) / 2.0) * 1e-6;
