@@ -1,11 +1,16 @@
 //! Frame transport latency, publish to receive, for 640x512 and 1280x1024
 //! gray frames: iceoryx2 zero-copy (this crate's `FramePublisher` /
-//! `FrameSubscriber`, subscriber blocked on the frame event) against the
-//! same frames copied through a Unix stream socket. Prints p50, p99 and max
-//! in microseconds and the socket/transport ratio. A figure, not a test.
+//! `FrameSubscriber`, blocked on the frame event as the tracker is by
+//! default) against the same frames copied through a Unix stream socket.
+//! Prints p50, p99 and max in microseconds, the socket/transport ratio, and
+//! the same transport polling around each frame's predicted arrival
+//! (`ipc.spin_us`). A figure, not a test.
 //!
 //! Run: `cargo bench --bench transport` (or `cargo test --bench transport`
-//! for a quick unoptimized run). `STAR_BENCH_FRAMES` sets the frame count.
+//! for a quick unoptimized run). `STAR_BENCH_FRAMES` sets the frame count,
+//! `STAR_BENCH_PERIOD_US` the time between frames (default 1000 µs),
+//! `STAR_BENCH_SPIN_US` the polling half-window (default 250 µs; the
+//! shipped `ipc.spin_us` is 0, polling off).
 
 #![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 
@@ -18,18 +23,44 @@ use std::time::Duration;
 use star::camera::monotonic_now_ns;
 use star::ipc::{create_node, FrameEvent, FrameHeader, FramePublisher, FrameSubscriber};
 
-/// Time between frames: long enough that the receiver is idle and blocked
-/// when the next frame is sent, as with a real camera.
-const PERIOD: Duration = Duration::from_micros(1000);
-
-fn frames() -> usize {
-    std::env::var("STAR_BENCH_FRAMES")
+fn env_or(name: &str, default: u64) -> u64 {
+    std::env::var(name)
         .ok()
         .and_then(|v| v.parse().ok())
-        .unwrap_or(2000)
+        .unwrap_or(default)
 }
 
-fn iceoryx_latencies_ns(width: u32, height: u32, n: usize) -> Vec<u64> {
+/// Time between frames: long enough that the receiver is idle when the next
+/// frame is sent, as with a real camera.
+fn period() -> Duration {
+    Duration::from_micros(env_or("STAR_BENCH_PERIOD_US", 1000))
+}
+
+/// Frames due on a fixed schedule, as a camera's clock sets them (a
+/// relative sleep would add each wake-up's lateness to the period).
+struct Schedule {
+    next_ns: u64,
+    period_ns: u64,
+}
+
+impl Schedule {
+    fn start() -> Self {
+        Self {
+            next_ns: monotonic_now_ns(),
+            period_ns: period().as_nanos() as u64,
+        }
+    }
+
+    fn sleep_until_next(&mut self) {
+        self.next_ns += self.period_ns;
+        let now = monotonic_now_ns();
+        if self.next_ns > now {
+            std::thread::sleep(Duration::from_nanos(self.next_ns - now));
+        }
+    }
+}
+
+fn iceoryx_latencies_ns(width: u32, height: u32, n: usize, spin: Duration) -> Vec<u64> {
     let prefix = format!("stbench{}_", std::process::id());
     let config = Arc::new(
         star::ipc::load_iceoryx_config(std::path::Path::new("/nonexistent"), Some(&prefix))
@@ -40,7 +71,9 @@ fn iceoryx_latencies_ns(width: u32, height: u32, n: usize) -> Vec<u64> {
         let (config, ready) = (config.clone(), ready.clone());
         std::thread::spawn(move || {
             let node = create_node("bench-rx", &config).expect("node");
-            let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");
+            let mut subscriber = FrameSubscriber::new(&node)
+                .expect("subscriber")
+                .with_spin(spin);
             let mut latencies = Vec::with_capacity(n);
             let mut touched = 0u64;
             ready.wait();
@@ -67,6 +100,7 @@ fn iceoryx_latencies_ns(width: u32, height: u32, n: usize) -> Vec<u64> {
         let mut publisher = FramePublisher::new(&node).expect("publisher");
         ready.wait();
         std::thread::sleep(Duration::from_millis(50));
+        let mut schedule = Schedule::start();
         for i in 0..n + 20 {
             publisher
                 .publish_with(|slot| {
@@ -76,11 +110,14 @@ fn iceoryx_latencies_ns(width: u32, height: u32, n: usize) -> Vec<u64> {
                     Ok::<(), ()>(())
                 })
                 .expect("publish");
-            std::thread::sleep(PERIOD);
+            schedule.sleep_until_next();
         }
     });
     tx.join().expect("publisher");
     let (latencies, stats) = rx.join().expect("subscriber");
+    if std::env::var_os("STAR_BENCH_VERBOSE").is_some() {
+        println!("  (iceoryx2: {stats:?})");
+    }
     if stats.dropped > 0 {
         println!(
             "  (iceoryx2: {} frames dropped by the receiver)",
@@ -105,12 +142,13 @@ fn socket_latencies_ns(width: u32, height: u32, n: usize) -> Vec<u64> {
         latencies
     });
     let mut buf = vec![0u8; size];
+    let mut schedule = Schedule::start();
     for i in 0..n {
         buf[48..].fill(i as u8);
         // Same offset as FrameHeader::capture_ns.
         buf[8..16].copy_from_slice(&monotonic_now_ns().to_le_bytes());
         a.write_all(&buf).expect("write");
-        std::thread::sleep(PERIOD);
+        schedule.sleep_until_next();
     }
     rx.join().expect("socket receiver")
 }
@@ -134,16 +172,22 @@ fn remove_bench_resources() {
 
 fn main() {
     // cargo bench passes `--bench`; a filter argument is ignored.
-    let n = frames();
-    println!("frame transport latency, publish -> receive, {n} frames per case, {PERIOD:?} apart");
+    let n = env_or("STAR_BENCH_FRAMES", 2000) as usize;
+    let spin = Duration::from_micros(env_or("STAR_BENCH_SPIN_US", 250));
+    println!(
+        "frame transport latency, publish -> receive, {n} frames per case, {:?} apart",
+        period()
+    );
     println!(
         "{:>10} {:>10} {:>9} {:>9} {:>9}   {:>14}",
         "size", "transport", "p50 us", "p99 us", "max us", "socket/iceoryx2"
     );
     for (w, h) in [(640u32, 512u32), (1280, 1024)] {
-        let mut iox = iceoryx_latencies_ns(w, h, n);
+        let mut iox = iceoryx_latencies_ns(w, h, n, Duration::ZERO);
+        let mut polled = iceoryx_latencies_ns(w, h, n, spin);
         let mut uds = socket_latencies_ns(w, h, n);
         iox.sort_unstable();
+        polled.sort_unstable();
         uds.sort_unstable();
         if iox.is_empty() || uds.is_empty() {
             println!("{w}x{h}: no samples");
@@ -164,6 +208,15 @@ fn main() {
             u50 / i50,
             u99 / i99
         );
+        if !polled.is_empty() {
+            println!(
+                "{size:>10} {:>10} {:>9.1} {:>9.1} {:>9.1}   (iceoryx2 polling ±{spin:?}, ipc.spin_us)",
+                "polled",
+                percentile_us(&polled, 0.5),
+                percentile_us(&polled, 0.99),
+                percentile_us(&polled, 1.0)
+            );
+        }
     }
     remove_bench_resources();
 }

@@ -200,6 +200,13 @@ pub struct IpcConfig {
     pub iceoryx2_config: PathBuf,
     /// The tracker reports the camera silent after this long without a frame, ms.
     pub silence_timeout_ms: u64,
+    /// Half-width of the window around a frame's predicted arrival in which
+    /// the tracker polls for it instead of sleeping on the event, µs, at a
+    /// cost of up to `2 * spin_us` of CPU per frame; 0 (the default) always
+    /// sleeps. It helps where the camera's frames keep to their schedule
+    /// within the window; on the 2-vCPU development VM it did not move the
+    /// transport's p99 (README, "Camera and transport").
+    pub spin_us: u64,
 }
 
 impl Default for IpcConfig {
@@ -207,6 +214,7 @@ impl Default for IpcConfig {
         Self {
             iceoryx2_config: PathBuf::from("/etc/star/iceoryx2.toml"),
             silence_timeout_ms: 500,
+            spin_us: 0,
         }
     }
 }
@@ -377,6 +385,12 @@ impl Config {
                     "expected a positive factor, found {}",
                     self.camera.replay_speed
                 ),
+            ));
+        }
+        if self.ipc.spin_us > 5_000 {
+            return Err(invalid(
+                "ipc.spin_us",
+                format!("expected 0..=5000, found {}", self.ipc.spin_us),
             ));
         }
         if !(10..=60_000).contains(&self.ipc.silence_timeout_ms) {

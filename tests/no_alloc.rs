@@ -84,7 +84,11 @@ fn steady_state_publish_and_receive_do_not_allocate() {
         let (config, ready, done) = (config.clone(), ready.clone(), done.clone());
         std::thread::spawn(move || {
             let node = create_node("test-noalloc-rx", &config).expect("node");
-            let mut subscriber = FrameSubscriber::new(&node).expect("subscriber");
+            // Polling around the predicted arrival is on, as in `star track`,
+            // so both ways of waiting run under the counter.
+            let mut subscriber = FrameSubscriber::new(&node)
+                .expect("subscriber")
+                .with_spin(Duration::from_micros(250));
             ready.wait();
             let mut frames = 0u64;
             let mut first_sequence = None;
@@ -149,6 +153,10 @@ fn steady_state_publish_and_receive_do_not_allocate() {
     );
     assert!(checksum > 0);
     assert_eq!(rx_stats.rejected, 0);
+    assert!(
+        rx_stats.polled > 0,
+        "the polling path never ran, so it went uncounted: {rx_stats:?}"
+    );
     // Frames sent before the subscriber's first one are not drops: the
     // connection is made on the first send.
     let first_sequence = first_sequence.expect("frames arrived");

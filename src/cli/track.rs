@@ -108,7 +108,9 @@ pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Res
     let iox =
         load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
     let node = create_node("star-track", &iox).context("iceoryx2 node")?;
-    let subscriber = FrameSubscriber::new(&node).context("frame subscriber")?;
+    let subscriber = FrameSubscriber::new(&node)
+        .context("frame subscriber")?
+        .with_spin(std::time::Duration::from_micros(config.ipc.spin_us));
     let poses = PosePublisher::new(&node).context("pose publisher")?;
     let service = Service::start(shutdown.clone()).context("service thread")?;
     let mesh = &config.map.mesh;

@@ -153,9 +153,8 @@ impl Tracker {
             }
             let waited = self
                 .subscriber
-                .listener()
-                .timed_wait(|_| {}, POLL)
-                .map_err(|e| anyhow::anyhow!("waiting for frames: {e:?}"));
+                .wait_for_frame(POLL)
+                .context("waiting for frames");
             if let Err(e) = waited {
                 if self.shutdown.load(Ordering::Relaxed) {
                     break;

@@ -6,7 +6,8 @@
 //! ([`FramePublisher`], [`FrameSubscriber`], [`PosePublisher`],
 //! [`PoseSubscriber`]). Takes in frames built in place by a camera source and
 //! poses from the tracker; gives out views into shared memory, never copies.
-//! Subscribers block on an iceoryx2 event through a WaitSet, not a sleep loop.
+//! Subscribers block on an iceoryx2 event listener, not a sleep loop, and
+//! poll briefly around a periodic camera's predicted arrival.
 //! Each process calls [`services::create_node`] first, which removes the
 //! resources of crashed processes.
 
@@ -21,8 +22,8 @@ pub use frame::{
     FRAME_MAX_HEIGHT, FRAME_MAX_WIDTH, NO_DATASET_STAMP,
 };
 pub use frame_transport::{
-    FrameEvent, FramePublisher, FrameSubscriber, PublishError, PublisherStats, ReceivedFrame,
-    RunEnd, SubscriberStats,
+    ArrivalPredictor, FrameEvent, FramePublisher, FrameSubscriber, PublishError, PublisherStats,
+    ReceivedFrame, RunEnd, SubscriberStats,
 };
 pub use pose::{PoseMsg, TrackingState};
 pub use pose_transport::{PosePublisher, PoseSubscriber};
