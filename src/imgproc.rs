@@ -97,7 +97,7 @@ impl<T: Copy> Image<T> {
 impl Image<f32> {
     /// Bilinear interpolation at `(x, y)` with pixel centers at integers.
     /// `None` unless all four neighbours are inside the image.
-    #[inline]
+    #[inline(always)]
     pub fn bilinear(&self, x: f32, y: f32) -> Option<f32> {
         if !(x >= 0.0 && y >= 0.0) {
             return None;

@@ -21,11 +21,15 @@ use crate::config::{IlluminationModel, TrackerConfig};
 use crate::geometry::{exp_se3, renormalized, PinholeCamera, Pose};
 
 use super::keyframe::Keyframe;
-use super::normal_eq::{NormalEquations, MAX_DIM};
+use super::normal_eq::{Accumulator6, NormalEquations};
 use super::pyramid::Pyramid;
 
 /// Maximum number of pyramid levels.
 pub const MAX_LEVELS: usize = 6;
+
+/// A pose increment (`|[v; w]|`, meters and radians) below which a rejected
+/// LM step ends the level.
+const STEP_CONVERGED: f64 = 1e-3;
 
 /// Quality of one alignment, computed at the finest level.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -71,8 +75,16 @@ pub struct Alignment {
 #[derive(Debug, Clone)]
 pub struct Aligner {
     warped: Vec<f32>,
-    scratch: Vec<f32>,
     config: TrackerConfig,
+}
+
+/// What a level's first evaluation estimates and its LM iterations reuse.
+#[derive(Debug, Clone, Copy, Default)]
+struct LevelScale {
+    /// Huber scale, gray levels.
+    huber_k: Option<f32>,
+    /// Median and MAD of the visible keyframe intensities (affine model).
+    reference: Option<(f32, f32)>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -93,7 +105,6 @@ impl Aligner {
         let cap = config.max_points_per_level(0);
         Self {
             warped: vec![0.0; cap],
-            scratch: vec![0.0; cap],
             config: config.clone(),
         }
     }
@@ -140,11 +151,12 @@ impl Aligner {
                 continue;
             }
             let cam_l = camera.scaled_to_level(level as u32);
-            let Some(first) = self.evaluate(keyframe, frame, &cam_l, level, &pose, None) else {
+            let mut scale = LevelScale::default();
+            let Some(first) = self.evaluate(keyframe, frame, &cam_l, level, &pose, &mut scale)
+            else {
                 continue;
             };
-            let k = first.1;
-            let mut cur = first.0;
+            let mut cur = first;
             let mut lambda = 0.0f64;
             for _ in 0..self.config.max_iterations {
                 quality.iterations += 1;
@@ -156,9 +168,9 @@ impl Aligner {
                 }
                 let delta = Vector6::new(step[0], step[1], step[2], step[3], step[4], step[5]);
                 let cand_pose = renormalized(pose * exp_se3(&delta).inverse());
-                let cand = self.evaluate(keyframe, frame, &cam_l, level, &cand_pose, Some(k));
+                let cand = self.evaluate(keyframe, frame, &cam_l, level, &cand_pose, &mut scale);
                 match cand {
-                    Some((e, _)) if e.energy <= cur.energy => {
+                    Some(e) if e.energy <= cur.energy => {
                         pose = cand_pose;
                         let rel = (cur.energy - e.energy) / cur.energy.max(1e-12);
                         cur = e;
@@ -171,6 +183,12 @@ impl Aligner {
                         }
                     }
                     _ => {
+                        // A rejected step this small means the minimum is
+                        // reached and the energy is at its noise floor;
+                        // damping it further only burns evaluations.
+                        if delta.norm() < STEP_CONVERGED {
+                            break;
+                        }
                         lambda = if lambda == 0.0 { 1e-3 } else { lambda * 8.0 };
                         if lambda > 1e3 {
                             break;
@@ -219,8 +237,9 @@ impl Aligner {
         result
     }
 
-    /// Warps, samples and accumulates one level. Returns the evaluation and
-    /// the Huber scale used (estimated when `huber_k` is `None`).
+    /// Warps, samples and accumulates one level. The first evaluation of a
+    /// level estimates the Huber scale and the keyframe side's photometric
+    /// statistics into `scale`; later ones reuse them.
     #[allow(clippy::too_many_arguments)]
     fn evaluate(
         &mut self,
@@ -229,8 +248,8 @@ impl Aligner {
         camera: &PinholeCamera,
         level: usize,
         camera_from_keyframe: &Pose,
-        huber_k: Option<f32>,
-    ) -> Option<(Eval, f32)> {
+        scale: &mut LevelScale,
+    ) -> Option<Eval> {
         let model = self.config.illumination;
         let points = &keyframe.levels[level].points;
         let image = frame.level(level);
@@ -296,30 +315,24 @@ impl Aligner {
         // offset, or a robust moment match (median and MAD) for gain and
         // bias. Moment matching does not shrink the gain under misalignment,
         // which a joint least-squares fit of the gain does.
-        let (a, b) = self.photometric(points, model);
+        let (a, b) = self.photometric(points, model, &mut scale.reference);
         let warped = &self.warped[..points.len()];
-        let k = match huber_k {
-            Some(k) => k,
-            None => {
-                let s = &mut self.scratch[..];
-                let mut n = 0;
-                for (pt, &wv) in points.iter().zip(warped.iter()) {
-                    if !wv.is_nan() {
-                        s[n] = (wv - (a * pt.gray + b)).abs();
-                        n += 1;
-                    }
-                }
-                (1.345 * 1.4826 * approx_median(&s[..n], 0.0, 256.0)).max(self.config.huber_min)
-            }
-        };
+        let huber_min = self.config.huber_min;
+        let k = *scale.huber_k.get_or_insert_with(|| {
+            let abs_residuals = points
+                .iter()
+                .zip(warped)
+                .filter(|(_, wv)| !wv.is_nan())
+                .map(|(pt, &wv)| (wv - (a * pt.gray + b)).abs());
+            (1.345 * 1.4826 * approx_median_of(abs_residuals, 0.0, 256.0)).max(huber_min)
+        });
         let cut = (4.0 * k).max(self.config.outlier_cut);
         let rho_cut = k * (cut - 0.5 * k);
-        let mut ne = NormalEquations::new(6);
+        let mut acc = Accumulator6::default();
         let mut energy = 0.0f64;
         let mut inliers = 0usize;
         let mut inlier_sq_sum = 0.0f64;
         let inlier_th = self.config.inlier_threshold;
-        let mut j = [0.0f32; MAX_DIM];
         let mut moments = [0.0f64; 5];
         for (pt, &wv) in points.iter().zip(warped.iter()) {
             if wv.is_nan() {
@@ -348,61 +361,59 @@ impl Aligner {
                 (k / ar, k * (ar - 0.5 * k))
             };
             energy += rho as f64;
-            for c in 0..6 {
-                j[c] = -a * pt.jacobian[c];
-            }
-            ne.add(&j, res, w);
+            // The residual's Jacobian is `-a * J`; the gain is applied once,
+            // in `finish`.
+            acc.add(&pt.jacobian, res, w);
         }
-        ne.symmetrize();
-        Some((
-            Eval {
-                ne,
-                energy,
-                visible,
-                inliers,
-                inlier_sq_sum,
-                correlation: correlation(&moments, visible),
-                gain: a,
-                bias: b,
-            },
-            k,
-        ))
+        let ne = acc.finish(-f64::from(a));
+        Some(Eval {
+            ne,
+            energy,
+            visible,
+            inliers,
+            inlier_sq_sum,
+            correlation: correlation(&moments, visible),
+            gain: a,
+            bias: b,
+        })
     }
 }
 
 impl Aligner {
     /// Gain and bias mapping keyframe intensities to camera intensities,
     /// from the points sampled in pass 1 (`warped`, NaN = not visible).
-    fn photometric(&mut self, points: &[super::KeyPoint], model: IlluminationModel) -> (f32, f32) {
+    ///
+    /// The affine model matches the median and the median absolute
+    /// deviation of both sides over the visible points. The keyframe side
+    /// changes only through visibility, so it is computed at a level's first
+    /// evaluation (`reference` is `None`) and reused for that level's LM
+    /// iterations, which move the visible set by a few points at most.
+    fn photometric(
+        &self,
+        points: &[super::KeyPoint],
+        model: IlluminationModel,
+        reference: &mut Option<(f32, f32)>,
+    ) -> (f32, f32) {
         let warped = &self.warped[..points.len()];
-        let s = &mut self.scratch[..points.len()];
-        let mut n = 0;
+        let visible = || points.iter().zip(warped).filter(|(_, wv)| !wv.is_nan());
         match model {
-            IlluminationModel::Median => {
-                for (pt, &wv) in points.iter().zip(warped) {
-                    if !wv.is_nan() {
-                        s[n] = wv - pt.gray;
-                        n += 1;
-                    }
-                }
-                (1.0, approx_median(&s[..n], -256.0, 256.0))
-            }
+            IlluminationModel::Median => (
+                1.0,
+                approx_median_of(visible().map(|(pt, &wv)| wv - pt.gray), -256.0, 256.0),
+            ),
             IlluminationModel::Affine => {
-                for &wv in warped {
-                    if !wv.is_nan() {
-                        s[n] = wv;
-                        n += 1;
-                    }
-                }
-                let (med_cam, mad_cam) = median_mad(&mut s[..n]);
-                n = 0;
-                for (pt, &wv) in points.iter().zip(warped) {
-                    if !wv.is_nan() {
-                        s[n] = pt.gray;
-                        n += 1;
-                    }
-                }
-                let (med_ref, mad_ref) = median_mad(&mut s[..n]);
+                let med_cam = approx_median_of(visible().map(|(_, &wv)| wv), 0.0, 256.0);
+                let mad_cam =
+                    approx_median_of(visible().map(|(_, &wv)| (wv - med_cam).abs()), 0.0, 256.0);
+                let (med_ref, mad_ref) = *reference.get_or_insert_with(|| {
+                    let med = approx_median_of(visible().map(|(pt, _)| pt.gray), 0.0, 256.0);
+                    let mad = approx_median_of(
+                        visible().map(|(pt, _)| (pt.gray - med).abs()),
+                        0.0,
+                        256.0,
+                    );
+                    (med, mad)
+                });
                 let gain = if mad_ref > 1e-3 {
                     mad_cam / mad_ref
                 } else {
@@ -431,16 +442,6 @@ fn correlation(m: &[f64; 5], n: usize) -> f32 {
     (cov / denom).clamp(-1.0, 1.0) as f32
 }
 
-/// Median and median absolute deviation of gray levels (0..=255);
-/// overwrites `values` with the absolute deviations.
-fn median_mad(values: &mut [f32]) -> (f32, f32) {
-    let med = approx_median(values, 0.0, 256.0);
-    for v in values.iter_mut() {
-        *v = (*v - med).abs();
-    }
-    (med, approx_median(values, 0.0, 256.0))
-}
-
 /// Bins of [`approx_median`]'s histogram.
 const MEDIAN_BINS: usize = 1024;
 
@@ -450,18 +451,28 @@ const MEDIAN_BINS: usize = 1024;
 /// (0.25 gray levels over 0..256), in one pass, without reordering or
 /// allocating. Selection (`select_nth_unstable`) cost a fifth of the
 /// per-frame time at four medians per LM evaluation. 0 for an empty slice.
+#[cfg(test)]
 fn approx_median(values: &[f32], lo: f32, hi: f32) -> f32 {
-    if values.is_empty() {
-        return 0.0;
-    }
+    approx_median_of(values.iter().copied(), lo, hi)
+}
+
+/// [`approx_median`] of the values an iterator yields, so that callers can
+/// filter and transform on the fly instead of gathering into scratch.
+#[inline(always)]
+fn approx_median_of(values: impl Iterator<Item = f32>, lo: f32, hi: f32) -> f32 {
     let mut hist = [0u32; MEDIAN_BINS];
     let scale = MEDIAN_BINS as f32 / (hi - lo);
-    for &v in values {
+    let mut n = 0u32;
+    for v in values {
         // NaN casts to 0; out-of-range values saturate into the end bins.
         let bin = (((v - lo) * scale) as usize).min(MEDIAN_BINS - 1);
         hist[bin] += 1;
+        n += 1;
     }
-    let half = values.len() as f32 * 0.5;
+    if n == 0 {
+        return 0.0;
+    }
+    let half = n as f32 * 0.5;
     let mut below = 0u32;
     for (i, &count) in hist.iter().enumerate() {
         if (below + count) as f32 >= half && count > 0 {
