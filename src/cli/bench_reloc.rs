@@ -163,6 +163,40 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                 e.translation.vector.norm() <= 0.5 && e.rotation.angle().to_degrees() <= 20.0
             });
             tally.retrieved_near += usize::from(near_truth);
+            if matches!(region, SearchRegion::Everywhere) {
+                // Where the nearest good keyframe sits in the full ranking:
+                // what a re-ranking stage over the top N could recover.
+                let near_best = db
+                    .entries
+                    .iter()
+                    .filter(|e| {
+                        let d = truth.inverse() * e.world_from_camera;
+                        d.translation.vector.norm() <= 0.5
+                            && d.rotation.angle().to_degrees() <= 20.0
+                    })
+                    .map(|e| {
+                        query
+                            .iter()
+                            .map(|q| q.hamming(&e.descriptor))
+                            .min()
+                            .unwrap_or(u32::MAX)
+                    })
+                    .min();
+                let rank = near_best.map(|best| {
+                    db.entries
+                        .iter()
+                        .filter(|e| {
+                            query
+                                .iter()
+                                .map(|q| q.hamming(&e.descriptor))
+                                .min()
+                                .unwrap_or(u32::MAX)
+                                < best
+                        })
+                        .count()
+                });
+                tally.near_rank.push(rank.unwrap_or(usize::MAX));
+            }
             let mut verdict = None;
             for r in &candidates {
                 let mut render = |world_from_keyframe: &Pose| {
@@ -288,11 +322,24 @@ struct Tally {
     recovery_ms: Vec<f64>,
     success_ms: Vec<f64>,
     renders: usize,
+    /// Whole-map rank (0 = first) of the best near keyframe, per query.
+    near_rank: Vec<usize>,
 }
 
 impl Tally {
     fn print(&self, what: &str, done: usize) {
         let pct = |n: usize| 100.0 * n as f64 / done.max(1) as f64;
+        if !self.near_rank.is_empty() {
+            let within = |k: usize| self.near_rank.iter().filter(|&&r| r < k).count();
+            println!(
+                "  whole-map rank of the best keyframe within 0.5 m / 20 deg: top 4 {}, top 16 {}, top 64 {}, top 256 {}, none near {} (of {done})",
+                within(4),
+                within(16),
+                within(64),
+                within(256),
+                self.near_rank.iter().filter(|&&r| r == usize::MAX).count()
+            );
+        }
         println!("  search {what}:");
         println!(
             "    success (accepted, within 5 cm / 2 deg): {}/{done} = {:.1} %   no pose: {} = {:.1} %   accepted but off: {} = {:.1} %",

@@ -21,8 +21,9 @@ use super::descriptor::Descriptor;
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"STARRLDB";
-/// Current format version.
-pub const VERSION: u32 = 1;
+/// Current format version. 2: the descriptor subtracts the thumbnail's
+/// local mean (version-1 descriptors would not match the queries).
+pub const VERSION: u32 = 2;
 const HEADER_LEN: usize = 8 + 4;
 const CAMERA_LEN: usize = 8 + 9 * 8;
 const BODY_FIXED_LEN: usize = CAMERA_LEN + 8 + 8;
