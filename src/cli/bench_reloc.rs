@@ -239,7 +239,19 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                         tally.success_given_near += usize::from(near_truth);
                         tally.success_ms.push(ms);
                     } else {
-                        tally.wrong.push((err_m, err_deg));
+                        let q = v.alignment.quality;
+                        tally.wrong.push((
+                            err_m,
+                            err_deg,
+                            format!(
+                                "inliers {:.2}, visible {:.2}, residual {:.1}, correlation {:.2}, gain {:.2}",
+                                q.inlier_ratio,
+                                q.visible_ratio,
+                                q.residual_rms,
+                                q.correlation,
+                                v.alignment.gain
+                            ),
+                        ));
                     }
                 }
             }
@@ -317,7 +329,8 @@ struct Tally {
     /// Queries with a keyframe within 0.5 m / 20 deg of the truth in the top k.
     retrieved_near: usize,
     rejected: usize,
-    wrong: Vec<(f64, f64)>,
+    /// Wrong accepts: error (m, deg) and the quality they passed with.
+    wrong: Vec<(f64, f64, String)>,
     retrieved_m: Vec<f64>,
     recovery_ms: Vec<f64>,
     success_ms: Vec<f64>,
@@ -358,8 +371,8 @@ impl Tally {
             self.retrieved_near,
             100.0 * self.success_given_near as f64 / self.retrieved_near.max(1) as f64
         );
-        for (m, deg) in &self.wrong {
-            println!("      accepted but off by {:.3} m, {:.2} deg", m, deg);
+        for (m, deg, quality) in &self.wrong {
+            println!("      accepted but off by {m:.3} m, {deg:.2} deg ({quality})");
         }
         let mean_m = self.retrieved_m.iter().sum::<f64>() / self.retrieved_m.len().max(1) as f64;
         let (med_m, p99_m) = median_p99(&self.retrieved_m);

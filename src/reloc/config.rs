@@ -46,7 +46,11 @@ pub struct RelocConfig {
     /// Acceptance gate: largest inlier residual RMS, gray levels.
     pub max_residual: f32,
     /// Acceptance gate: smallest normalized cross-correlation between the
-    /// candidate's points and the frame at the aligned pose.
+    /// candidate's points and the frame at the aligned pose. Correct poses
+    /// on the `realistic` preset (vignetting, noise, occluders) measured
+    /// 0.59-0.80 against a keyframe rendered at the truth, so 0.8 rejected
+    /// a fifth of them; no wrong pose was accepted down to 0.5, because a
+    /// pose is accepted only after a re-render at it confirms it.
     pub min_correlation: f32,
     /// Acceptance gate: range of the photometric gain (camera / map) of the
     /// candidate alignment. A wrong pose on a look-alike surface fits by
@@ -97,7 +101,7 @@ impl Default for RelocConfig {
             min_inlier_ratio: 0.7,
             min_visible_ratio: 0.5,
             max_residual: 12.0,
-            min_correlation: 0.8,
+            min_correlation: 0.6,
             min_gain: 0.5,
             max_gain: 2.0,
             refine_min_inlier_ratio: 0.4,
