@@ -328,27 +328,25 @@ fn area_resample(out: &mut [f32], width: usize, height: usize, at: impl Fn(usize
 /// Separable box blur of radius [`BLUR_RADIUS`], [`BLUR_PASSES`] times
 /// (about a Gaussian), clamped at the borders; `tmp` is scratch.
 fn blur(input: &[f32], out: &mut [f32], tmp: &mut [f32], r: i64, passes: usize) {
-    let (w, h) = (THUMB_W as i64, THUMB_H as i64);
+    let (w, h) = (THUMB_W, THUMB_H);
     let norm = 1.0 / (2 * r + 1) as f32;
     out.copy_from_slice(input);
+    // Running sums along each row, then each column: O(1) per pixel at any
+    // radius, borders clamped (the edge pixel repeats).
+    let box_1d = |src: &[f32], dst: &mut [f32], n: usize, stride: usize| {
+        let at = |i: i64| src[i.clamp(0, n as i64 - 1) as usize * stride];
+        let mut sum: f32 = (-r..=r).map(at).sum();
+        for i in 0..n as i64 {
+            dst[i as usize * stride] = sum * norm;
+            sum += at(i + r + 1) - at(i - r);
+        }
+    };
     for _ in 0..passes {
         for y in 0..h {
-            for x in 0..w {
-                let mut s = 0.0;
-                for dx in -r..=r {
-                    s += out[(y * w + (x + dx).clamp(0, w - 1)) as usize];
-                }
-                tmp[(y * w + x) as usize] = s * norm;
-            }
+            box_1d(&out[y * w..], &mut tmp[y * w..], w, 1);
         }
-        for y in 0..h {
-            for x in 0..w {
-                let mut s = 0.0;
-                for dy in -r..=r {
-                    s += tmp[((y + dy).clamp(0, h - 1) * w + x) as usize];
-                }
-                out[(y * w + x) as usize] = s * norm;
-            }
+        for x in 0..w {
+            box_1d(&tmp[x..], &mut out[x..], h, w);
         }
     }
 }
@@ -356,6 +354,40 @@ fn blur(input: &[f32], out: &mut [f32], tmp: &mut [f32], r: i64, passes: usize) 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn running_sum_blur_matches_the_direct_box_filter() {
+        let (w, h) = (THUMB_W as i64, THUMB_H as i64);
+        let input: Vec<f32> = (0..w * h).map(|i| ((i * 37) % 251) as f32).collect();
+        for (r, passes) in [(BLUR_RADIUS, 1), (LOCAL_MEAN_RADIUS, 2)] {
+            let (mut out, mut tmp) = (vec![0.0; input.len()], vec![0.0; input.len()]);
+            blur(&input, &mut out, &mut tmp, r, passes);
+            let mut direct = input.clone();
+            let clamp = |v: i64, n: i64| v.clamp(0, n - 1);
+            for _ in 0..passes {
+                let mut rows = vec![0.0f32; direct.len()];
+                for y in 0..h {
+                    for x in 0..w {
+                        let s: f32 = (-r..=r)
+                            .map(|d| direct[(y * w + clamp(x + d, w)) as usize])
+                            .sum();
+                        rows[(y * w + x) as usize] = s / (2 * r + 1) as f32;
+                    }
+                }
+                for y in 0..h {
+                    for x in 0..w {
+                        let s: f32 = (-r..=r)
+                            .map(|d| rows[(clamp(y + d, h) * w + x) as usize])
+                            .sum();
+                        direct[(y * w + x) as usize] = s / (2 * r + 1) as f32;
+                    }
+                }
+            }
+            for (a, b) in out.iter().zip(&direct) {
+                assert!((a - b).abs() < 1e-2, "radius {r}: {a} vs {b}");
+            }
+        }
+    }
 
     fn pattern(w: usize, h: usize, phase: f32) -> Vec<u8> {
         (0..w * h)
