@@ -46,8 +46,8 @@ pub struct RelocConfig {
     /// Acceptance gate: largest inlier residual RMS, gray levels.
     pub max_residual: f32,
     /// Acceptance gate: smallest normalized cross-correlation between the
-    /// candidate's points and the frame at the aligned pose, the lower of
-    /// pyramid levels 1 and 2 (detail and layout). Correct poses
+    /// candidate's points and the frame at the aligned pose, the lowest of
+    /// pyramid levels 0, 1 and 2 (detail and layout). Correct poses
     /// on the `realistic` preset (vignetting, noise, occluders) measured
     /// 0.59-0.80 against a keyframe rendered at the truth, so 0.8 rejected
     /// a fifth of them; no wrong pose was accepted down to 0.5, because a

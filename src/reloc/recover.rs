@@ -469,13 +469,14 @@ pub fn verify_candidate(
         if !(a.valid && finite) || moved_m > 2.0 * config.grid_spacing_m {
             continue;
         }
-        // Fine detail (level 1) and coarse structure (level 2) must both
-        // correlate: a look-alike place elsewhere in the map matched the
-        // texture at 0.73 but the layout only at 0.52, where correct poses
-        // measured at least 0.58 on both.
+        // Full-resolution detail (the alignment's own level-0 figure),
+        // level 1 and coarse structure (level 2) must all correlate: a
+        // look-alike place elsewhere in the map matched the texture at 0.73
+        // but the layout only at 0.52, another 0.9 m off reached 0.6 only
+        // at level 0's 0.59, where correct poses measured at least 0.58.
         let fine = correlation(keyframe, frame, camera, &a.camera_from_keyframe, 1);
         let coarse = correlation(keyframe, frame, camera, &a.camera_from_keyframe, 2);
-        let ncc = fine.map(|f| coarse.map_or(f, |c| f.min(c)));
+        let ncc = fine.map(|f| coarse.map_or(f, |c| f.min(c)).min(q.correlation));
         let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
         if passes_gate(q, config) && gain_ok && ncc.is_some_and(|c| c >= config.min_correlation) {
             let better = best
