@@ -158,43 +158,32 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                     .push((e.world_from_camera.translation.vector - p).norm());
             }
             // Retrieval alone: is a keyframe near the truth among the top k?
-            let near_truth = candidates.iter().any(|r| {
-                let e = truth.inverse() * db.entries[r.index as usize].world_from_camera;
+            let is_near = |world_from_camera: &Pose| {
+                let e = truth.inverse() * world_from_camera;
                 e.translation.vector.norm() <= 0.5 && e.rotation.angle().to_degrees() <= 20.0
-            });
+            };
+            let near_truth = candidates
+                .iter()
+                .any(|r| is_near(&db.entries[r.index as usize].world_from_camera));
             tally.retrieved_near += usize::from(near_truth);
             if matches!(region, SearchRegion::Everywhere) {
                 // Where the nearest good keyframe sits in the full ranking:
                 // what a re-ranking stage over the top N could recover.
+                let distance = |e: &crate::reloc::RelocEntry| {
+                    query
+                        .iter()
+                        .map(|q| q.hamming(&e.descriptor))
+                        .min()
+                        .unwrap_or(u32::MAX)
+                };
                 let near_best = db
                     .entries
                     .iter()
-                    .filter(|e| {
-                        let d = truth.inverse() * e.world_from_camera;
-                        d.translation.vector.norm() <= 0.5
-                            && d.rotation.angle().to_degrees() <= 20.0
-                    })
-                    .map(|e| {
-                        query
-                            .iter()
-                            .map(|q| q.hamming(&e.descriptor))
-                            .min()
-                            .unwrap_or(u32::MAX)
-                    })
+                    .filter(|e| is_near(&e.world_from_camera))
+                    .map(distance)
                     .min();
-                let rank = near_best.map(|best| {
-                    db.entries
-                        .iter()
-                        .filter(|e| {
-                            query
-                                .iter()
-                                .map(|q| q.hamming(&e.descriptor))
-                                .min()
-                                .unwrap_or(u32::MAX)
-                                < best
-                        })
-                        .count()
-                });
+                let rank =
+                    near_best.map(|best| db.entries.iter().filter(|e| distance(e) < best).count());
                 tally.near_rank.push(rank.unwrap_or(usize::MAX));
             }
             let mut verdict = None;
