@@ -56,12 +56,19 @@ struct PrepScratch {
     gray: Pyramid,
     depth: Vec<ImageF32>,
     grad: ImageF32,
+    /// Row-wise 3-pixel depth minimum and maximum (continuity test).
+    depth_min3: ImageF32,
+    depth_max3: ImageF32,
     hist: Vec<u32>,
+    /// Selection threshold of each block, row-major.
+    thresholds: Vec<f32>,
     depths: Vec<f32>,
 }
 
 /// Gradient magnitude histogram range (gray levels per pixel).
 const HIST_BINS: usize = 64;
+/// Smallest threshold block, pixels.
+const MIN_BLOCK_PX: usize = 8;
 
 impl Keyframe {
     /// Allocates a keyframe for `camera` (pinhole, level 0) and the
@@ -87,7 +94,10 @@ impl Keyframe {
                     .map(|l| ImageF32::new((w >> l).max(1), (h >> l).max(1), NO_DEPTH))
                     .collect(),
                 grad: ImageF32::new(w, h, 0.0),
+                depth_min3: ImageF32::new(w, h, 0.0),
+                depth_max3: ImageF32::new(w, h, 0.0),
                 hist: vec![0; HIST_BINS],
+                thresholds: vec![0.0; w.div_ceil(MIN_BLOCK_PX) * h.div_ceil(MIN_BLOCK_PX)],
                 depths: Vec::with_capacity(config.max_points_per_level(0)),
             },
         }
@@ -124,7 +134,9 @@ impl Keyframe {
                 config,
                 l,
                 &mut s.grad,
+                [&mut s.depth_min3, &mut s.depth_max3],
                 &mut s.hist,
+                &mut s.thresholds,
                 &mut level.points,
             );
         }
@@ -169,7 +181,9 @@ fn select_level(
     config: &TrackerConfig,
     level: usize,
     grad: &mut ImageF32,
+    [min3, max3]: [&mut ImageF32; 2],
     hist: &mut [u32],
+    thresholds: &mut [f32],
     out: &mut Vec<KeyPoint>,
 ) {
     let (w, h) = (gray.width(), gray.height());
@@ -178,45 +192,85 @@ fn select_level(
     }
     let g = gray.data();
     let d = depth.data();
+    // Row-wise 3-pixel depth extremes; the 3x3 test below combines three
+    // rows of them (separable; the row loops run on slices cut to one
+    // length, so they compile without bounds checks and vectorize). Depths
+    // are never NaN, so plain comparisons stand in for f32::min/max.
+    let (min3, max3) = (&mut min3.data_mut()[..w * h], &mut max3.data_mut()[..w * h]);
+    let lesser = |a: f32, b: f32| if a < b { a } else { b };
+    let greater = |a: f32, b: f32| if a > b { a } else { b };
+    let n = w - 2;
+    for ((row, lo), hi) in d
+        .chunks_exact(w)
+        .zip(min3.chunks_exact_mut(w))
+        .zip(max3.chunks_exact_mut(w))
+    {
+        let (left, mid, right) = (&row[..n], &row[1..n + 1], &row[2..n + 2]);
+        let (lo, hi) = (&mut lo[1..n + 1], &mut hi[1..n + 1]);
+        for k in 0..n {
+            lo[k] = lesser(lesser(left[k], mid[k]), right[k]);
+            hi[k] = greater(greater(left[k], mid[k]), right[k]);
+        }
+    }
     let gradm = &mut grad.data_mut()[..w * h];
     // Gradient magnitude where the 3x3 depth neighbourhood is valid and
     // continuous; 0 elsewhere (never selected).
     let border = 2;
     gradm.fill(0.0);
+    let n = w - 2 * border;
+    let (min3, max3): (&[f32], &[f32]) = (min3, max3);
+    fn cut(s: &[f32], at: usize, n: usize) -> &[f32] {
+        &s[at..at + n]
+    }
     for y in border..h - border {
-        for x in border..w - border {
-            let i = y * w + x;
-            let mut lo = f32::INFINITY;
-            let mut hi = 0.0f32;
-            for dy in [-1isize, 0, 1] {
-                let r = (i as isize + dy * w as isize) as usize;
-                for v in [d[r - 1], d[r], d[r + 1]] {
-                    lo = lo.min(v);
-                    hi = hi.max(v);
-                }
-            }
-            if !(RenderedView::is_hit(lo) && hi <= lo * 1.15) {
-                continue;
-            }
-            let gx = 0.5 * (g[i + 1] - g[i - 1]);
-            let gy = 0.5 * (g[i + w] - g[i - w]);
-            gradm[i] = (gx * gx + gy * gy).sqrt();
+        let i = y * w + border;
+        let row = |s, at| cut(s, at, n);
+        let (left, right, up, down) = (row(g, i - 1), row(g, i + 1), row(g, i - w), row(g, i + w));
+        let (lo_u, lo_c, lo_d) = (row(min3, i - w), row(min3, i), row(min3, i + w));
+        let (hi_u, hi_c, hi_d) = (row(max3, i - w), row(max3, i), row(max3, i + w));
+        let out = &mut gradm[i..i + n];
+        for k in 0..n {
+            let lo = lesser(lesser(lo_u[k], lo_c[k]), lo_d[k]);
+            let hi = greater(greater(hi_u[k], hi_c[k]), hi_d[k]);
+            let gx: f32 = 0.5 * (right[k] - left[k]);
+            let gy: f32 = 0.5 * (down[k] - up[k]);
+            // Both sides always computed (no branch), so the loop vectorizes.
+            let magnitude = (gx * gx + gy * gy).sqrt();
+            let valid = RenderedView::is_hit(lo) & (hi <= lo * 1.15);
+            out[k] = if valid { magnitude } else { 0.0 };
         }
     }
-    // Block-adaptive threshold: block median of valid gradients + offset.
-    let block = (config.block_size_px as usize >> level).max(8);
+    // Block-adaptive threshold: block median of valid gradients + offset,
+    // computed once per block.
+    let block = (config.block_size_px as usize >> level).max(MIN_BLOCK_PX);
     let max_points = config.max_points_per_level(level);
     let offset = config.gradient_threshold;
-    // Cell size grows until the selection fits the budget.
-    let mut cell = 2usize;
-    loop {
-        let n = select_cells(gradm, w, h, block, cell, offset, hist, None);
-        if n <= max_points || cell >= 16 {
-            break;
-        }
-        cell += 1;
+    let blocks_x = w.div_ceil(block);
+    let n_blocks = blocks_x * h.div_ceil(block);
+    let thresholds = &mut thresholds[..n_blocks];
+    for (b, t) in thresholds.iter_mut().enumerate() {
+        let (bx, by) = ((b % blocks_x) * block, (b / blocks_x) * block);
+        let (bw, bh) = (block.min(w - bx), block.min(h - by));
+        *t = block_median(gradm, w, bx, by, bw, bh, hist) + offset;
     }
-    select_cells(gradm, w, h, block, cell, offset, hist, Some(out));
+    // The smallest cell (2..=16 px) whose selection fits the budget: the
+    // count falls as the cell grows, so bisect.
+    let fits = |cell: usize| select_cells(gradm, w, h, block, cell, thresholds, None) <= max_points;
+    let cell = if fits(2) {
+        2
+    } else {
+        let (mut bad, mut good) = (2usize, 16usize);
+        while good - bad > 1 {
+            let mid = (bad + good) / 2;
+            if fits(mid) {
+                good = mid;
+            } else {
+                bad = mid;
+            }
+        }
+        good
+    };
+    select_cells(gradm, w, h, block, cell, thresholds, Some(out));
     out.truncate(max_points);
     // Back-project and precompute Jacobians.
     let (fx, fy, cx, cy) = (
@@ -252,19 +306,19 @@ fn select_level(
     }
 }
 
-/// Picks the strongest pixel above its block's threshold in each
-/// `cell x cell` cell; returns the count, and pushes them when `out` is given.
-#[allow(clippy::too_many_arguments)]
+/// Picks the strongest pixel above its block's threshold (`thresholds`,
+/// row-major by block) in each `cell x cell` cell; returns the count, and
+/// pushes them when `out` is given.
 fn select_cells(
     gradm: &[f32],
     w: usize,
     h: usize,
     block: usize,
     cell: usize,
-    offset: f32,
-    hist: &mut [u32],
+    thresholds: &[f32],
     mut out: Option<&mut Vec<KeyPoint>>,
 ) -> usize {
+    let blocks_x = w.div_ceil(block);
     let mut count = 0;
     let mut by = 0;
     while by < h {
@@ -272,7 +326,7 @@ fn select_cells(
         let mut bx = 0;
         while bx < w {
             let bw = block.min(w - bx);
-            let thresh = block_median(gradm, w, bx, by, bw, bh, hist) + offset;
+            let thresh = thresholds[(by / block) * blocks_x + bx / block];
             let mut cy = by;
             while cy < by + bh {
                 let mut cx = bx;
