@@ -270,9 +270,42 @@ impl RelocConfig {
         Ok(())
     }
 
+    /// The largest gap between adjacent `heights_m`, meters (0 with one
+    /// height): the truth is at most half of it from a database height.
+    /// Allocates nothing (relocalization calls it while lost).
+    pub fn height_spacing_m(&self) -> f64 {
+        let h = &self.heights_m;
+        h.iter()
+            .map(|&a| {
+                // Gap to the next height above `a`.
+                h.iter()
+                    .filter(|&&b| b > a)
+                    .fold(f64::INFINITY, |gap, &b| gap.min(b - a))
+            })
+            .filter(|gap| gap.is_finite())
+            .fold(0.0, f64::max)
+    }
+
     /// Yaw angles of the grid, radians.
     pub fn yaws_rad(&self) -> impl Iterator<Item = f64> + '_ {
         let n = self.yaw_steps.max(1);
         (0..n).map(move |i| i as f64 * std::f64::consts::TAU / n as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RelocConfig;
+
+    #[test]
+    fn height_spacing_is_the_largest_gap_between_adjacent_heights() {
+        let with = |heights_m: Vec<f64>| RelocConfig {
+            heights_m,
+            ..RelocConfig::default()
+        };
+        assert!((with(vec![1.8, 1.0, 1.4]).height_spacing_m() - 0.4).abs() < 1e-12);
+        assert!((with(vec![1.0, 1.2, 1.8]).height_spacing_m() - 0.6).abs() < 1e-12);
+        assert_eq!(with(vec![1.2]).height_spacing_m(), 0.0);
+        assert_eq!(with(vec![1.2, 1.2]).height_spacing_m(), 0.0);
     }
 }

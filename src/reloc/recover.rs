@@ -384,7 +384,8 @@ const FINISHED_STARTS: usize = 2;
 
 /// Aligns `frame` against `keyframe`. Coarse to fine: first every start
 /// (the keyframe pose turned by each of `start_yaws_rad` about the camera's
-/// vertical axis and moved by each of [`START_OFFSETS`]) is aligned on the
+/// vertical axis, moved by each of [`START_OFFSETS`] and, with several
+/// database heights, up and down by half their spacing) is aligned on the
 /// coarsest pyramid level only and scored by the correlation of the
 /// keyframe points with the frame one level finer; the best
 /// [`FINISHED_STARTS`] are then aligned down to full resolution. Returns
@@ -408,6 +409,12 @@ pub fn verify_candidate(
         .unwrap_or(0);
     let score_level = coarsest.saturating_sub(1);
     let half_m = 0.5 * config.grid_spacing_m;
+    let half_height_m = 0.5 * config.height_spacing_m();
+    let vertical: &[f64] = if half_height_m > 0.0 && start_yaws_rad.len() > 1 {
+        &[0.0, 1.0, -1.0]
+    } else {
+        &[0.0]
+    };
     // Best coarse starts, by correlation: (score, camera_from_keyframe).
     let mut top = [(f32::NEG_INFINITY, Pose::identity()); FINISHED_STARTS];
     let search = start_yaws_rad.len() > 1;
@@ -420,11 +427,14 @@ pub fn verify_candidate(
         } else {
             &START_OFFSETS[..1]
         };
-        for &(dx, dz) in offsets {
+        for (&(dx, dz), dy) in offsets
+            .iter()
+            .flat_map(|o| vertical.iter().map(move |&dy| (o, dy)))
+        {
             // Camera y points down: turning right (z toward +x) is a
             // positive rotation about y.
             let keyframe_from_camera = Pose::from_parts(
-                Translation3::new(dx * half_m, 0.0, dz * half_m),
+                Translation3::new(dx * half_m, dy * half_height_m, dz * half_m),
                 UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw),
             );
             let start = keyframe_from_camera.inverse();
