@@ -10,7 +10,11 @@
 //! for a quick unoptimized run). `STAR_BENCH_FRAMES` sets the frame count,
 //! `STAR_BENCH_PERIOD_US` the time between frames (default 1000 µs),
 //! `STAR_BENCH_SPIN_US` the polling half-window (default 250 µs; the
-//! shipped `ipc.spin_us` is 0, polling off).
+//! shipped `ipc.spin_us` is 0, polling off), `STAR_BENCH_CPU=N` pins both
+//! iceoryx2 threads to CPU N, and `STAR_BENCH_VERBOSE=1` also prints the
+//! subscriber's counters and how long the publisher's own publish call
+//! took (from the stamp to its return: the send and the event's
+//! notification), which splits the latency between the two sides.
 
 #![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 
@@ -60,6 +64,25 @@ impl Schedule {
     }
 }
 
+/// Pins the calling thread to `STAR_BENCH_CPU` when it is set.
+fn pin_from_env() {
+    let Some(cpu) = std::env::var("STAR_BENCH_CPU")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+    else {
+        return;
+    };
+    // SAFETY: a zeroed cpu_set_t is a valid empty set; CPU_SET writes
+    // within it; sched_setaffinity reads it.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(cpu, &mut set);
+        if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+            eprintln!("STAR_BENCH_CPU={cpu}: {}", std::io::Error::last_os_error());
+        }
+    }
+}
+
 fn iceoryx_latencies_ns(width: u32, height: u32, n: usize, spin: Duration) -> Vec<u64> {
     let prefix = format!("stbench{}_", std::process::id());
     let config = Arc::new(
@@ -70,6 +93,7 @@ fn iceoryx_latencies_ns(width: u32, height: u32, n: usize, spin: Duration) -> Ve
     let rx = {
         let (config, ready) = (config.clone(), ready.clone());
         std::thread::spawn(move || {
+            pin_from_env();
             let node = create_node("bench-rx", &config).expect("node");
             let mut subscriber = FrameSubscriber::new(&node)
                 .expect("subscriber")
@@ -96,21 +120,34 @@ fn iceoryx_latencies_ns(width: u32, height: u32, n: usize, spin: Duration) -> Ve
         })
     };
     let tx = std::thread::spawn(move || {
+        pin_from_env();
         let node = create_node("bench-tx", &config).expect("node");
         let mut publisher = FramePublisher::new(&node).expect("publisher");
         ready.wait();
         std::thread::sleep(Duration::from_millis(50));
         let mut schedule = Schedule::start();
+        let mut send_ns = Vec::with_capacity(n + 20);
         for i in 0..n + 20 {
+            let mut stamp = 0;
             publisher
                 .publish_with(|slot| {
                     *slot.header = FrameHeader::gray8(0, width, height);
                     slot.pixels[..(width * height) as usize].fill(i as u8);
-                    slot.header.capture_ns = monotonic_now_ns();
+                    stamp = monotonic_now_ns();
+                    slot.header.capture_ns = stamp;
                     Ok::<(), ()>(())
                 })
                 .expect("publish");
+            send_ns.push(monotonic_now_ns() - stamp);
             schedule.sleep_until_next();
+        }
+        if std::env::var_os("STAR_BENCH_VERBOSE").is_some() {
+            send_ns.sort_unstable();
+            println!(
+                "  (publisher: stamp to publish returned p50 {:.1} us, p99 {:.1} us)",
+                percentile_us(&send_ns, 0.5),
+                percentile_us(&send_ns, 0.99)
+            );
         }
     });
     tx.join().expect("publisher");
