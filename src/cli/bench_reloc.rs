@@ -208,8 +208,7 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
             }
             let mut verdict = None;
             for r in &candidates {
-                let mut render = |world_from_keyframe: &Pose| {
-                    let mut kf = spare.pop()?;
+                let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
                     let t_render = Instant::now();
                     candidate_r
                         .render(world_from_keyframe, &pinhole, &mut kview)
@@ -219,23 +218,19 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                     kf.prepare(&kview, *world_from_keyframe, u64::from(r.index), &tracker);
                     tally.prepare_ms += t_prepare.elapsed().as_secs_f64() * 1e3;
                     tally.render_ms += t_render.elapsed().as_secs_f64() * 1e3;
-                    Some(kf)
+                    Some(())
                 };
-                let mut recycle = |kf: Box<Keyframe>| returned.push(kf);
-                let found = try_candidate(
+                let entry = &db.entries[r.index as usize];
+                verdict = attempt(
                     &mut aligner,
                     &pyramid,
                     &camera,
                     rc,
-                    &db.entries[r.index as usize].world_from_camera,
-                    reloc.shift_yaw_rad(r.shift),
+                    (&entry.world_from_camera, reloc.shift_yaw_rad(r.shift)),
+                    (&mut spare, &mut returned),
                     &mut render,
-                    &mut recycle,
                 );
-                spare.append(&mut returned);
-                if let Some((v, kf)) = found {
-                    spare.push(kf);
-                    verdict = Some(v);
+                if verdict.is_some() {
                     break;
                 }
             }
@@ -259,26 +254,22 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                 let mut oracle = "none".to_string();
                 if let Some(i) = nearest {
                     let e = &db.entries[i];
-                    let mut render = |world_from_keyframe: &Pose| {
-                        let mut kf = spare.pop()?;
+                    let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
                         candidate_r
                             .render(world_from_keyframe, &pinhole, &mut kview)
                             .ok()?;
                         kf.prepare(&kview, *world_from_keyframe, i as u64, &tracker);
-                        Some(kf)
+                        Some(())
                     };
-                    let mut recycle = |kf: Box<Keyframe>| returned.push(kf);
-                    let found = try_candidate(
+                    let found = attempt(
                         &mut aligner,
                         &pyramid,
                         &camera,
                         rc,
-                        &e.world_from_camera,
-                        0.0,
+                        (&e.world_from_camera, 0.0),
+                        (&mut spare, &mut returned),
                         &mut render,
-                        &mut recycle,
                     );
-                    spare.append(&mut returned);
                     let d = truth.inverse() * e.world_from_camera;
                     let dist = query
                         .iter()
@@ -286,8 +277,7 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                         .min()
                         .unwrap_or(0);
                     oracle = match found {
-                        Some((v, kf)) => {
-                            spare.push(kf);
+                        Some(v) => {
                             let err = truth.inverse() * v.world_from_camera;
                             format!(
                                 "nearest entry {:.2} m {:.0} deg (hamming {dist}): accepted, off {:.3} m",
@@ -406,6 +396,46 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
     );
     search_timing(&db, rc.top_k as usize, seed);
     Ok(())
+}
+
+/// One candidate through [`try_candidate`] from `world_from_candidate`
+/// (with the yaw the search matched at), keyframes drawn from `spare` and
+/// filled by `render`; every keyframe is back in `spare` afterwards
+/// (`returned` holds the recycled ones meanwhile).
+#[allow(clippy::vec_box)] // `try_candidate` hands keyframes over boxed
+fn attempt(
+    aligner: &mut Aligner,
+    pyramid: &Pyramid,
+    camera: &crate::geometry::PinholeCamera,
+    rc: &crate::reloc::RelocConfig,
+    (world_from_candidate, shift_yaw_rad): (&Pose, f64),
+    (spare, returned): (&mut Vec<Box<Keyframe>>, &mut Vec<Box<Keyframe>>),
+    render: &mut dyn FnMut(&Pose, &mut Keyframe) -> Option<()>,
+) -> Option<crate::reloc::Verified> {
+    let mut draw = |world_from_keyframe: &Pose| {
+        let mut kf = spare.pop()?;
+        if render(world_from_keyframe, &mut kf).is_some() {
+            Some(kf)
+        } else {
+            spare.push(kf);
+            None
+        }
+    };
+    let found = try_candidate(
+        aligner,
+        pyramid,
+        camera,
+        rc,
+        world_from_candidate,
+        shift_yaw_rad,
+        &mut draw,
+        &mut |kf: Box<Keyframe>| returned.push(kf),
+    );
+    spare.append(returned);
+    found.map(|(v, kf)| {
+        spare.push(kf);
+        v
+    })
 }
 
 /// Times the whole-map search over 10k keyframes (the database replicated
