@@ -28,7 +28,7 @@ use crate::config::Config;
 use crate::geometry::Pose;
 use crate::imgproc::{ImageF32, ImageU8};
 use crate::localizer::offline::median_p99;
-use crate::reloc::recover::{Query, Ranked, SearchIndex, MAX_TOP_K};
+use crate::reloc::recover::{Candidate, Query, Ranked, SearchIndex, MAX_TOP_K};
 use crate::reloc::{build_database, try_candidate, Relocalizer, SearchRegion};
 use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderedView, Renderer};
@@ -170,22 +170,36 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                 tally.rejected += 1;
                 continue;
             };
-            let candidates: Vec<Ranked> = reloc.search(&query, region).to_vec();
+            let candidates: Vec<Candidate> = reloc
+                .search_ranked(&query, region, &mut aligner, &pyramid)
+                .to_vec();
             if let Some(first) = candidates.first() {
-                let e = &db.entries[first.index as usize];
                 tally
                     .retrieved_m
-                    .push((e.world_from_camera.translation.vector - p).norm());
+                    .push((first.world_from_camera.translation.vector - p).norm());
             }
             // Retrieval alone: is a keyframe near the truth among the top k?
             let is_near = |world_from_camera: &Pose| {
                 let e = truth.inverse() * world_from_camera;
                 e.translation.vector.norm() <= 0.5 && e.rotation.angle().to_degrees() <= 20.0
             };
-            let near_truth = candidates
-                .iter()
-                .any(|r| is_near(&db.entries[r.index as usize].world_from_camera));
+            let near_truth = candidates.iter().any(|c| is_near(&c.world_from_camera));
             tally.retrieved_near += usize::from(near_truth);
+            if std::env::var_os("STAR_DIAG").is_some() {
+                let line: Vec<String> = reloc
+                    .last_ranking()
+                    .iter()
+                    .map(|c| {
+                        let e = &db.entries[c.ranked.index as usize];
+                        let near = is_near(&e.world_from_camera);
+                        let d = (e.world_from_camera.translation.vector - p).norm();
+                        let da = (c.world_from_camera.translation.vector - p).norm();
+                        let near_a = is_near(&c.world_from_camera);
+                        format!("{}{}{:.2}/{:.1}m>{:.2}m/h{}", if near { "*" } else { "" }, if near_a { "+" } else { "" }, c.score, d, da, c.ranked.distance)
+                    })
+                    .collect();
+                println!("DIAG {done} {:?}: {}", matches!(region, SearchRegion::Everywhere), line.join(" "));
+            }
             if matches!(region, SearchRegion::Everywhere) {
                 // Where the nearest good keyframe sits in the full ranking:
                 // what a re-ranking stage over the top N could recover.
@@ -207,7 +221,8 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                 tally.near_rank.push(rank.unwrap_or(usize::MAX));
             }
             let mut verdict = None;
-            for r in &candidates {
+            for c in &candidates {
+                let r = &c.ranked;
                 let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
                     let t_render = Instant::now();
                     candidate_r
@@ -220,13 +235,12 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                     tally.render_ms += t_render.elapsed().as_secs_f64() * 1e3;
                     Some(())
                 };
-                let entry = &db.entries[r.index as usize];
                 verdict = attempt(
                     &mut aligner,
                     &pyramid,
                     &camera,
                     rc,
-                    (&entry.world_from_camera, reloc.shift_yaw_rad(r.shift)),
+                    (&c.world_from_camera, c.yaw_rad),
                     (&mut spare, &mut returned),
                     &mut render,
                 );
@@ -329,16 +343,17 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                     }
                     spare.push(kf);
                 }
-                let top1 = candidates.first().map_or(0, |c| c.distance);
+                let top1 = candidates.first().map_or(0, |c| c.ranked.distance);
                 let cands: Vec<String> = candidates
                     .iter()
                     .map(|c| {
-                        let d = truth.inverse() * db.entries[c.index as usize].world_from_camera;
+                        let d = truth.inverse() * c.world_from_camera;
                         format!(
-                            "{:.2}m/{:.0}d/h{}",
+                            "{:.2}m/{:.0}d/h{}/c{:.2}",
                             d.translation.vector.norm(),
                             d.rotation.angle().to_degrees(),
-                            c.distance
+                            c.ranked.distance,
+                            c.score
                         )
                     })
                     .collect();

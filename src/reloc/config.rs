@@ -31,6 +31,10 @@ pub struct RelocConfig {
     pub min_depth_m: f64,
     /// Candidates rendered and aligned per relocalization attempt.
     pub top_k: u32,
+    /// Candidates taken from the descriptor search and ranked by a coarse
+    /// alignment against their stored coarse keyframes before the best
+    /// `top_k` are rendered (at most 64; `top_k` or less: no ranking).
+    pub rank_candidates: u32,
     /// Search radius around the last tracked position right after the
     /// failure, meters; it grows by `max_speed_m_s` per second lost.
     pub search_radius_m: f64,
@@ -96,6 +100,7 @@ impl Default for RelocConfig {
             min_valid_fraction: 0.8,
             min_depth_m: 0.4,
             top_k: 4,
+            rank_candidates: 32,
             search_radius_m: 0.5,
             max_speed_m_s: 2.0,
             min_contrast: 4.0,
@@ -156,7 +161,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 18] = [
+        let checks: [(&'static str, bool, String); 19] = [
             (
                 "confirm_max_m",
                 self.confirm_max_m.is_finite() && self.confirm_max_m > 0.0,
@@ -219,6 +224,11 @@ impl RelocConfig {
                 "top_k",
                 (1..=64).contains(&self.top_k),
                 format!("expected 1..=64, found {}", self.top_k),
+            ),
+            (
+                "rank_candidates",
+                self.rank_candidates <= 64,
+                format!("expected 0..=64, found {}", self.rank_candidates),
             ),
             (
                 "search_radius_m",

@@ -5,8 +5,11 @@
 //! the body, then an FNV-1a 64 checksum of the body (u64). Body: camera
 //! (width, height u32; fx, fy, cx, cy, k1, k2, p1, p2, k3 f64), the map
 //! fingerprint (u64, [`map_fingerprint`]), the entry count (u64), and per
-//! entry the pose `world_from_camera` (tx, ty, tz, qx, qy, qz, qw f64) and the
-//! descriptor (4 x u64). Reading checks every part and names the file and
+//! entry the pose `world_from_camera` (tx, ty, tz, qx, qy, qz, qw f64), the
+//! descriptor (4 x u64) and its number of coarse points (u32); then the
+//! coarse points of every entry in entry order ([`CoarsePoint::to_bytes`],
+//! 10 bytes each). The header before the entries also holds the total
+//! number of coarse points (u64), so the length is known up front. Reading checks every part and names the file and
 //! the problem; [`RelocDatabase::check_compatible`] rejects a database made
 //! for another map or other intrinsics.
 
@@ -17,17 +20,19 @@ use nalgebra::{Quaternion, Translation3, UnitQuaternion};
 use crate::geometry::{Distortion, PinholeCamera, Pose};
 use crate::map::Mesh;
 
+use super::coarse::{CoarsePoint, COARSE_POINT_LEN, MAX_COARSE_POINTS};
 use super::descriptor::Descriptor;
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"STARRLDB";
 /// Current format version. 2: the descriptor subtracts the thumbnail's
 /// local mean (version-1 descriptors would not match the queries).
-pub const VERSION: u32 = 2;
+/// 3: coarse keyframe points per entry.
+pub const VERSION: u32 = 3;
 const HEADER_LEN: usize = 8 + 4;
 const CAMERA_LEN: usize = 8 + 9 * 8;
-const BODY_FIXED_LEN: usize = CAMERA_LEN + 8 + 8;
-const ENTRY_LEN: usize = 7 * 8 + 4 * 8;
+const BODY_FIXED_LEN: usize = CAMERA_LEN + 8 + 8 + 8;
+const ENTRY_LEN: usize = 7 * 8 + 4 * 8 + 4;
 /// Most entries a file may declare (guards the allocation).
 pub const MAX_ENTRIES: u64 = 10_000_000;
 
@@ -113,6 +118,10 @@ pub struct RelocEntry {
     pub world_from_camera: Pose,
     /// Descriptor of its rendered view.
     pub descriptor: Descriptor,
+    /// First of its coarse points in [`RelocDatabase::coarse_points`].
+    pub coarse_start: u32,
+    /// Number of its coarse points (at most [`MAX_COARSE_POINTS`]).
+    pub coarse_len: u32,
 }
 
 /// The relocalization database.
@@ -124,6 +133,8 @@ pub struct RelocDatabase {
     pub map_fingerprint: u64,
     /// Keyframes.
     pub entries: Vec<RelocEntry>,
+    /// The coarse keyframe points of all entries, in entry order.
+    pub coarse_points: Vec<CoarsePoint>,
     /// Where it was read from (for error messages); empty when built in memory.
     pub path: PathBuf,
 }
@@ -189,6 +200,17 @@ fn cameras_match(a: &PinholeCamera, b: &PinholeCamera) -> bool {
 }
 
 impl RelocDatabase {
+    /// The coarse keyframe points of entry `index` (empty when out of range).
+    pub fn coarse_points_of(&self, index: usize) -> &[CoarsePoint] {
+        self.entries
+            .get(index)
+            .and_then(|e| {
+                let start = e.coarse_start as usize;
+                self.coarse_points.get(start..start + e.coarse_len as usize)
+            })
+            .unwrap_or(&[])
+    }
+
     /// Errors unless the database was built for `camera` and the map with
     /// fingerprint `map_fingerprint`.
     pub fn check_compatible(
@@ -215,7 +237,11 @@ impl RelocDatabase {
 
     /// The file's bytes.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut body = Vec::with_capacity(BODY_FIXED_LEN + self.entries.len() * ENTRY_LEN);
+        let mut body = Vec::with_capacity(
+            BODY_FIXED_LEN
+                + self.entries.len() * ENTRY_LEN
+                + self.coarse_points.len() * COARSE_POINT_LEN,
+        );
         let c = &self.camera;
         body.extend_from_slice(&c.width.to_le_bytes());
         body.extend_from_slice(&c.height.to_le_bytes());
@@ -225,7 +251,11 @@ impl RelocDatabase {
         }
         body.extend_from_slice(&self.map_fingerprint.to_le_bytes());
         body.extend_from_slice(&(self.entries.len() as u64).to_le_bytes());
-        for e in &self.entries {
+        let n_coarse: usize = (0..self.entries.len())
+            .map(|i| self.coarse_points_of(i).len())
+            .sum();
+        body.extend_from_slice(&(n_coarse as u64).to_le_bytes());
+        for (i, e) in self.entries.iter().enumerate() {
             let t = e.world_from_camera.translation.vector;
             let q = e.world_from_camera.rotation.coords; // [x, y, z, w]
             for v in [t.x, t.y, t.z, q[0], q[1], q[2], q[3]] {
@@ -233,6 +263,12 @@ impl RelocDatabase {
             }
             for w in e.descriptor.0 {
                 body.extend_from_slice(&w.to_le_bytes());
+            }
+            body.extend_from_slice(&(self.coarse_points_of(i).len() as u32).to_le_bytes());
+        }
+        for i in 0..self.entries.len() {
+            for p in self.coarse_points_of(i) {
+                body.extend_from_slice(&p.to_bytes());
             }
         }
         let mut out = Vec::with_capacity(HEADER_LEN + body.len() + 8);
@@ -305,7 +341,20 @@ impl RelocDatabase {
                 what: format!("entry count {count} exceeds the limit {MAX_ENTRIES}"),
             });
         }
-        let expected = min_len + count * ENTRY_LEN as u64;
+        let n_coarse = Reader {
+            bytes,
+            at: count_at + 8,
+        }
+        .u64();
+        if n_coarse > count * MAX_COARSE_POINTS as u64 {
+            return Err(RelocDbError::Invalid {
+                path: p(),
+                what: format!(
+                    "{n_coarse} coarse points for {count} entries (at most {MAX_COARSE_POINTS} each)"
+                ),
+            });
+        }
+        let expected = min_len + count * ENTRY_LEN as u64 + n_coarse * COARSE_POINT_LEN as u64;
         if bytes.len() as u64 != expected {
             return Err(RelocDbError::Length {
                 path: p(),
@@ -347,10 +396,24 @@ impl RelocDatabase {
         }
         let map_fingerprint = r.u64();
         let _count = r.u64();
+        let _n_coarse = r.u64();
         let mut entries = Vec::with_capacity(count as usize);
+        let mut coarse_start = 0u64;
         for index in 0..count {
             let f: [f64; 7] = std::array::from_fn(|_| r.f64());
             let descriptor = Descriptor(std::array::from_fn(|_| r.u64()));
+            let coarse_len = r.u32();
+            if coarse_len as usize > MAX_COARSE_POINTS
+                || coarse_start + coarse_len as u64 > n_coarse
+            {
+                return Err(RelocDbError::Invalid {
+                    path: p(),
+                    what: format!(
+                        "entry {index}: {coarse_len} coarse points (at most {MAX_COARSE_POINTS}, {} left of {n_coarse})",
+                        n_coarse - coarse_start
+                    ),
+                });
+            }
             let q = Quaternion::new(f[6], f[3], f[4], f[5]);
             let norm = q.norm();
             if !f.iter().all(|v| v.is_finite()) || (norm - 1.0).abs() > 1e-3 {
@@ -365,12 +428,32 @@ impl RelocDatabase {
                     UnitQuaternion::new_normalize(q),
                 ),
                 descriptor,
+                coarse_start: coarse_start as u32,
+                coarse_len,
             });
+            coarse_start += coarse_len as u64;
+        }
+        if coarse_start != n_coarse {
+            return Err(RelocDbError::Invalid {
+                path: p(),
+                what: format!("the entries hold {coarse_start} coarse points, the header says {n_coarse}"),
+            });
+        }
+        let mut coarse_points = Vec::with_capacity(n_coarse as usize);
+        for index in 0..n_coarse {
+            let Some(point) = CoarsePoint::from_bytes(r.take()) else {
+                return Err(RelocDbError::Invalid {
+                    path: p(),
+                    what: format!("coarse point {index}: zero depth or a reserved byte set"),
+                });
+            };
+            coarse_points.push(point);
         }
         Ok(Self {
             camera,
             map_fingerprint,
             entries,
+            coarse_points,
             path: path.to_owned(),
         })
     }

@@ -4,6 +4,7 @@ use std::path::Path;
 
 use nalgebra::{Translation3, UnitQuaternion};
 
+use super::coarse::CoarsePoint;
 use super::database::{RelocDatabase, RelocDbError, RelocEntry};
 use super::descriptor::Descriptor;
 use super::recover::{Ranked, SearchIndex, SearchRegion, MAX_TOP_K};
@@ -21,12 +22,26 @@ fn db(n: usize) -> RelocDatabase {
                 UnitQuaternion::from_euler_angles(0.1, -0.2, i as f64 * 0.3),
             ),
             descriptor: Descriptor([i as u64, !(i as u64), (i as u64) << 7, 0xdead_beef]),
+            coarse_start: (3 * (i / 2) + (i % 2)) as u32,
+            coarse_len: (i % 2) as u32 + 1,
+        })
+        .collect();
+    // Entry i holds 1 or 2 points (i even or odd), stored back to back.
+    let coarse_points = (0..(n / 2) * 3 + n % 2)
+        .map(|k| CoarsePoint {
+            x: (k % 40) as u8,
+            y: (k % 32) as u8,
+            gray: (k * 7 % 256) as u8,
+            depth_mm: 500 + k as u16,
+            grad_x: -(k as i16) * 3,
+            grad_y: k as i16 * 5,
         })
         .collect();
     RelocDatabase {
         camera: camera(),
         map_fingerprint: 0x1234_5678_9abc_def0,
         entries,
+        coarse_points,
         path: "mem.rdb".into(),
     }
 }
@@ -42,8 +57,11 @@ fn round_trip_through_a_file() {
     assert_eq!(b.camera, a.camera);
     assert_eq!(b.map_fingerprint, a.map_fingerprint);
     assert_eq!(b.entries.len(), 25);
-    for (x, y) in a.entries.iter().zip(&b.entries) {
+    assert_eq!(b.coarse_points, a.coarse_points);
+    for (i, (x, y)) in a.entries.iter().zip(&b.entries).enumerate() {
         assert_eq!(x.descriptor, y.descriptor);
+        assert_eq!(b.coarse_points_of(i), a.coarse_points_of(i));
+        assert_eq!(b.coarse_points_of(i).len(), i % 2 + 1);
         let d = x.world_from_camera.inverse() * y.world_from_camera;
         assert!(d.translation.vector.norm() < 1e-12 && d.rotation.angle() < 1e-9);
     }
@@ -79,6 +97,36 @@ fn truncated_and_padded_files_are_length_errors() {
     assert!(matches!(err, RelocDbError::Length { .. }), "{err}");
     let err = RelocDatabase::from_bytes(&[], Path::new("t.rdb")).expect_err("empty");
     assert!(matches!(err, RelocDbError::BadMagic { .. }), "{err}");
+}
+
+/// Rewrites the checksum after an edit of the body.
+fn reseal(bytes: &mut [u8]) {
+    use super::database::{fnv1a64, FNV_OFFSET};
+    let end = bytes.len() - 8;
+    let sum = fnv1a64(FNV_OFFSET, &bytes[12..end]);
+    bytes[end..].copy_from_slice(&sum.to_le_bytes());
+}
+
+#[test]
+fn coarse_point_counts_that_disagree_are_invalid() {
+    // Entry 0's coarse count sits after the header (12), camera (80),
+    // fingerprint, entry count and point count (3 x 8), pose and descriptor (88).
+    let at = 12 + 80 + 24 + 88;
+    let mut bytes = db(4).to_bytes();
+    assert_eq!(&bytes[at..at + 4], &1u32.to_le_bytes());
+    bytes[at] = 2;
+    reseal(&mut bytes);
+    let err = RelocDatabase::from_bytes(&bytes, Path::new("c.rdb")).expect_err("count");
+    assert!(matches!(err, RelocDbError::Invalid { .. }), "{err}");
+    assert!(err.to_string().contains("coarse points"), "{err}");
+    // A point with zero depth.
+    let mut bytes = db(4).to_bytes();
+    let first_point = bytes.len() - 8 - 6 * 10;
+    bytes[first_point + 4] = 0;
+    bytes[first_point + 5] = 0;
+    reseal(&mut bytes);
+    let err = RelocDatabase::from_bytes(&bytes, Path::new("c.rdb")).expect_err("depth");
+    assert!(err.to_string().contains("coarse point 0"), "{err}");
 }
 
 #[test]

@@ -19,6 +19,7 @@ use crate::map::Mesh;
 use crate::render::{RenderError, RenderedView, Renderer};
 use crate::synth::look::camera_rotation;
 
+use super::coarse::{CoarseExtractor, CoarsePoint};
 use super::config::RelocConfig;
 use super::database::{map_fingerprint, RelocDatabase, RelocEntry};
 use super::descriptor::{Thumbnailer, THUMB_H, THUMB_W};
@@ -144,11 +145,15 @@ pub fn build_database_in(
     let render_camera = thumb_render_camera(camera);
     let mut view = RenderedView::for_camera(&render_camera);
     let mut thumbnailer = Thumbnailer::new();
+    let mut coarse = CoarseExtractor::new(&render_camera);
     let mut entries = Vec::new();
+    let mut coarse_points = Vec::new();
     let mut position_entries = Vec::with_capacity(views_per_position(config));
+    let mut position_points: Vec<CoarsePoint> = Vec::new();
     let n_pixels = (render_camera.width * render_camera.height) as f64;
     for (done, p) in positions.iter().enumerate() {
         position_entries.clear();
+        position_points.clear();
         let mut free = true;
         'views: for &pitch_deg in &config.pitches_deg {
             for yaw_rad in config.yaws_rad() {
@@ -185,15 +190,20 @@ pub fn build_database_in(
                     h,
                     config.min_contrast,
                 ) {
+                    let coarse_start = (coarse_points.len() + position_points.len()) as u32;
+                    let coarse_len = coarse.extract(&view, &mut position_points) as u32;
                     position_entries.push(RelocEntry {
                         world_from_camera,
                         descriptor,
+                        coarse_start,
+                        coarse_len,
                     });
                 }
             }
         }
         if free {
             entries.extend_from_slice(&position_entries);
+            coarse_points.extend_from_slice(&position_points);
         }
         progress(done + 1, positions.len());
     }
@@ -201,6 +211,7 @@ pub fn build_database_in(
         camera: *camera,
         map_fingerprint: map_fingerprint(mesh),
         entries,
+        coarse_points,
         path: std::path::PathBuf::new(),
     })
 }

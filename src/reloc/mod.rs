@@ -2,7 +2,9 @@
 //! tracking is lost, from a database of rendered views of the map.
 //!
 //! - [`descriptor`]: 80x64 thumbnail and 256-bit binary descriptor.
-//! - [`database`]: keyframe poses and descriptors; the versioned, checksummed
+//! - [`coarse`]: the 40x32 keyframe points stored per entry, aligned
+//!   before anything is rendered to rank the candidates.
+//! - [`database`]: keyframe poses, descriptors and coarse points; the versioned, checksummed
 //!   file and its checks (magic, version, length, checksum, map, camera).
 //! - [`grid`]: `star reloc build`: virtual cameras on a grid in free space.
 //! - [`recover`]: the online side: radius-bounded Hamming search and the
@@ -10,6 +12,7 @@
 //!   and aligns the candidates.
 //! - [`config`]: the `[reloc]` section.
 
+pub mod coarse;
 pub mod config;
 pub mod database;
 pub mod descriptor;

@@ -10,9 +10,11 @@
 
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
+use crate::config::TrackerConfig;
 use crate::geometry::{PinholeCamera, Pose};
-use crate::track::{AlignQuality, Aligner, Alignment, Keyframe, Pyramid};
+use crate::track::{AlignQuality, Aligner, Alignment, Keyframe, Pyramid, MAX_LEVELS};
 
+use super::coarse::{coarse_camera, frame_level, to_keypoints};
 use super::config::RelocConfig;
 use super::database::{RelocDatabase, RelocDbError};
 use super::descriptor::{Descriptor, Thumbnailer, QUERY_SHIFTS_PX, THUMB_W};
@@ -38,11 +40,41 @@ impl Default for Ranked {
     }
 }
 
+/// A candidate to render and verify.
+#[derive(Debug, Clone, Copy)]
+pub struct Candidate {
+    /// The database entry and its Hamming distance.
+    pub ranked: Ranked,
+    /// Where to render it: the entry's pose, or where the coarse alignment
+    /// against its stored points moved it.
+    pub world_from_camera: Pose,
+    /// Yaw of the query relative to that pose to start the alignment from,
+    /// radians (0 after a coarse alignment).
+    pub yaw_rad: f64,
+    /// Correlation reached by the coarse alignment; -inf when not aligned.
+    pub score: f32,
+}
+
+impl Default for Candidate {
+    fn default() -> Self {
+        Self {
+            ranked: Ranked::default(),
+            world_from_camera: Pose::identity(),
+            yaw_rad: 0.0,
+            score: f32::NEG_INFINITY,
+        }
+    }
+}
+
 /// The query descriptors at every shift of [`QUERY_SHIFTS_PX`].
 pub type Query = [Descriptor; QUERY_SHIFTS_PX.len()];
 
 /// Most candidates one search returns.
 pub const MAX_TOP_K: usize = 64;
+
+/// Fewest stored coarse points a candidate needs to be aligned when
+/// ranking (fewer score lowest).
+const COARSE_MIN_POINTS: usize = 30;
 
 /// Where to search.
 #[derive(Debug, Clone, Copy)]
@@ -69,6 +101,12 @@ pub struct Relocalizer {
     best: [Ranked; MAX_TOP_K],
     n_best: usize,
     camera: PinholeCamera,
+    /// Holds one candidate's stored coarse points at a time (only the
+    /// level the frame is aligned on is filled).
+    coarse_keyframe: Box<Keyframe>,
+    /// The last [`Self::search_ranked`]'s candidates.
+    candidates: [Candidate; MAX_TOP_K],
+    n_ranked: usize,
 }
 
 impl Relocalizer {
@@ -89,6 +127,15 @@ impl Relocalizer {
             best: [Ranked::default(); MAX_TOP_K],
             n_best: 0,
             camera: *camera,
+            coarse_keyframe: Box::new(Keyframe::new(
+                camera,
+                &TrackerConfig {
+                    pyramid_levels: MAX_LEVELS as u32,
+                    ..TrackerConfig::default()
+                },
+            )),
+            candidates: [Candidate::default(); MAX_TOP_K],
+            n_ranked: 0,
         })
     }
 
@@ -129,6 +176,127 @@ impl Relocalizer {
         let n = self.index.top_k(query, region, k, &mut self.best);
         self.n_best = n;
         &self.best[..n]
+    }
+
+    /// The candidates to render for `query` in `region`, best first, at
+    /// most `top_k`. The `rank_candidates` nearest entries by Hamming
+    /// distance are each aligned, at the level of `frame` (the query
+    /// frame's pyramid) nearest 40x32, against the entry's stored coarse
+    /// keyframe from the yaws of [`start_yaws_rad`]; they are re-ranked by
+    /// the correlation reached, and each is to be rendered where its
+    /// alignment moved it (nearer the truth: the STAR idea, before any
+    /// render). A descriptor ranks views by how alike they look; the
+    /// alignment by whether the frame fits the candidate's geometry, which
+    /// also sees through the offsets a whole-image descriptor does not
+    /// tolerate (close range, a few tenths of a meter off the grid).
+    /// Candidates whose alignments end within 5 cm and 2 degrees of a
+    /// better one's are dropped (they would render the same view). Without
+    /// coarse points, or with `rank_candidates <= top_k`, the top-k by
+    /// Hamming distance at their database poses.
+    pub fn search_ranked(
+        &mut self,
+        query: &Query,
+        region: SearchRegion,
+        aligner: &mut Aligner,
+        frame: &Pyramid,
+    ) -> &[Candidate] {
+        let top_k = (self.config.top_k as usize).clamp(1, MAX_TOP_K);
+        let m = (self.config.rank_candidates as usize).min(MAX_TOP_K);
+        if m <= top_k || self.db.coarse_points.is_empty() || frame.is_empty() {
+            let n = self.search(query, region).len();
+            for i in 0..n {
+                let ranked = self.best[i];
+                self.candidates[i] = Candidate {
+                    ranked,
+                    world_from_camera: self.db.entries[ranked.index as usize].world_from_camera,
+                    yaw_rad: self.shift_yaw_rad(ranked.shift),
+                    score: f32::NEG_INFINITY,
+                };
+            }
+            self.n_ranked = n;
+            return &self.candidates[..n];
+        }
+        let n = self.index.top_k(query, region, m, &mut self.best);
+        let level = frame_level(&self.camera, frame.len() - 1);
+        let coarse = coarse_camera(&self.camera);
+        for i in 0..n {
+            let ranked = self.best[i];
+            let world_from_entry = self.db.entries[ranked.index as usize].world_from_camera;
+            let yaws = start_yaws_rad(&self.config, self.shift_yaw_rad(ranked.shift));
+            let points = self.db.coarse_points_of(ranked.index as usize);
+            let kf = &mut self.coarse_keyframe;
+            to_keypoints(points, &coarse, &mut kf.levels[level].points);
+            let mut best = Candidate {
+                ranked,
+                world_from_camera: world_from_entry,
+                yaw_rad: yaws[0],
+                score: f32::NEG_INFINITY,
+            };
+            if kf.levels[level].points.len() >= COARSE_MIN_POINTS {
+                for (k, &yaw) in yaws.iter().enumerate() {
+                    if yaws[..k].contains(&yaw) {
+                        continue;
+                    }
+                    let start = Pose::from_parts(
+                        Translation3::identity(),
+                        UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw),
+                    )
+                    .inverse();
+                    let a = aligner.align_to_level(kf, frame, &self.camera, start, level);
+                    let q = &a.quality;
+                    let moved_m = a.camera_from_keyframe.translation.vector.norm();
+                    if a.valid
+                        && q.visible_ratio >= self.config.min_visible_ratio
+                        && moved_m <= 2.0 * self.config.grid_spacing_m
+                        && q.correlation > best.score
+                    {
+                        best.score = q.correlation;
+                        best.world_from_camera =
+                            world_from_entry * a.camera_from_keyframe.inverse();
+                        best.yaw_rad = 0.0;
+                    }
+                }
+            }
+            self.candidates[i] = best;
+        }
+        // Insertion sort (no allocation), best first; ties keep the
+        // Hamming order.
+        for i in 1..n {
+            let c = self.candidates[i];
+            let mut j = i;
+            while j > 0 && self.candidates[j - 1].score < c.score {
+                self.candidates[j] = self.candidates[j - 1];
+                j -= 1;
+            }
+            self.candidates[j] = c;
+        }
+        // Keep the first `top_k` that do not duplicate a better one.
+        let mut kept = 0usize;
+        for i in 0..n {
+            let c = self.candidates[i];
+            let duplicate = c.score.is_finite()
+                && self.candidates[..kept].iter().any(|k| {
+                    let d = k.world_from_camera.inverse() * c.world_from_camera;
+                    d.translation.vector.norm() < 0.05 && d.rotation.angle() < 2f64.to_radians()
+                });
+            if duplicate {
+                continue;
+            }
+            self.candidates.swap(kept, i);
+            kept += 1;
+            if kept == top_k {
+                break;
+            }
+        }
+        self.n_ranked = n;
+        &self.candidates[..kept]
+    }
+
+    /// Every candidate the last [`Self::search_ranked`] aligned, best
+    /// first after those it returned (diagnostics: past the returned ones
+    /// the order is not kept).
+    pub fn last_ranking(&self) -> &[Candidate] {
+        &self.candidates[..self.n_ranked]
     }
 
     /// Hamming distance of the `rank`-th candidate of the last search.
