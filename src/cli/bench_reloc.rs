@@ -125,8 +125,14 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
     let verbose = std::env::var_os("STAR_BENCH_VERBOSE").is_some();
     let mut rng = SplitMix64::new(seed ^ 0x7e10c);
     let (mut done, mut tries) = (0usize, 0usize);
-    let mut global = Tally::default();
-    let mut window = Tally::default();
+    let mut global = Tally {
+        rank_candidates: rc.rank_candidates,
+        ..Tally::default()
+    };
+    let mut window = Tally {
+        rank_candidates: rc.rank_candidates,
+        ..Tally::default()
+    };
     while done < queries && tries < queries * 100 {
         tries += 1;
         let p = Vector3::new(
@@ -170,9 +176,11 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                 tally.rejected += 1;
                 continue;
             };
+            let t_rank = Instant::now();
             let candidates: Vec<Candidate> = reloc
                 .search_ranked(&query, region, &mut aligner, &pyramid)
                 .to_vec();
+            tally.rank_ms.push(t_rank.elapsed().as_secs_f64() * 1e3);
             if let Some(first) = candidates.first() {
                 tally
                     .retrieved_m
@@ -185,21 +193,6 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
             };
             let near_truth = candidates.iter().any(|c| is_near(&c.world_from_camera));
             tally.retrieved_near += usize::from(near_truth);
-            if std::env::var_os("STAR_DIAG").is_some() {
-                let line: Vec<String> = reloc
-                    .last_ranking()
-                    .iter()
-                    .map(|c| {
-                        let e = &db.entries[c.ranked.index as usize];
-                        let near = is_near(&e.world_from_camera);
-                        let d = (e.world_from_camera.translation.vector - p).norm();
-                        let da = (c.world_from_camera.translation.vector - p).norm();
-                        let near_a = is_near(&c.world_from_camera);
-                        format!("{}{}{:.2}/{:.1}m>{:.2}m/h{}", if near { "*" } else { "" }, if near_a { "+" } else { "" }, c.score, d, da, c.ranked.distance)
-                    })
-                    .collect();
-                println!("DIAG {done} {:?}: {}", matches!(region, SearchRegion::Everywhere), line.join(" "));
-            }
             if matches!(region, SearchRegion::Everywhere) {
                 // Where the nearest good keyframe sits in the full ranking:
                 // what a re-ranking stage over the top N could recover.
@@ -524,6 +517,10 @@ struct Tally {
     prepare_ms: f64,
     /// Whole-map rank (0 = first) of the best near keyframe, per query.
     near_rank: Vec<usize>,
+    /// Search and coarse ranking of the candidates, per query, ms.
+    rank_ms: Vec<f64>,
+    /// `reloc.rank_candidates`.
+    rank_candidates: u32,
 }
 
 impl Tally {
@@ -569,6 +566,11 @@ impl Tally {
             self.render_ms / self.renders.max(1) as f64,
             self.prepare_ms / self.renders.max(1) as f64,
             100.0 * self.render_ms / self.recovery_ms.iter().sum::<f64>().max(1e-9)
+        );
+        let (rmed, rp99) = median_p99(&self.rank_ms);
+        println!(
+            "    search and coarse ranking of the {} best by Hamming distance: median {rmed:.1} ms, p99 {rp99:.1} ms",
+            self.rank_candidates
         );
         let (med, p99) = median_p99(&self.recovery_ms);
         let (smed, sp99) = median_p99(&self.success_ms);

@@ -4,9 +4,10 @@
 //! Each lost frame (after `reloc.resume_window_s`) with enough contrast is
 //! described and searched: first within `search_radius_m + max_speed_m_s x
 //! (time lost)` of the last tracked position, then over the whole map. The
-//! top-k candidates are rendered on the render thread (the lost frame waits
-//! for them; tracking never does) and aligned with the tracker's aligner;
-//! the first that passes the strict gate becomes the keyframe and the
+//! `rank_candidates` nearest by Hamming distance are aligned against their
+//! stored coarse points, and the top-k by that alignment are rendered where
+//! it moved them, on the render thread (the lost frame waits for them;
+//! tracking never does), and aligned with the tracker's aligner; the first that passes the strict gate becomes the keyframe and the
 //! prediction. Its pose is not output yet: the next `verify_frames` frames
 //! must track through the same gate, and only then is a pose output and
 //! `reset_counter` incremented. A wrong but confident pose would need to
@@ -14,7 +15,7 @@
 
 use crate::geometry::Pose;
 use crate::reloc::recover::start_yaws_rad;
-use crate::reloc::recover::{correlation, passes_gate, Ranked, MAX_TOP_K};
+use crate::reloc::recover::{correlation, passes_gate, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict,
 };
@@ -155,21 +156,17 @@ impl Localizer {
         let mut tried = [u32::MAX; 2 * MAX_TOP_K];
         let mut n_tried = 0usize;
         for region in [near, Some(SearchRegion::Everywhere)].into_iter().flatten() {
-            let mut candidates = [Ranked::default(); MAX_TOP_K];
-            let found = reloc.search(&query, region);
+            let mut candidates = [Candidate::default(); MAX_TOP_K];
+            let found = reloc.search_ranked(&query, region, &mut self.reloc_aligner, &self.pyramid);
             let n = found.len();
             candidates[..n].copy_from_slice(found);
-            for ranked in &candidates[..n] {
-                let c = ranked.index;
+            for candidate in &candidates[..n] {
+                let c = candidate.ranked.index;
                 if tried[..n_tried].contains(&c) || n_tried >= tried.len() {
                     continue;
                 }
                 tried[n_tried] = c;
                 n_tried += 1;
-                let Some(entry) = reloc.database().entries.get(c as usize) else {
-                    continue;
-                };
-                let world_from_candidate = entry.world_from_camera;
                 let mut refused = false;
                 let worker = &self.worker;
                 let stats = &mut self.stats;
@@ -200,8 +197,8 @@ impl Localizer {
                     &self.pyramid,
                     &self.camera,
                     reloc.config(),
-                    &world_from_candidate,
-                    reloc.shift_yaw_rad(ranked.shift),
+                    &candidate.world_from_camera,
+                    candidate.yaw_rad,
                     &mut render,
                     &mut |kf| worker.recycle(kf),
                 );
@@ -213,6 +210,7 @@ impl Localizer {
                 };
                 tracing::info!(
                     candidate = c,
+                    coarse_score = candidate.score,
                     inliers = v.alignment.quality.inlier_ratio,
                     visible = v.alignment.quality.visible_ratio,
                     residual = v.alignment.quality.residual_rms,

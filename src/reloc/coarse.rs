@@ -15,7 +15,7 @@
 use crate::config::TrackerConfig;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::render::RenderedView;
-use crate::track::{Keyframe, KeyPoint};
+use crate::track::{KeyPoint, Keyframe};
 
 use super::grid::thumb_render_camera;
 
@@ -153,7 +153,11 @@ impl CoarseExtractor {
             // Jacobian row 0 is gx * fx / z (see the keyframe preparation).
             let gx = kp.jacobian[0] * z / fx;
             let gy = kp.jacobian[1] * z / fy;
-            let q = |g: f32| (g * GRAD_SCALE).round().clamp(i16::MIN as f32, i16::MAX as f32) as i16;
+            let q = |g: f32| {
+                (g * GRAD_SCALE)
+                    .round()
+                    .clamp(i16::MIN as f32, i16::MAX as f32) as i16
+            };
             out.push(CoarsePoint {
                 x: x as u8,
                 y: y as u8,
@@ -259,11 +263,18 @@ mod tests {
         assert_eq!(kps.len(), n);
         for (a, b) in kps.iter().zip(original) {
             for k in 0..3 {
-                assert!((a.p_keyframe[k] - b.p_keyframe[k]).abs() < 2e-3, "{a:?} {b:?}");
+                assert!(
+                    (a.p_keyframe[k] - b.p_keyframe[k]).abs() < 2e-3,
+                    "{a:?} {b:?}"
+                );
             }
             assert!((a.gray - b.gray).abs() <= 0.5);
             for k in 0..6 {
-                let tol = 0.02 * b.jacobian[k].abs().max(1.0);
+                // 2 % plus the gradient's quantization (1/256 gray level
+                // per pixel), which shows in the rotation terms as a
+                // difference of large products: relative to the row's size.
+                let size = b.jacobian.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+                let tol = 0.02 * b.jacobian[k].abs() + 2e-3 * size;
                 assert!((a.jacobian[k] - b.jacobian[k]).abs() < tol, "{a:?} {b:?}");
             }
         }

@@ -436,7 +436,9 @@ impl RelocDatabase {
         if coarse_start != n_coarse {
             return Err(RelocDbError::Invalid {
                 path: p(),
-                what: format!("the entries hold {coarse_start} coarse points, the header says {n_coarse}"),
+                what: format!(
+                    "the entries hold {coarse_start} coarse points, the header says {n_coarse}"
+                ),
             });
         }
         let mut coarse_points = Vec::with_capacity(n_coarse as usize);

@@ -292,13 +292,6 @@ impl Relocalizer {
         &self.candidates[..kept]
     }
 
-    /// Every candidate the last [`Self::search_ranked`] aligned, best
-    /// first after those it returned (diagnostics: past the returned ones
-    /// the order is not kept).
-    pub fn last_ranking(&self) -> &[Candidate] {
-        &self.candidates[..self.n_ranked]
-    }
-
     /// Hamming distance of the `rank`-th candidate of the last search.
     pub fn distance_of_rank(&self, rank: usize) -> Option<u32> {
         self.best[..self.n_best].get(rank).map(|b| b.distance)
