@@ -99,7 +99,14 @@ impl Image<f32> {
     /// `None` unless all four neighbours are inside the image.
     #[inline(always)]
     pub fn bilinear(&self, x: f32, y: f32) -> Option<f32> {
-        if !(x >= 0.0 && y >= 0.0) {
+        // Compared as floats before any cast: a huge coordinate (a point
+        // just in front of the camera plane) would saturate the cast and
+        // wrap `x0 + 1` past the bounds check.
+        let (max_x, max_y) = (
+            self.width.saturating_sub(1) as f32,
+            self.height.saturating_sub(1) as f32,
+        );
+        if !(x >= 0.0 && y >= 0.0 && x < max_x && y < max_y) {
             return None;
         }
         let x0 = x as usize;
@@ -144,6 +151,22 @@ impl Image<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bilinear_refuses_huge_and_non_finite_coordinates() {
+        let img = Image::from_vec(3, 3, vec![1.0; 9]).expect("3x3");
+        for (x, y) in [
+            (1e30, 1.0),
+            (1.0, 1e30),
+            (f32::INFINITY, 1.0),
+            (f32::NAN, 1.0),
+            (1.0, f32::MAX),
+            (2.0, 1.0),
+        ] {
+            assert_eq!(img.bilinear(x, y), None, "({x}, {y})");
+        }
+        assert_eq!(img.bilinear(1.5, 1.5), Some(1.0));
+    }
 
     #[test]
     fn bilinear_uses_integer_pixel_centers() {
