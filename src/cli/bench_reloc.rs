@@ -308,29 +308,31 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                         kf.prepare(&kview, truth, 0, &tracker);
                         let a = aligner.align(&kf, &pyramid, &camera, Pose::identity());
                         let q = a.quality;
-                        let c1 = crate::reloc::recover::correlation(
-                            &kf,
-                            &pyramid,
-                            &camera,
-                            &a.camera_from_keyframe,
-                            1,
-                        );
-                        let c2 = crate::reloc::recover::correlation(
-                            &kf,
-                            &pyramid,
-                            &camera,
-                            &a.camera_from_keyframe,
-                            2,
-                        );
+                        let corr = |level| {
+                            crate::reloc::recover::correlations(
+                                &kf,
+                                &pyramid,
+                                &camera,
+                                &a.camera_from_keyframe,
+                                level,
+                            )
+                        };
+                        let (c0, c1, c2) = (corr(0), corr(1), corr(2));
+                        let trimmed = |c: Option<crate::reloc::recover::Correlations>| {
+                            c.map_or(f32::NAN, |c| c.trimmed)
+                        };
                         let off = a.camera_from_keyframe.translation.vector.norm();
                         at_truth = format!(
-                            "at truth: inliers {:.2} visible {:.2} residual {:.1} ncc {:.2}/{:.2}/{:.2} gain {:.2} off {off:.3} m",
+                            "at truth: inliers {:.2} visible {:.2} residual {:.1} ncc {:.2}/{:.2}/{:.2} trimmed {:.2}/{:.2}/{:.2} gain {:.2} off {off:.3} m",
                             q.inlier_ratio,
                             q.visible_ratio,
                             q.residual_rms,
                             q.correlation,
-                            c1.unwrap_or(f32::NAN),
-                            c2.unwrap_or(f32::NAN),
+                            c1.map_or(f32::NAN, |c| c.all),
+                            c2.map_or(f32::NAN, |c| c.all),
+                            trimmed(c0),
+                            trimmed(c1),
+                            trimmed(c2),
                             a.gain
                         );
                     }
@@ -372,6 +374,9 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                     let err_deg = err.rotation.angle().to_degrees();
                     if err_m <= 0.05 && err_deg <= 2.0 {
                         tally.success += 1;
+                        tally
+                            .success_ncc
+                            .push((v.correlation, v.trimmed_correlation));
                         tally.success_given_near += usize::from(near_truth);
                         tally.success_ms.push(ms);
                     } else {
@@ -380,11 +385,13 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                             err_m,
                             err_deg,
                             format!(
-                                "inliers {:.2}, visible {:.2}, residual {:.1}, correlation {:.2}, gain {:.2}",
+                                "inliers {:.2}, visible {:.2}, residual {:.1}, correlation {:.2}, trimmed {:.2} keeping {:.2}, gain {:.2}",
                                 q.inlier_ratio,
                                 q.visible_ratio,
                                 q.residual_rms,
-                                q.correlation,
+                                v.correlation,
+                                v.trimmed_correlation,
+                                v.kept,
                                 v.alignment.gain
                             ),
                         ));
@@ -519,6 +526,8 @@ struct Tally {
     near_rank: Vec<usize>,
     /// Search and coarse ranking of the candidates, per query, ms.
     rank_ms: Vec<f64>,
+    /// Correlation and trimmed correlation of the successes.
+    success_ncc: Vec<(f32, f32)>,
     /// `reloc.rank_candidates`.
     rank_candidates: u32,
 }
@@ -548,7 +557,7 @@ impl Tally {
             pct(self.wrong.len())
         );
         println!(
-            "    retrieval: a keyframe within 0.5 m / 20 deg of the truth among the top k for {}/{done} = {:.1} %; success on those {}/{} = {:.1} %",
+            "    retrieval: a candidate (where it is rendered) within 0.5 m / 20 deg of the truth among the top k for {}/{done} = {:.1} %; success on those {}/{} = {:.1} %",
             self.retrieved_near,
             pct(self.retrieved_near),
             self.success_given_near,
@@ -567,6 +576,24 @@ impl Tally {
             self.prepare_ms / self.renders.max(1) as f64,
             100.0 * self.render_ms / self.recovery_ms.iter().sum::<f64>().max(1e-9)
         );
+        if std::env::var_os("STAR_BENCH_VERBOSE").is_some() {
+            let mut all: Vec<f64> = self.success_ncc.iter().map(|c| c.0 as f64).collect();
+            let mut trimmed: Vec<f64> = self.success_ncc.iter().map(|c| c.1 as f64).collect();
+            all.sort_by(f64::total_cmp);
+            trimmed.sort_by(f64::total_cmp);
+            let low = |v: &[f64]| {
+                v.iter()
+                    .take(5)
+                    .map(|x| format!("{x:.2}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            };
+            println!(
+                "    lowest correlations of the successes: all {}; trimmed {}",
+                low(&all),
+                low(&trimmed)
+            );
+        }
         let (rmed, rp99) = median_p99(&self.rank_ms);
         println!(
             "    search and coarse ranking of the {} best by Hamming distance: median {rmed:.1} ms, p99 {rp99:.1} ms",

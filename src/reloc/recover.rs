@@ -437,6 +437,37 @@ pub struct Verified {
     pub world_from_camera: Pose,
     /// The alignment.
     pub alignment: Alignment,
+    /// Smallest correlation over pyramid levels 0, 1 and 2 ([`correlations`]).
+    pub correlation: f32,
+    /// Smallest trimmed correlation over the same levels.
+    pub trimmed_correlation: f32,
+    /// Smallest fraction of points the trimming kept.
+    pub kept: f32,
+}
+
+/// The smallest [`correlations`] over pyramid levels 0, 1 and 2 (each
+/// figure on its own); `None` when level 0 or 1 cannot be evaluated.
+pub fn min_correlations(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+) -> Option<Correlations> {
+    let mut out: Option<Correlations> = None;
+    for level in 0..3 {
+        match correlations(keyframe, frame, camera, camera_from_keyframe, level) {
+            Some(c) => {
+                out = Some(out.map_or(c, |o| Correlations {
+                    all: o.all.min(c.all),
+                    trimmed: o.trimmed.min(c.trimmed),
+                    kept: o.kept.min(c.kept),
+                }));
+            }
+            None if level < 2 => return None,
+            None => {}
+        }
+    }
+    out
 }
 
 /// Zero-mean normalized cross-correlation between the keyframe points of
@@ -455,8 +486,78 @@ pub fn correlation(
     if level >= frame.len() {
         return None;
     }
-    let image = frame.level(level);
     let cam = camera.scaled_to_level(level as u32);
+    let fit = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None)?;
+    Some(fit.ncc)
+}
+
+/// What [`correlations`] measured.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Correlations {
+    /// Over every visible point ([`correlation`]).
+    pub all: f32,
+    /// Over the points that fit the affine intensity relation (trimmed
+    /// four times at 2.5 standard deviations of the refitted relation; an
+    /// object over a third of the view needs three or four): what is left when an
+    /// object that is not in the map covers part of the view. A wrong pose
+    /// on a low-contrast look-alike fits every point loosely and stays low.
+    pub trimmed: f32,
+    /// Fraction of the visible points the trimming kept.
+    pub kept: f32,
+}
+
+/// [`correlation`] together with its trimmed version.
+pub fn correlations(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+    level: usize,
+) -> Option<Correlations> {
+    let kl = keyframe.levels.get(level)?;
+    if level >= frame.len() {
+        return None;
+    }
+    let cam = camera.scaled_to_level(level as u32);
+    let all = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None)?;
+    let mut trimmed = all;
+    for _ in 0..4 {
+        let limit = (trimmed.slope, trimmed.offset, 2.5 * trimmed.sigma);
+        match ncc_pass(kl, frame, &cam, level, camera_from_keyframe, Some(limit)) {
+            Some(t) => trimmed = t,
+            None => break,
+        }
+    }
+    Some(Correlations {
+        all: all.ncc,
+        trimmed: trimmed.ncc,
+        kept: trimmed.n as f32 / all.n.max(1) as f32,
+    })
+}
+
+/// One correlation pass and the affine fit `frame = slope * keyframe + offset`.
+#[derive(Debug, Clone, Copy)]
+struct NccFit {
+    n: usize,
+    ncc: f32,
+    slope: f64,
+    offset: f64,
+    /// Standard deviation of the fit's residual, gray levels.
+    sigma: f64,
+}
+
+/// Correlation over the visible points of `kl`, only those within
+/// `limit.2` of the fit `(slope, offset) = (limit.0, limit.1)` when given;
+/// `None` with fewer than 50 points or no variance.
+fn ncc_pass(
+    kl: &crate::track::KeyframeLevel,
+    frame: &Pyramid,
+    cam: &PinholeCamera,
+    level: usize,
+    camera_from_keyframe: &Pose,
+    limit: Option<(f64, f64, f64)>,
+) -> Option<NccFit> {
+    let image = frame.level(level);
     let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0f64, 0f64, 0f64, 0f64, 0f64);
     for kp in &kl.points {
         let p = Vector3::new(
@@ -472,6 +573,11 @@ pub fn correlation(
             continue;
         };
         let (a, b) = (kp.gray as f64, v as f64);
+        if let Some((slope, offset, max)) = limit {
+            if (b - (slope * a + offset)).abs() > max {
+                continue;
+            }
+        }
         n += 1;
         sa += a;
         sb += b;
@@ -489,7 +595,14 @@ pub fn correlation(
     if !(va > 0.0 && vb > 0.0) {
         return None;
     }
-    Some((cov / (va * vb).sqrt()) as f32)
+    let slope = cov / va;
+    Some(NccFit {
+        n,
+        ncc: (cov / (va * vb).sqrt()) as f32,
+        slope,
+        offset: (sb - slope * sa) / nf,
+        sigma: ((vb - slope * cov) / nf).max(1e-6).sqrt(),
+    })
 }
 
 /// True when `q` passes the relocalization gate of `config`.
@@ -645,11 +758,21 @@ pub fn verify_candidate(
         // look-alike place elsewhere in the map matched the texture at 0.73
         // but the layout only at 0.52, another 0.9 m off reached 0.6 only
         // at level 0's 0.59, where correct poses measured at least 0.58.
-        let fine = correlation(keyframe, frame, camera, &a.camera_from_keyframe, 1);
-        let coarse = correlation(keyframe, frame, camera, &a.camera_from_keyframe, 2);
-        let ncc = fine.map(|f| coarse.map_or(f, |c| f.min(c)).min(q.correlation));
         let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
-        if passes_gate(q, config) && gain_ok && ncc.is_some_and(|c| c >= config.min_correlation) {
+        // The correlations (five passes over the finest points) only where
+        // the cheaper tests pass.
+        let ncc = (passes_gate(q, config) && gain_ok)
+            .then(|| min_correlations(keyframe, frame, camera, &a.camera_from_keyframe))
+            .flatten();
+        let ncc_ok = ncc.is_some_and(|c| {
+            c.all >= config.min_correlation && c.trimmed >= config.min_trimmed_correlation
+        });
+        if ncc_ok {
+            let ncc = ncc.unwrap_or(Correlations {
+                all: f32::NAN,
+                trimmed: f32::NAN,
+                kept: f32::NAN,
+            });
             let better = best
                 .as_ref()
                 .is_none_or(|b| q.inlier_ratio > b.alignment.quality.inlier_ratio);
@@ -657,6 +780,9 @@ pub fn verify_candidate(
                 best = Some(Verified {
                     world_from_camera,
                     alignment: a,
+                    correlation: ncc.all,
+                    trimmed_correlation: ncc.trimmed,
+                    kept: ncc.kept,
                 });
             }
         } else if q.inlier_ratio >= config.refine_min_inlier_ratio
@@ -723,5 +849,70 @@ pub fn try_candidate(
         keyframe = render(&pose)?;
         renders += 1;
         verdict = verify_candidate(aligner, &keyframe, frame, camera, config, &[0.0]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imgproc::ImageF32;
+    use crate::render::RenderedView;
+
+    fn texture(x: usize, y: usize, phase: f32) -> f32 {
+        128.0 + 50.0 * ((x as f32 * 0.31 + phase).sin() + (y as f32 * 0.23 - phase).cos())
+    }
+
+    /// A keyframe of a textured fronto-parallel plane, and a frame of the
+    /// same view with `edit` applied to its pixels.
+    fn setup(edit: impl Fn(usize, usize, f32) -> f32) -> (Keyframe, Pyramid, PinholeCamera) {
+        let camera = PinholeCamera::new(160, 128, 120.0, 120.0, 79.5, 63.5);
+        let config = TrackerConfig {
+            pyramid_levels: 3,
+            ..TrackerConfig::default()
+        };
+        let mut view = RenderedView::for_camera(&camera);
+        let mut frame = ImageF32::new(160, 128, 0.0);
+        for y in 0..128 {
+            for x in 0..160 {
+                let v = texture(x, y, 0.0);
+                view.gray.row_mut(y)[x] = v;
+                frame.row_mut(y)[x] = edit(x, y, v);
+            }
+        }
+        view.depth_m = ImageF32::new(160, 128, 2.0);
+        let mut keyframe = Keyframe::new(&camera, &config);
+        keyframe.prepare(&view, Pose::identity(), 1, &config);
+        let mut pyramid = Pyramid::new(160, 128, 3);
+        pyramid.fill_from_f32(&frame);
+        (keyframe, pyramid, camera)
+    }
+
+    #[test]
+    fn trimming_sees_through_an_occluder_but_not_a_wrong_view() {
+        // A gain change and an object with its own texture over the left
+        // third.
+        let (kf, frame, camera) = setup(|x, y, v| {
+            if x < 53 {
+                texture(y, x, 2.9)
+            } else {
+                0.8 * v + 10.0
+            }
+        });
+        let c = correlations(&kf, &frame, &camera, &Pose::identity(), 0).expect("occluded");
+        assert!(c.all < 0.8, "{c:?}");
+        assert!(c.trimmed > 0.95, "{c:?}");
+        assert!((0.5..0.8).contains(&c.kept), "{c:?}");
+        assert_eq!(
+            correlation(&kf, &frame, &camera, &Pose::identity(), 0),
+            Some(c.all)
+        );
+        // Another texture altogether: trimming does not make it correlate.
+        let (kf, frame, camera) = setup(|x, y, _| texture(x, y, 1.7));
+        let c = correlations(&kf, &frame, &camera, &Pose::identity(), 0).expect("other");
+        assert!(c.trimmed < 0.6, "{c:?}");
+        // The same view: both near 1, nothing trimmed away to speak of.
+        let (kf, frame, camera) = setup(|_, _, v| v);
+        let c = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("same");
+        assert!(c.all > 0.99 && c.trimmed > 0.99 && c.kept > 0.95, "{c:?}");
     }
 }
