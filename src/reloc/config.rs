@@ -108,7 +108,7 @@ impl Default for RelocConfig {
             bounds_margin_m: 0.3,
             min_valid_fraction: 0.8,
             min_depth_m: 0.4,
-            top_k: 4,
+            top_k: 8,
             rank_candidates: 32,
             search_radius_m: 0.5,
             max_speed_m_s: 2.0,

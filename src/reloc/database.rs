@@ -27,8 +27,9 @@ use super::descriptor::Descriptor;
 pub const MAGIC: &[u8; 8] = b"STARRLDB";
 /// Current format version. 2: the descriptor subtracts the thumbnail's
 /// local mean (version-1 descriptors would not match the queries).
-/// 3: coarse keyframe points per entry.
-pub const VERSION: u32 = 3;
+/// 3: coarse keyframe points per entry. 4: the descriptor's blur widened
+/// (sigma 2.4 -> 3.5 thumbnail pixels).
+pub const VERSION: u32 = 4;
 const HEADER_LEN: usize = 8 + 4;
 const CAMERA_LEN: usize = 8 + 9 * 8;
 const BODY_FIXED_LEN: usize = CAMERA_LEN + 8 + 8 + 8;
