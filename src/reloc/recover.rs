@@ -761,18 +761,13 @@ pub fn verify_candidate(
         let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
         // The correlations (five passes over the finest points) only where
         // the cheaper tests pass.
-        let ncc = (passes_gate(q, config) && gain_ok)
+        let accepted = (passes_gate(q, config) && gain_ok)
             .then(|| min_correlations(keyframe, frame, camera, &a.camera_from_keyframe))
-            .flatten();
-        let ncc_ok = ncc.is_some_and(|c| {
-            c.all >= config.min_correlation && c.trimmed >= config.min_trimmed_correlation
-        });
-        if ncc_ok {
-            let ncc = ncc.unwrap_or(Correlations {
-                all: f32::NAN,
-                trimmed: f32::NAN,
-                kept: f32::NAN,
+            .flatten()
+            .filter(|c| {
+                c.all >= config.min_correlation && c.trimmed >= config.min_trimmed_correlation
             });
+        if let Some(ncc) = accepted {
             let better = best
                 .as_ref()
                 .is_none_or(|b| q.inlier_ratio > b.alignment.quality.inlier_ratio);
