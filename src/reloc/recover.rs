@@ -482,13 +482,21 @@ pub fn correlation(
     camera_from_keyframe: &Pose,
     level: usize,
 ) -> Option<f32> {
-    let kl = keyframe.levels.get(level)?;
-    if level >= frame.len() {
-        return None;
-    }
-    let cam = camera.scaled_to_level(level as u32);
+    let (kl, cam) = level_of(keyframe, frame, camera, level)?;
     let fit = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None)?;
     Some(fit.ncc)
+}
+
+/// The keyframe's points of `level` and the camera scaled to it; `None`
+/// when the keyframe or the frame lacks the level.
+fn level_of<'k>(
+    keyframe: &'k Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    level: usize,
+) -> Option<(&'k crate::track::KeyframeLevel, PinholeCamera)> {
+    let kl = keyframe.levels.get(level)?;
+    (level < frame.len()).then(|| (kl, camera.scaled_to_level(level as u32)))
 }
 
 /// What [`correlations`] measured.
@@ -514,11 +522,7 @@ pub fn correlations(
     camera_from_keyframe: &Pose,
     level: usize,
 ) -> Option<Correlations> {
-    let kl = keyframe.levels.get(level)?;
-    if level >= frame.len() {
-        return None;
-    }
-    let cam = camera.scaled_to_level(level as u32);
+    let (kl, cam) = level_of(keyframe, frame, camera, level)?;
     let all = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None)?;
     let mut trimmed = all;
     for _ in 0..4 {
