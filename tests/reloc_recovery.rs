@@ -58,6 +58,8 @@ fn fixture() -> Fixture {
         heights_m: vec![mean_z],
         yaw_steps: 24,
         bounds_margin_m: 0.0,
+        landmark_spacing_m: 0.4,
+        landmark_heights_m: vec![mean_z],
         ..RelocConfig::default()
     };
     let pad = 0.3;
@@ -77,6 +79,11 @@ fn fixture() -> Fixture {
     )
     .expect("database");
     assert!(db.entries.len() > 100, "{} entries", db.entries.len());
+    assert!(
+        db.landmarks.len() > 1000,
+        "{} landmarks",
+        db.landmarks.len()
+    );
     Fixture {
         _tmp: tmp,
         root,
@@ -231,10 +238,49 @@ fn check_ranking(fx: &Fixture) {
     );
 }
 
+/// The landmarks on real frames (distorted, noisy, vignetted): the
+/// features matched to the map's landmarks give, through RANSAC PnP, a pose
+/// near the truth for most frames, with no database view involved.
+fn check_landmarks(fx: &Fixture) {
+    let ds = Dataset::open(&fx.root).expect("dataset");
+    let camera = ds.camera();
+    let mut reloc = Relocalizer::new(fx.db.clone(), &fx.config.reloc, camera).expect("reloc");
+    let (mut tried, mut close) = (0, 0);
+    for i in (10..FRAMES).step_by(19) {
+        let frame = ds.load_frame(i).expect("frame");
+        tried += 1;
+        let truth = fx.gt.poses[i];
+        let found = reloc.landmark_candidate(
+            frame.data(),
+            frame.width(),
+            frame.height(),
+            frame.width(),
+            star::reloc::SearchRegion::Everywhere,
+        );
+        let Some((candidate, located)) = found else {
+            eprintln!("landmarks frame {i}: no pose");
+            continue;
+        };
+        let e = truth.inverse() * candidate.world_from_camera;
+        let (err_m, err_deg) = (e.translation.vector.norm(), e.rotation.angle().to_degrees());
+        close += usize::from(err_m < 0.05 && err_deg < 2.0);
+        eprintln!(
+            "landmarks frame {i}: pose {err_m:.3} m / {err_deg:.2} deg from the truth, {} inliers of {} matches",
+            located.inliers, located.matches
+        );
+    }
+    assert!(tried >= 8, "{tried} frames");
+    assert!(
+        close * 10 >= tried * 6,
+        "{close} of {tried} within 5 cm / 2 deg"
+    );
+}
+
 #[test]
 fn recovers_after_blackout_and_teleport() {
     let fx = fixture();
     check_ranking(&fx);
+    check_landmarks(&fx);
     let tmp = tempfile::tempdir().expect("tmp");
 
     // (a) 1 s blackout: 50 black frames from FAULT_START.

@@ -88,8 +88,9 @@ fn build(args: &BuildArgs) -> Result<()> {
     bar.finish_and_clear();
     db.write(&args.output)?;
     println!(
-        "reloc build: wrote {} keyframes to {} in {:.1} s (renderer {}, map fingerprint {:#018x})",
+        "reloc build: wrote {} keyframes and {} landmarks to {} in {:.1} s (renderer {}, map fingerprint {:#018x})",
         db.entries.len(),
+        db.landmarks.len(),
         args.output.display(),
         t0.elapsed().as_secs_f64(),
         renderer.name(),

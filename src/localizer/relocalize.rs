@@ -153,13 +153,39 @@ impl Localizer {
             center_m: pose.translation.vector,
             radius_m: reloc.radius_m(self.lost_s(capture_ns)),
         });
-        let mut tried = [u32::MAX; 2 * MAX_TOP_K];
+        // The landmark pose (features matched to the map's landmarks, then
+        // PnP) is tried first, in the first region that holds it; then the
+        // database views ranked by the whole-image descriptor.
+        let landmark = reloc.landmark_candidate(pixels, w, h, stride, SearchRegion::Everywhere);
+        if let Some((_, found)) = &landmark {
+            tracing::debug!(
+                inliers = found.inliers,
+                matches = found.matches,
+                "landmark pose found"
+            );
+        }
+        let mut tried = [u32::MAX; 2 * (MAX_TOP_K + 1)];
         let mut n_tried = 0usize;
-        for region in [near, Some(SearchRegion::Everywhere)].into_iter().flatten() {
+        for (region, pass) in [near, Some(SearchRegion::Everywhere)]
+            .into_iter()
+            .flatten()
+            .flat_map(|region| [(region, 0), (region, 1)])
+        {
             let mut candidates = [Candidate::default(); MAX_TOP_K];
-            let found = reloc.search_ranked(&query, region, &mut self.reloc_aligner, &self.pyramid);
-            let n = found.len();
-            candidates[..n].copy_from_slice(found);
+            let mut n = 0;
+            if pass == 0 {
+                if let Some((c, _)) = landmark
+                    .filter(|(c, _)| region.contains(&c.world_from_camera.translation.vector))
+                {
+                    candidates[0] = c;
+                    n = 1;
+                }
+            } else {
+                let found =
+                    reloc.search_ranked(&query, region, &mut self.reloc_aligner, &self.pyramid);
+                n = found.len().min(MAX_TOP_K);
+                candidates[..n].copy_from_slice(&found[..n]);
+            }
             for candidate in &candidates[..n] {
                 let c = candidate.ranked.index;
                 if tried[..n_tried].contains(&c) || n_tried >= tried.len() {

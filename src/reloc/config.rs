@@ -95,6 +95,20 @@ pub struct RelocConfig {
     /// Within this time of the failure, ordinary tracking may resume on its
     /// own; afterwards only an accepted relocalization restarts it, seconds.
     pub resume_window_s: f64,
+    /// Landmarks (`star reloc build`): full-resolution views on a horizontal
+    /// grid this far apart (meters; 0: no landmarks), ...
+    pub landmark_spacing_m: f64,
+    /// ... at these heights (world z, meters), ...
+    pub landmark_heights_m: Vec<f64>,
+    /// ... with this many yaws, evenly spaced over 360 degrees, at the
+    /// middle of `pitches_deg`.
+    pub landmark_yaw_steps: u32,
+    /// Features per view and per lost frame.
+    pub landmark_features: u32,
+    /// Largest Hamming distance (of 256 bits) of a feature-to-landmark match.
+    pub landmark_max_hamming: u32,
+    /// Fewest PnP inliers for a landmark pose to become a candidate.
+    pub landmark_min_inliers: u32,
 }
 
 impl Default for RelocConfig {
@@ -127,6 +141,12 @@ impl Default for RelocConfig {
             track_min_correlation: 0.5,
             verify_frames: 1,
             resume_window_s: 0.2,
+            landmark_spacing_m: 0.5,
+            landmark_heights_m: vec![1.4],
+            landmark_yaw_steps: 8,
+            landmark_features: 300,
+            landmark_max_hamming: 50,
+            landmark_min_inliers: 15,
         }
     }
 }
@@ -287,6 +307,53 @@ impl RelocConfig {
                 return Err((key, reason));
             }
         }
+        if !(self.landmark_spacing_m == 0.0
+            || (self.landmark_spacing_m.is_finite() && self.landmark_spacing_m >= 0.1))
+        {
+            return Err((
+                "landmark_spacing_m",
+                format!(
+                    "expected 0 (no landmarks) or >= 0.1, found {}",
+                    self.landmark_spacing_m
+                ),
+            ));
+        }
+        if self.landmark_spacing_m > 0.0
+            && (self.landmark_heights_m.is_empty()
+                || self.landmark_heights_m.iter().any(|h| !h.is_finite()))
+        {
+            return Err((
+                "landmark_heights_m",
+                format!(
+                    "expected at least one finite height, found {:?}",
+                    self.landmark_heights_m
+                ),
+            ));
+        }
+        if !(1..=360).contains(&self.landmark_yaw_steps) {
+            return Err((
+                "landmark_yaw_steps",
+                format!("expected 1..=360, found {}", self.landmark_yaw_steps),
+            ));
+        }
+        if !(16..=5000).contains(&self.landmark_features) {
+            return Err((
+                "landmark_features",
+                format!("expected 16..=5000, found {}", self.landmark_features),
+            ));
+        }
+        if self.landmark_max_hamming > 256 {
+            return Err((
+                "landmark_max_hamming",
+                format!("expected 0..=256, found {}", self.landmark_max_hamming),
+            ));
+        }
+        if self.landmark_min_inliers < 6 {
+            return Err((
+                "landmark_min_inliers",
+                format!("expected >= 6, found {}", self.landmark_min_inliers),
+            ));
+        }
         if self.verify_frames > 50 {
             return Err((
                 "verify_frames",
@@ -310,6 +377,12 @@ impl RelocConfig {
             })
             .filter(|gap| gap.is_finite())
             .fold(0.0, f64::max)
+    }
+
+    /// Yaws of the landmark views, radians.
+    pub fn landmark_yaws_rad(&self) -> impl Iterator<Item = f64> + '_ {
+        let n = self.landmark_yaw_steps.max(1);
+        (0..n).map(move |i| i as f64 * std::f64::consts::TAU / n as f64)
     }
 
     /// Yaw angles of the grid, radians.

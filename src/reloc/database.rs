@@ -8,8 +8,10 @@
 //! entry the pose `world_from_camera` (tx, ty, tz, qx, qy, qz, qw f64), the
 //! descriptor (4 x u64) and its number of coarse points (u32); then the
 //! coarse points of every entry in entry order ([`CoarsePoint::to_bytes`],
-//! 10 bytes each). The header before the entries also holds the total
-//! number of coarse points (u64), so the length is known up front. Reading checks every part and names the file and
+//! 10 bytes each); then the landmarks ([`Landmark::to_bytes`], 44 bytes
+//! each). The header before the entries also holds the total number of
+//! coarse points and of landmarks (u64 each), so the length is known up
+//! front. Reading checks every part and names the file and
 //! the problem; [`RelocDatabase::check_compatible`] rejects a database made
 //! for another map or other intrinsics.
 
@@ -22,20 +24,23 @@ use crate::map::Mesh;
 
 use super::coarse::{CoarsePoint, COARSE_POINT_LEN, MAX_COARSE_POINTS};
 use super::descriptor::Descriptor;
+use super::landmarks::{Landmark, LANDMARK_LEN};
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"STARRLDB";
 /// Current format version. 2: the descriptor subtracts the thumbnail's
 /// local mean (version-1 descriptors would not match the queries).
 /// 3: coarse keyframe points per entry. 4: the descriptor's blur widened
-/// (sigma 2.4 -> 3.5 thumbnail pixels).
-pub const VERSION: u32 = 4;
+/// (sigma 2.4 -> 3.5 thumbnail pixels). 5: landmarks.
+pub const VERSION: u32 = 5;
 const HEADER_LEN: usize = 8 + 4;
 const CAMERA_LEN: usize = 8 + 9 * 8;
-const BODY_FIXED_LEN: usize = CAMERA_LEN + 8 + 8 + 8;
+const BODY_FIXED_LEN: usize = CAMERA_LEN + 8 + 8 + 8 + 8;
 const ENTRY_LEN: usize = 7 * 8 + 4 * 8 + 4;
 /// Most entries a file may declare (guards the allocation).
 pub const MAX_ENTRIES: u64 = 10_000_000;
+/// Most landmarks a file may declare (guards the allocation).
+pub const MAX_LANDMARKS: u64 = 50_000_000;
 
 /// Errors reading, writing or using a relocalization database.
 #[derive(Debug, thiserror::Error)]
@@ -136,6 +141,8 @@ pub struct RelocDatabase {
     pub entries: Vec<RelocEntry>,
     /// The coarse keyframe points of all entries, in entry order.
     pub coarse_points: Vec<CoarsePoint>,
+    /// Map points with feature descriptors (empty when built without).
+    pub landmarks: Vec<Landmark>,
     /// Where it was read from (for error messages); empty when built in memory.
     pub path: PathBuf,
 }
@@ -241,7 +248,8 @@ impl RelocDatabase {
         let mut body = Vec::with_capacity(
             BODY_FIXED_LEN
                 + self.entries.len() * ENTRY_LEN
-                + self.coarse_points.len() * COARSE_POINT_LEN,
+                + self.coarse_points.len() * COARSE_POINT_LEN
+                + self.landmarks.len() * LANDMARK_LEN,
         );
         let c = &self.camera;
         body.extend_from_slice(&c.width.to_le_bytes());
@@ -256,6 +264,7 @@ impl RelocDatabase {
             .map(|i| self.coarse_points_of(i).len())
             .sum();
         body.extend_from_slice(&(n_coarse as u64).to_le_bytes());
+        body.extend_from_slice(&(self.landmarks.len() as u64).to_le_bytes());
         for (i, e) in self.entries.iter().enumerate() {
             let t = e.world_from_camera.translation.vector;
             let q = e.world_from_camera.rotation.coords; // [x, y, z, w]
@@ -271,6 +280,9 @@ impl RelocDatabase {
             for p in self.coarse_points_of(i) {
                 body.extend_from_slice(&p.to_bytes());
             }
+        }
+        for l in &self.landmarks {
+            body.extend_from_slice(&l.to_bytes());
         }
         let mut out = Vec::with_capacity(HEADER_LEN + body.len() + 8);
         out.extend_from_slice(MAGIC);
@@ -355,7 +367,21 @@ impl RelocDatabase {
                 ),
             });
         }
-        let expected = min_len + count * ENTRY_LEN as u64 + n_coarse * COARSE_POINT_LEN as u64;
+        let n_landmarks = Reader {
+            bytes,
+            at: count_at + 16,
+        }
+        .u64();
+        if n_landmarks > MAX_LANDMARKS {
+            return Err(RelocDbError::Invalid {
+                path: p(),
+                what: format!("landmark count {n_landmarks} exceeds the limit {MAX_LANDMARKS}"),
+            });
+        }
+        let expected = min_len
+            + count * ENTRY_LEN as u64
+            + n_coarse * COARSE_POINT_LEN as u64
+            + n_landmarks * LANDMARK_LEN as u64;
         if bytes.len() as u64 != expected {
             return Err(RelocDbError::Length {
                 path: p(),
@@ -398,6 +424,7 @@ impl RelocDatabase {
         let map_fingerprint = r.u64();
         let _count = r.u64();
         let _n_coarse = r.u64();
+        let _n_landmarks = r.u64();
         let mut entries = Vec::with_capacity(count as usize);
         let mut coarse_start = 0u64;
         for index in 0..count {
@@ -452,11 +479,22 @@ impl RelocDatabase {
             };
             coarse_points.push(point);
         }
+        let mut landmarks = Vec::with_capacity(n_landmarks as usize);
+        for index in 0..n_landmarks {
+            let Some(landmark) = Landmark::from_bytes(r.take()) else {
+                return Err(RelocDbError::Invalid {
+                    path: p(),
+                    what: format!("landmark {index}: position is not finite"),
+                });
+            };
+            landmarks.push(landmark);
+        }
         Ok(Self {
             camera,
             map_fingerprint,
             entries,
             coarse_points,
+            landmarks,
             path: path.to_owned(),
         })
     }

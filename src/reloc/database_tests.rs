@@ -7,6 +7,7 @@ use nalgebra::{Translation3, UnitQuaternion};
 use super::coarse::CoarsePoint;
 use super::database::{RelocDatabase, RelocDbError, RelocEntry};
 use super::descriptor::Descriptor;
+use super::landmarks::{Landmark, LANDMARK_LEN};
 use super::recover::{Ranked, SearchIndex, SearchRegion, MAX_TOP_K};
 use crate::geometry::{PinholeCamera, Pose};
 
@@ -42,6 +43,12 @@ fn db(n: usize) -> RelocDatabase {
         map_fingerprint: 0x1234_5678_9abc_def0,
         entries,
         coarse_points,
+        landmarks: (0..n)
+            .map(|i| Landmark {
+                world_m: [i as f32 * 0.25, -1.0, 1.5],
+                descriptor: Descriptor([!(i as u64), i as u64, 7, 9]),
+            })
+            .collect(),
         path: "mem.rdb".into(),
     }
 }
@@ -58,6 +65,7 @@ fn round_trip_through_a_file() {
     assert_eq!(b.map_fingerprint, a.map_fingerprint);
     assert_eq!(b.entries.len(), 25);
     assert_eq!(b.coarse_points, a.coarse_points);
+    assert_eq!(b.landmarks, a.landmarks);
     for (i, (x, y)) in a.entries.iter().zip(&b.entries).enumerate() {
         assert_eq!(x.descriptor, y.descriptor);
         assert_eq!(b.coarse_points_of(i), a.coarse_points_of(i));
@@ -110,8 +118,9 @@ fn reseal(bytes: &mut [u8]) {
 #[test]
 fn coarse_point_counts_that_disagree_are_invalid() {
     // Entry 0's coarse count sits after the header (12), camera (80),
-    // fingerprint, entry count and point count (3 x 8), pose and descriptor (88).
-    let at = 12 + 80 + 24 + 88;
+    // fingerprint, entry, point and landmark counts (4 x 8), pose and
+    // descriptor (88).
+    let at = 12 + 80 + 32 + 88;
     let mut bytes = db(4).to_bytes();
     assert_eq!(&bytes[at..at + 4], &1u32.to_le_bytes());
     bytes[at] = 2;
@@ -121,12 +130,25 @@ fn coarse_point_counts_that_disagree_are_invalid() {
     assert!(err.to_string().contains("coarse points"), "{err}");
     // A point with zero depth.
     let mut bytes = db(4).to_bytes();
-    let first_point = bytes.len() - 8 - 6 * 10;
+    let first_point = bytes.len() - 8 - 4 * LANDMARK_LEN - 6 * 10;
     bytes[first_point + 4] = 0;
     bytes[first_point + 5] = 0;
     reseal(&mut bytes);
     let err = RelocDatabase::from_bytes(&bytes, Path::new("c.rdb")).expect_err("depth");
     assert!(err.to_string().contains("coarse point 0"), "{err}");
+}
+
+#[test]
+fn a_landmark_off_the_map_is_invalid() {
+    // Landmark 1's y coordinate: the landmarks end the body.
+    let mut bytes = db(4).to_bytes();
+    let at = bytes.len() - 8 - 3 * LANDMARK_LEN + 4;
+    assert_eq!(&bytes[at..at + 4], &(-1.0f32).to_le_bytes());
+    bytes[at..at + 4].copy_from_slice(&f32::INFINITY.to_le_bytes());
+    reseal(&mut bytes);
+    let err = RelocDatabase::from_bytes(&bytes, Path::new("l.rdb")).expect_err("landmark");
+    assert!(matches!(err, RelocDbError::Invalid { .. }), "{err}");
+    assert!(err.to_string().contains("landmark 1"), "{err}");
 }
 
 #[test]

@@ -10,7 +10,9 @@
 //! `min_depth_m` (inside or against furniture); a view is dropped when less
 //! than `min_valid_fraction` of it sees the map (outside, or facing a hole).
 //! Views are rendered at twice the thumbnail size, which is all the
-//! descriptor needs and keeps the build fast.
+//! descriptor needs and keeps the build fast. Landmarks come from a second,
+//! sparser grid (`landmark_spacing_m`, `landmark_heights_m`,
+//! `landmark_yaw_steps`) of full-resolution views.
 
 use nalgebra::{Translation3, Vector3};
 
@@ -23,6 +25,7 @@ use super::coarse::{CoarseExtractor, CoarsePoint};
 use super::config::RelocConfig;
 use super::database::{map_fingerprint, RelocDatabase, RelocEntry};
 use super::descriptor::{Thumbnailer, THUMB_H, THUMB_W};
+use super::landmarks::{Landmark, LandmarkCollector};
 
 /// Errors building a database.
 #[derive(Debug, thiserror::Error)]
@@ -142,6 +145,8 @@ pub fn build_database_in(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RelocDatabase, BuildError> {
     let positions = grid_positions(mesh, config, region)?;
+    let landmark_positions = landmark_positions(mesh, config, region);
+    let total = positions.len() + landmark_positions.len();
     let render_camera = thumb_render_camera(camera);
     let mut view = RenderedView::for_camera(&render_camera);
     let mut thumbnailer = Thumbnailer::new();
@@ -205,13 +210,88 @@ pub fn build_database_in(
             entries.extend_from_slice(&position_entries);
             coarse_points.extend_from_slice(&position_points);
         }
-        progress(done + 1, positions.len());
+        progress(done + 1, total);
     }
+    let landmarks =
+        collect_landmarks(camera, renderer, config, &landmark_positions, &mut |done| {
+            progress(positions.len() + done, total)
+        })?;
     Ok(RelocDatabase {
         camera: *camera,
         map_fingerprint: map_fingerprint(mesh),
         entries,
         coarse_points,
+        landmarks,
         path: std::path::PathBuf::new(),
     })
+}
+
+/// Positions of the landmark views (none when `landmark_spacing_m` is 0 or
+/// no landmark height fits in the bounds).
+fn landmark_positions(
+    mesh: &Mesh,
+    config: &RelocConfig,
+    region: Option<([f32; 3], [f32; 3])>,
+) -> Vec<Vector3<f64>> {
+    if config.landmark_spacing_m <= 0.0 {
+        return Vec::new();
+    }
+    let grid = RelocConfig {
+        grid_spacing_m: config.landmark_spacing_m,
+        heights_m: config.landmark_heights_m.clone(),
+        ..config.clone()
+    };
+    grid_positions(mesh, &grid, region).unwrap_or_else(|e| {
+        tracing::warn!(error = %e, "no landmark views: the database will have no landmarks");
+        Vec::new()
+    })
+}
+
+/// Renders the landmark views at full resolution (pinhole `camera`) and
+/// collects their landmarks; views with geometry nearer than `min_depth_m`
+/// are skipped. `progress` gets the number of positions done.
+fn collect_landmarks(
+    camera: &PinholeCamera,
+    renderer: &mut dyn Renderer,
+    config: &RelocConfig,
+    positions: &[Vector3<f64>],
+    progress: &mut dyn FnMut(usize),
+) -> Result<Vec<Landmark>, BuildError> {
+    if positions.is_empty() {
+        return Ok(Vec::new());
+    }
+    let pinhole = PinholeCamera {
+        distortion: Default::default(),
+        ..*camera
+    };
+    let mut view = RenderedView::for_camera(&pinhole);
+    let mut collector = LandmarkCollector::new(&pinhole, config);
+    let pitches = &config.pitches_deg;
+    let pitch_rad = (pitches.iter().sum::<f64>() / pitches.len().max(1) as f64).to_radians();
+    for (done, p) in positions.iter().enumerate() {
+        for yaw_rad in config.landmark_yaws_rad() {
+            let world_from_camera = Pose::from_parts(
+                Translation3::from(*p),
+                camera_rotation(yaw_rad, pitch_rad, 0.0),
+            );
+            renderer
+                .render(&world_from_camera, &pinhole, &mut view)
+                .map_err(|source| BuildError::Render {
+                    position_m: [p.x, p.y, p.z],
+                    source,
+                })?;
+            let nearest_m = view
+                .depth_m
+                .data()
+                .iter()
+                .filter(|&&d| RenderedView::is_hit(d))
+                .fold(f32::INFINITY, |a, &d| a.min(d));
+            if (nearest_m as f64) < config.min_depth_m {
+                continue;
+            }
+            collector.add_view(&view, &pinhole, &world_from_camera);
+        }
+        progress(done + 1);
+    }
+    Ok(collector.finish())
 }

@@ -7,6 +7,11 @@
 //! - [`database`]: keyframe poses, descriptors and coarse points; the versioned, checksummed
 //!   file and its checks (magic, version, length, checksum, map, camera).
 //! - [`grid`]: `star reloc build`: virtual cameras on a grid in free space.
+//! - [`landmarks`]: map points with feature descriptors, and the pose of a
+//!   frame from them (features matched, then RANSAC PnP).
+//! - [`features`]: FAST corners and 256-bit upright BRIEF descriptors on an
+//!   image pyramid, and brute-force Hamming matching.
+//! - [`pnp`]: P3P (Lambda Twist) in RANSAC, refined on the inliers.
 //! - [`recover`]: the online side: radius-bounded Hamming search and the
 //!   strict acceptance gate; the STAR loop ([`crate::localizer`]) renders
 //!   and aligns the candidates.
@@ -16,7 +21,10 @@ pub mod coarse;
 pub mod config;
 pub mod database;
 pub mod descriptor;
+pub mod features;
 pub mod grid;
+pub mod landmarks;
+pub mod pnp;
 pub mod recover;
 
 #[cfg(test)]

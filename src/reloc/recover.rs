@@ -18,6 +18,7 @@ use super::coarse::{coarse_camera, frame_level, to_keypoints};
 use super::config::RelocConfig;
 use super::database::{RelocDatabase, RelocDbError};
 use super::descriptor::{Descriptor, Thumbnailer, QUERY_SHIFTS_PX, THUMB_W};
+use super::landmarks::{LandmarkLocator, Located};
 
 /// One search result.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -50,7 +51,9 @@ pub struct Candidate {
     pub world_from_camera: Pose,
     /// Yaw of the query relative to that pose to start the alignment from,
     /// radians (0 after a coarse alignment).
-    pub yaw_rad: f64,
+    /// `None`: the pose is precise (from the landmarks), verified from a
+    /// single start.
+    pub yaw_rad: Option<f64>,
     /// Correlation reached by the coarse alignment; -inf when not aligned.
     pub score: f32,
 }
@@ -60,7 +63,7 @@ impl Default for Candidate {
         Self {
             ranked: Ranked::default(),
             world_from_camera: Pose::identity(),
-            yaw_rad: 0.0,
+            yaw_rad: Some(0.0),
             score: f32::NEG_INFINITY,
         }
     }
@@ -71,6 +74,10 @@ pub type Query = [Descriptor; QUERY_SHIFTS_PX.len()];
 
 /// Most candidates one search returns.
 pub const MAX_TOP_K: usize = 64;
+
+/// [`Ranked::index`] of the candidate found from the landmarks (not a
+/// database entry).
+pub const LANDMARK_CANDIDATE: u32 = u32::MAX - 1;
 
 /// Fewest stored coarse points a candidate needs to be aligned when
 /// ranking (fewer score lowest).
@@ -90,6 +97,16 @@ pub enum SearchRegion {
     Everywhere,
 }
 
+impl SearchRegion {
+    /// True when `position_m` (world, meters) lies in the region.
+    pub fn contains(&self, position_m: &Vector3<f64>) -> bool {
+        match self {
+            Self::Near { center_m, radius_m } => (position_m - center_m).norm() <= *radius_m,
+            Self::Everywhere => true,
+        }
+    }
+}
+
 /// The search side of relocalization: database, descriptor scratch and the
 /// candidate list.
 #[derive(Debug, Clone)]
@@ -107,6 +124,7 @@ pub struct Relocalizer {
     /// The last [`Self::search_ranked`]'s candidates.
     candidates: [Candidate; MAX_TOP_K],
     n_ranked: usize,
+    landmarks: LandmarkLocator,
 }
 
 impl Relocalizer {
@@ -120,6 +138,7 @@ impl Relocalizer {
     ) -> Result<Self, RelocDbError> {
         db.check_compatible(camera, db.map_fingerprint)?;
         Ok(Self {
+            landmarks: LandmarkLocator::new(camera, config, &db.landmarks),
             index: SearchIndex::new(&db),
             db,
             config: config.clone(),
@@ -169,6 +188,34 @@ impl Relocalizer {
         Some(QUERY_SHIFTS_PX.map(|dx| t.shifted(dx)))
     }
 
+    /// The candidate the landmarks give for the camera frame `pixels` (8-bit,
+    /// `width x height`, rows `stride` bytes apart): the pose RANSAC PnP
+    /// finds from its features matched to the landmarks, inside `region`.
+    /// `None` without landmarks or when PnP finds no pose.
+    pub fn landmark_candidate(
+        &mut self,
+        pixels: &[u8],
+        width: usize,
+        height: usize,
+        stride: usize,
+        region: SearchRegion,
+    ) -> Option<(Candidate, Located)> {
+        let found = self
+            .landmarks
+            .locate(pixels, width, height, stride, region)?;
+        let candidate = Candidate {
+            ranked: Ranked {
+                distance: 0,
+                index: LANDMARK_CANDIDATE,
+                shift: 0,
+            },
+            world_from_camera: found.world_from_camera,
+            yaw_rad: None,
+            score: f32::INFINITY,
+        };
+        Some((candidate, found))
+    }
+
     /// The `top_k` entries in `region` nearest to `query` by Hamming
     /// distance, best first (fewer when the region holds fewer).
     pub fn search(&mut self, query: &Query, region: SearchRegion) -> &[Ranked] {
@@ -209,7 +256,7 @@ impl Relocalizer {
                 self.candidates[i] = Candidate {
                     ranked,
                     world_from_camera: self.db.entries[ranked.index as usize].world_from_camera,
-                    yaw_rad: self.shift_yaw_rad(ranked.shift),
+                    yaw_rad: Some(self.shift_yaw_rad(ranked.shift)),
                     score: f32::NEG_INFINITY,
                 };
             }
@@ -229,7 +276,7 @@ impl Relocalizer {
             let mut best = Candidate {
                 ranked,
                 world_from_camera: world_from_entry,
-                yaw_rad: yaws[0],
+                yaw_rad: Some(yaws[0]),
                 score: f32::NEG_INFINITY,
             };
             if kf.levels[level].points.len() >= COARSE_MIN_POINTS {
@@ -253,7 +300,7 @@ impl Relocalizer {
                         best.score = q.correlation;
                         best.world_from_camera =
                             world_from_entry * a.camera_from_keyframe.inverse();
-                        best.yaw_rad = 0.0;
+                        best.yaw_rad = Some(0.0);
                     }
                 }
             }
@@ -808,9 +855,12 @@ pub fn verify_candidate(
 /// rendered nearer the truth widens the basin of direct alignment (the STAR
 /// idea), and a wrong pose that fitted a look-alike part of the view rarely
 /// survives a render of the whole view from where it claims to be. Every
-/// keyframe not returned goes back through `recycle`. Returns the accepted
-/// pose and the keyframe it was aligned against; never a pose more than two
-/// grid spacings from the candidate.
+/// keyframe not returned goes back through `recycle`. `shift_yaw_rad` is
+/// the yaw the search matched at (the first render is verified with the
+/// coarse search of [`verify_candidate`]); `None` for a precise pose (from
+/// the landmarks): a single start. Returns the accepted pose and the
+/// keyframe it was aligned against; never a pose more than two grid
+/// spacings from the candidate.
 #[allow(clippy::too_many_arguments)]
 pub fn try_candidate(
     aligner: &mut Aligner,
@@ -818,7 +868,7 @@ pub fn try_candidate(
     camera: &PinholeCamera,
     config: &RelocConfig,
     world_from_candidate: &Pose,
-    shift_yaw_rad: f64,
+    shift_yaw_rad: Option<f64>,
     render: &mut dyn FnMut(&Pose) -> Option<Box<Keyframe>>,
     recycle: &mut dyn FnMut(Box<Keyframe>),
 ) -> Option<(Verified, Box<Keyframe>)> {
@@ -832,8 +882,15 @@ pub fn try_candidate(
             && d.rotation.angle().to_degrees() <= config.confirm_max_deg
     };
     let mut keyframe = render(world_from_candidate)?;
-    let yaws = start_yaws_rad(config, shift_yaw_rad);
-    let mut verdict = verify_candidate(aligner, &keyframe, frame, camera, config, &yaws);
+    let searched;
+    let yaws: &[f64] = match shift_yaw_rad {
+        Some(shift) => {
+            searched = start_yaws_rad(config, shift);
+            &searched
+        }
+        None => &[0.0],
+    };
+    let mut verdict = verify_candidate(aligner, &keyframe, frame, camera, config, yaws);
     let mut renders = 0;
     loop {
         let next = match verdict {

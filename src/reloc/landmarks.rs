@@ -1,0 +1,394 @@
+//! Landmarks of the relocalization database: 3D points of the map with the
+//! binary descriptors of the image features rendered there, and the pose of
+//! a camera frame from them (features matched to landmarks, then PnP).
+//!
+//! The whole-image descriptor finds the database views that look like the
+//! frame as a whole. At close range (a wall or a picture half a meter away)
+//! no database view a grid step off looks like the frame, but the corners
+//! on the wall do: this is the ORB-SLAM way to relocalize, used as a second
+//! source of candidates.
+//!
+//! Build side ([`LandmarkCollector`]): full-resolution views rendered on a
+//! sparse grid; each view's features ([`super::features`]) are lifted to
+//! world points with the rendered depth (corners on a depth edge are
+//! skipped: their 3D point is ill-defined), and kept unless a landmark with
+//! a similar descriptor already sits in the same small voxel.
+//! Online side ([`LandmarkLocator`]): the frame's features, each matched to
+//! its nearest landmark by Hamming distance (with a ratio test that ignores
+//! runner-ups at the same place), undistorted to normalized coordinates and
+//! handed to RANSAC P3P ([`super::pnp`]). The pose it gives is only a
+//! candidate: it is rendered and verified through the same gate as the
+//! database views. After [`LandmarkLocator::new`] nothing here allocates.
+
+use std::collections::HashMap;
+
+use nalgebra::{Vector2, Vector3};
+
+use crate::geometry::{PinholeCamera, Pose};
+use crate::render::RenderedView;
+
+use super::config::RelocConfig;
+use super::descriptor::Descriptor;
+use super::features::{best_two_batch, FeatureExtractor, FeatureParams};
+use super::pnp::{PnpParams, RansacPnp};
+use super::recover::SearchRegion;
+
+/// Bytes per landmark in the database file: x, y, z (f32) and the
+/// descriptor (4 x u64), little-endian.
+pub const LANDMARK_LEN: usize = 3 * 4 + 4 * 8;
+
+/// Edge of the voxels that deduplicate landmarks, meters.
+const VOXEL_M: f64 = 0.03;
+/// A feature is a new landmark unless one in its voxel is within this
+/// Hamming distance.
+const DEDUPE_HAMMING: u32 = 40;
+/// Most landmarks per voxel (the same corner seen from different sides).
+const MAX_PER_VOXEL: usize = 4;
+/// A corner is lifted only where the depth of its 3x3 neighbourhood stays
+/// within this fraction of the center's (not on a silhouette).
+const DEPTH_EDGE_FRACTION: f32 = 0.03;
+/// Lowe's ratio: the best match must be this much nearer than the best
+/// match elsewhere.
+const MATCH_RATIO: f32 = 0.8;
+/// Landmarks nearer than this to the best match are the same place for
+/// the ratio test, meters.
+const SAME_PLACE_M: f32 = 0.15;
+/// RANSAC inlier bound, pixels at the camera's focal length.
+const PNP_THRESHOLD_PX: f64 = 3.0;
+
+/// One landmark.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Landmark {
+    /// World position, meters.
+    pub world_m: [f32; 3],
+    /// Descriptor of the feature rendered there.
+    pub descriptor: Descriptor,
+}
+
+impl Landmark {
+    /// The file bytes.
+    pub fn to_bytes(&self) -> [u8; LANDMARK_LEN] {
+        let mut b = [0u8; LANDMARK_LEN];
+        for (i, v) in self.world_m.iter().enumerate() {
+            b[4 * i..4 * i + 4].copy_from_slice(&v.to_le_bytes());
+        }
+        for (i, w) in self.descriptor.0.iter().enumerate() {
+            b[12 + 8 * i..20 + 8 * i].copy_from_slice(&w.to_le_bytes());
+        }
+        b
+    }
+
+    /// Parses [`Self::to_bytes`]; `None` when a coordinate is not finite.
+    pub fn from_bytes(b: [u8; LANDMARK_LEN]) -> Option<Self> {
+        let f = |i: usize| f32::from_le_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]);
+        let world_m = [f(0), f(1), f(2)];
+        let u = |i: usize| {
+            let mut w = [0u8; 8];
+            w.copy_from_slice(&b[12 + 8 * i..20 + 8 * i]);
+            u64::from_le_bytes(w)
+        };
+        world_m.iter().all(|v| v.is_finite()).then(|| Self {
+            world_m,
+            descriptor: Descriptor([u(0), u(1), u(2), u(3)]),
+        })
+    }
+}
+
+/// The feature parameters of `config`, for the database views and the
+/// frames alike.
+pub fn feature_params(config: &RelocConfig) -> FeatureParams {
+    FeatureParams {
+        max_features: config.landmark_features as usize,
+        ..FeatureParams::default()
+    }
+}
+
+/// Collects landmarks from rendered views (`star reloc build`).
+pub struct LandmarkCollector {
+    extractor: FeatureExtractor,
+    gray_u8: Vec<u8>,
+    voxels: HashMap<[i32; 3], Vec<u32>>,
+    landmarks: Vec<Landmark>,
+}
+
+impl LandmarkCollector {
+    /// A collector for views rendered with `camera` (pinhole).
+    pub fn new(camera: &PinholeCamera, config: &RelocConfig) -> Self {
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        Self {
+            extractor: FeatureExtractor::new(w, h, &feature_params(config)),
+            gray_u8: vec![0; w * h],
+            voxels: HashMap::new(),
+            landmarks: Vec::new(),
+        }
+    }
+
+    /// Adds the features of `view`, rendered with `camera` (pinhole) at
+    /// `world_from_camera`; returns how many became new landmarks.
+    pub fn add_view(
+        &mut self,
+        view: &RenderedView,
+        camera: &PinholeCamera,
+        world_from_camera: &Pose,
+    ) -> usize {
+        let (w, h) = (view.gray.width(), view.gray.height());
+        if w * h != self.gray_u8.len() {
+            return 0;
+        }
+        for (o, &g) in self.gray_u8.iter_mut().zip(view.gray.data()) {
+            *o = g.clamp(0.0, 255.0).round() as u8;
+        }
+        let depth = view.depth_m.data();
+        let mut added = 0;
+        for k in self.extractor.extract(&self.gray_u8, w, h, w) {
+            let (u, v) = (k.x_px.round() as i64, k.y_px.round() as i64);
+            if u < 1 || v < 1 || u + 1 >= w as i64 || v + 1 >= h as i64 {
+                continue;
+            }
+            let (u, v) = (u as usize, v as usize);
+            let d = depth[v * w + u];
+            if !RenderedView::is_hit(d) {
+                continue;
+            }
+            let on_edge = (v - 1..=v + 1)
+                .flat_map(|y| (u - 1..=u + 1).map(move |x| (x, y)))
+                .any(|(x, y)| {
+                    let n = depth[y * w + x];
+                    !RenderedView::is_hit(n) || (n - d).abs() > DEPTH_EDGE_FRACTION * d
+                });
+            if on_edge {
+                continue;
+            }
+            let Some(p_camera) =
+                camera.unproject(Vector2::new(k.x_px as f64, k.y_px as f64), d as f64)
+            else {
+                continue;
+            };
+            let p_world = world_from_camera * nalgebra::Point3::from(p_camera);
+            let key = [
+                (p_world.x / VOXEL_M).floor() as i32,
+                (p_world.y / VOXEL_M).floor() as i32,
+                (p_world.z / VOXEL_M).floor() as i32,
+            ];
+            let slot = self.voxels.entry(key).or_default();
+            let known = slot.len() >= MAX_PER_VOXEL
+                || slot.iter().any(|&i| {
+                    self.landmarks[i as usize].descriptor.hamming(&k.descriptor) <= DEDUPE_HAMMING
+                });
+            if known {
+                continue;
+            }
+            slot.push(self.landmarks.len() as u32);
+            self.landmarks.push(Landmark {
+                world_m: [p_world.x as f32, p_world.y as f32, p_world.z as f32],
+                descriptor: k.descriptor,
+            });
+            added += 1;
+        }
+        added
+    }
+
+    /// Landmarks collected so far.
+    pub fn len(&self) -> usize {
+        self.landmarks.len()
+    }
+
+    /// True when nothing was collected.
+    pub fn is_empty(&self) -> bool {
+        self.landmarks.is_empty()
+    }
+
+    /// The landmarks.
+    pub fn finish(self) -> Vec<Landmark> {
+        self.landmarks
+    }
+}
+
+/// A pose found from landmarks.
+#[derive(Debug, Clone, Copy)]
+pub struct Located {
+    /// The camera pose PnP found.
+    pub world_from_camera: Pose,
+    /// Matches that agree with it.
+    pub inliers: usize,
+    /// Matches tried.
+    pub matches: usize,
+}
+
+/// Finds a frame's pose from the landmarks (the online side).
+pub struct LandmarkLocator {
+    extractor: FeatureExtractor,
+    feature_params: FeatureParams,
+    pnp: RansacPnp,
+    params: PnpParams,
+    camera: PinholeCamera,
+    max_hamming: u32,
+    /// The landmarks' descriptors and positions, contiguous for the scan.
+    descriptors: Vec<Descriptor>,
+    positions_m: Vec<[f32; 3]>,
+    world_m: Vec<Vector3<f64>>,
+    normalized: Vec<Vector2<f64>>,
+    /// The frame's descriptors and their best two matches.
+    query: Vec<Descriptor>,
+    matches: Vec<(u32, u32, u32, u32)>,
+    calls: u64,
+}
+
+impl std::fmt::Debug for LandmarkLocator {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LandmarkLocator")
+            .field("landmarks", &self.descriptors.len())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Clone for LandmarkLocator {
+    fn clone(&self) -> Self {
+        Self::with_parts(
+            &self.camera,
+            &self.feature_params,
+            self.params.clone(),
+            self.max_hamming,
+            self.descriptors.clone(),
+            self.positions_m.clone(),
+        )
+    }
+}
+
+impl LandmarkLocator {
+    /// A locator for frames of `camera` against `landmarks`.
+    pub fn new(camera: &PinholeCamera, config: &RelocConfig, landmarks: &[Landmark]) -> Self {
+        let focal_px = 0.5 * (camera.fx + camera.fy);
+        let params = PnpParams {
+            threshold: PNP_THRESHOLD_PX / focal_px.max(1.0),
+            min_inliers: config.landmark_min_inliers as usize,
+            ..PnpParams::default()
+        };
+        Self::with_parts(
+            camera,
+            &feature_params(config),
+            params,
+            config.landmark_max_hamming,
+            landmarks.iter().map(|l| l.descriptor).collect(),
+            landmarks.iter().map(|l| l.world_m).collect(),
+        )
+    }
+
+    fn with_parts(
+        camera: &PinholeCamera,
+        feature_params: &FeatureParams,
+        params: PnpParams,
+        max_hamming: u32,
+        descriptors: Vec<Descriptor>,
+        positions_m: Vec<[f32; 3]>,
+    ) -> Self {
+        let n = feature_params.max_features;
+        Self {
+            extractor: FeatureExtractor::new(
+                camera.width as usize,
+                camera.height as usize,
+                feature_params,
+            ),
+            feature_params: feature_params.clone(),
+            pnp: RansacPnp::new(n),
+            params,
+            camera: *camera,
+            max_hamming,
+            descriptors,
+            positions_m,
+            world_m: Vec::with_capacity(n),
+            normalized: Vec::with_capacity(n),
+            query: vec![Descriptor::default(); n],
+            matches: vec![(u32::MAX, u32::MAX, u32::MAX, u32::MAX); n],
+            calls: 0,
+        }
+    }
+
+    /// Number of landmarks.
+    pub fn len(&self) -> usize {
+        self.descriptors.len()
+    }
+
+    /// True without landmarks.
+    pub fn is_empty(&self) -> bool {
+        self.descriptors.is_empty()
+    }
+
+    /// The pose of the camera frame `pixels` (8-bit, `width x height`, rows
+    /// `stride` bytes apart, as the camera delivers it: distorted) from the
+    /// landmarks, if PnP finds one inside `region`.
+    pub fn locate(
+        &mut self,
+        pixels: &[u8],
+        width: usize,
+        height: usize,
+        stride: usize,
+        region: SearchRegion,
+    ) -> Option<Located> {
+        if self.descriptors.is_empty() {
+            return None;
+        }
+        self.world_m.clear();
+        self.normalized.clear();
+        let c = &self.camera;
+        let keypoints = self.extractor.extract(pixels, width, height, stride);
+        let n = keypoints.len().min(self.matches.len());
+        for (d, k) in self.query.iter_mut().zip(&keypoints[..n]) {
+            *d = k.descriptor;
+        }
+        best_two_batch(&self.query[..n], &self.descriptors, &mut self.matches[..n]);
+        for (k, &(best_d, best_i, second_d, second_i)) in keypoints[..n].iter().zip(&self.matches) {
+            if best_d > self.max_hamming {
+                continue;
+            }
+            let best_m = self.positions_m[best_i as usize];
+            let same_place = self.positions_m.get(second_i as usize).is_some_and(|p| {
+                let d2: f32 = (0..3).map(|i| (p[i] - best_m[i]).powi(2)).sum();
+                d2 < SAME_PLACE_M * SAME_PLACE_M
+            });
+            if !same_place && best_d as f32 >= MATCH_RATIO * second_d as f32 {
+                continue;
+            }
+            let xd = Vector2::new((k.x_px as f64 - c.cx) / c.fx, (k.y_px as f64 - c.cy) / c.fy);
+            let Some(xn) = c.distortion.undistort(xd) else {
+                continue;
+            };
+            self.world_m.push(Vector3::new(
+                best_m[0] as f64,
+                best_m[1] as f64,
+                best_m[2] as f64,
+            ));
+            self.normalized.push(xn);
+        }
+        self.calls += 1;
+        let seed = 0x5354_4152_504e_5000 ^ self.calls;
+        let found = self
+            .pnp
+            .solve(&self.world_m, &self.normalized, &self.params, seed)?;
+        if !region.contains(&found.world_from_camera.translation.vector) {
+            return None;
+        }
+        Some(Located {
+            world_from_camera: found.world_from_camera,
+            inliers: found.inliers,
+            matches: self.world_m.len(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn landmark_bytes_round_trip_and_reject_non_finite() {
+        let l = Landmark {
+            world_m: [1.5, -2.25, 0.125],
+            descriptor: Descriptor([1, u64::MAX, 3, 0x8000_0000_0000_0000]),
+        };
+        assert_eq!(Landmark::from_bytes(l.to_bytes()), Some(l));
+        let mut b = l.to_bytes();
+        b[4..8].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert_eq!(Landmark::from_bytes(b), None);
+    }
+}
