@@ -19,7 +19,8 @@
 //! distances from the truth, whether the database entry nearest the truth
 //! would have been accepted, and the alignment quality against a keyframe
 //! rendered at the truth itself; `STAR_BENCH_DUMP=DIR` also writes each
-//! query frame there as `qNNN.png`.
+//! query frame there as `qNNN.png`; `STAR_BENCH_ROLL_DEG=R` rolls the
+//! queries uniformly within +-R degrees (the database views have no roll).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -127,6 +128,15 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
         });
     let pitch_mid = rc.pitches_deg.iter().sum::<f64>() / rc.pitches_deg.len() as f64;
     let verbose = std::env::var_os("STAR_BENCH_VERBOSE").is_some();
+    let max_roll_deg = std::env::var("STAR_BENCH_ROLL_DEG")
+        .ok()
+        .map(|v| {
+            v.parse::<f64>()
+                .ok()
+                .filter(|r| r.is_finite() && *r >= 0.0 && *r < 90.0)
+                .with_context(|| format!("STAR_BENCH_ROLL_DEG={v}: expected degrees in 0..90"))
+        })
+        .transpose()?;
     let mut rng = SplitMix64::new(seed ^ 0x7e10c);
     let (mut done, mut tries) = (0usize, 0usize);
     let mut global = Tally {
@@ -149,7 +159,11 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
         }
         let yaw = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
         let pitch = (pitch_mid + rng.range(-5.0, 5.0)).to_radians();
-        let truth = Pose::from_parts(Translation3::from(p), camera_rotation(yaw, pitch, 0.0));
+        // STAR_BENCH_ROLL_DEG=R: queries rolled uniformly within +-R deg
+        // (the database views have none; no draw without it, so the default
+        // queries stay the same).
+        let roll = max_roll_deg.map_or(0.0, |r| rng.range(-r, r).to_radians());
+        let truth = Pose::from_parts(Translation3::from(p), camera_rotation(yaw, pitch, roll));
         truth_r.render(&truth, &render_camera, &mut qview)?;
         let hits = qview.depth_m.data().iter().filter(|&&d| d > 0.0).count();
         if hits < qview.depth_m.data().len() * 6 / 10 {
@@ -455,7 +469,8 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
         }
     }
     println!(
-        "  queries: {done} random free poses (clearance 0.4 m, z {z_lo}..{z_hi} m, yaw any, pitch {pitch_mid}+-5 deg, >= 60 % of the view on the map), truth mesh + distortion + realistic sensor model; top_k {}",
+        "  queries: {done} random free poses (clearance 0.4 m, z {z_lo}..{z_hi} m, yaw any, pitch {pitch_mid}+-5 deg, roll +-{} deg, >= 60 % of the view on the map), truth mesh + distortion + realistic sensor model; top_k {}",
+        max_roll_deg.unwrap_or(0.0),
         rc.top_k
     );
     global.print("whole map", done);
