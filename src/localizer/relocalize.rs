@@ -2,13 +2,16 @@
 //! [`Relocalizer`] while lost.
 //!
 //! Each lost frame (after `reloc.resume_window_s`) with enough contrast is
-//! described and searched: first within `search_radius_m + max_speed_m_s x
-//! (time lost)` of the last tracked position, then over the whole map. The
-//! `rank_candidates` nearest by Hamming distance are aligned against their
-//! stored coarse points, and the top-k by that alignment are rendered where
-//! it moved them, on the render thread (the lost frame waits for them;
-//! tracking never does), and aligned with the tracker's aligner; the first that passes the strict gate becomes the keyframe and the
-//! prediction. Its pose is not output yet: the next `verify_frames` frames
+//! searched: first within `search_radius_m + max_speed_m_s x (time lost)`
+//! of the last tracked position, then over the whole map. In each region
+//! the landmark pose (the frame's corners matched to the map's landmarks,
+//! then RANSAC P3P) comes first when it lies there; then the
+//! `rank_candidates` nearest by whole-image descriptor are aligned against
+//! their stored coarse points, and the top-k by that alignment follow,
+//! placed where it moved them. Candidates are rendered on the render thread
+//! (the lost frame waits for them; tracking never does) and aligned with the
+//! tracker's aligner; the first that passes the strict gate becomes the
+//! keyframe and the prediction. Its pose is not output yet: the next `verify_frames` frames
 //! must track through the same gate, and only then is a pose output and
 //! `reset_counter` incremented. A wrong but confident pose would need to
 //! fool the gate on consecutive frames.
