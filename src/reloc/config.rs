@@ -162,19 +162,14 @@ impl RelocConfig {
                 format!("expected >= 0.05, found {}", self.grid_spacing_m),
             ));
         }
-        if self.heights_m.is_empty() || self.heights_m.iter().any(|h| !h.is_finite()) {
+        let heights_ok = |h: &[f64]| !h.is_empty() && h.iter().all(|v| v.is_finite());
+        if !heights_ok(&self.heights_m) {
             return Err((
                 "heights_m",
                 format!(
                     "expected at least one finite height, found {:?}",
                     self.heights_m
                 ),
-            ));
-        }
-        if !(1..=360).contains(&self.yaw_steps) {
-            return Err((
-                "yaw_steps",
-                format!("expected 1..=360, found {}", self.yaw_steps),
             ));
         }
         if self.pitches_deg.is_empty()
@@ -191,7 +186,41 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 20] = [
+        let checks: [(&'static str, bool, String); 26] = [
+            (
+                "yaw_steps",
+                (1..=360).contains(&self.yaw_steps),
+                format!("expected 1..=360, found {}", self.yaw_steps),
+            ),
+            (
+                "landmark_yaw_steps",
+                (1..=360).contains(&self.landmark_yaw_steps),
+                format!("expected 1..=360, found {}", self.landmark_yaw_steps),
+            ),
+            (
+                "landmark_spacing_m",
+                self.landmark_spacing_m == 0.0
+                    || (self.landmark_spacing_m.is_finite() && self.landmark_spacing_m >= 0.1),
+                format!(
+                    "expected 0 (no landmarks) or >= 0.1, found {}",
+                    self.landmark_spacing_m
+                ),
+            ),
+            (
+                "landmark_features",
+                (16..=5000).contains(&self.landmark_features),
+                format!("expected 16..=5000, found {}", self.landmark_features),
+            ),
+            (
+                "landmark_max_hamming",
+                self.landmark_max_hamming <= 256,
+                format!("expected 0..=256, found {}", self.landmark_max_hamming),
+            ),
+            (
+                "landmark_min_inliers",
+                self.landmark_min_inliers >= 6,
+                format!("expected >= 6, found {}", self.landmark_min_inliers),
+            ),
             (
                 "confirm_max_m",
                 self.confirm_max_m.is_finite() && self.confirm_max_m > 0.0,
@@ -307,51 +336,13 @@ impl RelocConfig {
                 return Err((key, reason));
             }
         }
-        if !(self.landmark_spacing_m == 0.0
-            || (self.landmark_spacing_m.is_finite() && self.landmark_spacing_m >= 0.1))
-        {
-            return Err((
-                "landmark_spacing_m",
-                format!(
-                    "expected 0 (no landmarks) or >= 0.1, found {}",
-                    self.landmark_spacing_m
-                ),
-            ));
-        }
-        if self.landmark_spacing_m > 0.0
-            && (self.landmark_heights_m.is_empty()
-                || self.landmark_heights_m.iter().any(|h| !h.is_finite()))
-        {
+        if self.landmark_spacing_m > 0.0 && !heights_ok(&self.landmark_heights_m) {
             return Err((
                 "landmark_heights_m",
                 format!(
                     "expected at least one finite height, found {:?}",
                     self.landmark_heights_m
                 ),
-            ));
-        }
-        if !(1..=360).contains(&self.landmark_yaw_steps) {
-            return Err((
-                "landmark_yaw_steps",
-                format!("expected 1..=360, found {}", self.landmark_yaw_steps),
-            ));
-        }
-        if !(16..=5000).contains(&self.landmark_features) {
-            return Err((
-                "landmark_features",
-                format!("expected 16..=5000, found {}", self.landmark_features),
-            ));
-        }
-        if self.landmark_max_hamming > 256 {
-            return Err((
-                "landmark_max_hamming",
-                format!("expected 0..=256, found {}", self.landmark_max_hamming),
-            ));
-        }
-        if self.landmark_min_inliers < 6 {
-            return Err((
-                "landmark_min_inliers",
-                format!("expected >= 6, found {}", self.landmark_min_inliers),
             ));
         }
         if self.verify_frames > 50 {
@@ -380,16 +371,20 @@ impl RelocConfig {
     }
 
     /// Yaws of the landmark views, radians.
-    pub fn landmark_yaws_rad(&self) -> impl Iterator<Item = f64> + '_ {
-        let n = self.landmark_yaw_steps.max(1);
-        (0..n).map(move |i| i as f64 * std::f64::consts::TAU / n as f64)
+    pub fn landmark_yaws_rad(&self) -> impl Iterator<Item = f64> {
+        even_yaws_rad(self.landmark_yaw_steps)
     }
 
     /// Yaw angles of the grid, radians.
-    pub fn yaws_rad(&self) -> impl Iterator<Item = f64> + '_ {
-        let n = self.yaw_steps.max(1);
-        (0..n).map(move |i| i as f64 * std::f64::consts::TAU / n as f64)
+    pub fn yaws_rad(&self) -> impl Iterator<Item = f64> {
+        even_yaws_rad(self.yaw_steps)
     }
+}
+
+/// `steps` yaws evenly spaced over a turn from 0, radians.
+fn even_yaws_rad(steps: u32) -> impl Iterator<Item = f64> {
+    let n = steps.max(1);
+    (0..n).map(move |i| i as f64 * std::f64::consts::TAU / n as f64)
 }
 
 #[cfg(test)]

@@ -188,16 +188,6 @@ impl LandmarkCollector {
         added
     }
 
-    /// Landmarks collected so far.
-    pub fn len(&self) -> usize {
-        self.landmarks.len()
-    }
-
-    /// True when nothing was collected.
-    pub fn is_empty(&self) -> bool {
-        self.landmarks.is_empty()
-    }
-
     /// The landmarks.
     pub fn finish(self) -> Vec<Landmark> {
         self.landmarks
@@ -302,16 +292,6 @@ impl LandmarkLocator {
             matches: vec![(u32::MAX, u32::MAX, u32::MAX, u32::MAX); n],
             calls: 0,
         }
-    }
-
-    /// Number of landmarks.
-    pub fn len(&self) -> usize {
-        self.descriptors.len()
-    }
-
-    /// True without landmarks.
-    pub fn is_empty(&self) -> bool {
-        self.descriptors.is_empty()
     }
 
     /// The pose of the camera frame `pixels` (8-bit, `width x height`, rows
