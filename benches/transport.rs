@@ -24,7 +24,7 @@ use std::os::unix::net::UnixStream;
 use std::sync::{Arc, Barrier};
 use std::time::Duration;
 
-use star::camera::monotonic_now_ns;
+use star::clock::monotonic_now_ns;
 use star::ipc::{create_node, FrameEvent, FrameHeader, FramePublisher, FrameSubscriber};
 
 fn env_or(name: &str, default: u64) -> u64 {

@@ -7,6 +7,7 @@
 
 pub mod camera;
 pub mod cli;
+pub mod clock;
 pub mod config;
 pub mod dataset;
 pub mod eval;
@@ -16,8 +17,12 @@ pub mod ipc;
 pub mod localizer;
 pub mod map;
 pub mod mavlink_io;
+pub mod offline;
 pub mod reloc;
 pub mod render;
+pub mod rng;
 pub mod service;
+pub mod settings;
 pub mod synth;
 pub mod track;
+pub mod tracker;

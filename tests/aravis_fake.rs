@@ -11,9 +11,9 @@ use common as common_ipc;
 
 use star::camera::aravis::{AravisSource, FAKE_CAMERA_ID};
 use star::camera::{
-    monotonic_now_ns, open_source, run_camera, FrameSource, RunnerSettings, SourceSettings,
-    SourceUri,
+    open_source, run_camera, FrameSource, RunnerSettings, SourceSettings, SourceUri,
 };
+use star::clock::monotonic_now_ns;
 use star::ipc::{create_node, Frame, FramePublisher, FrameSlot, FrameSubscriber};
 
 fn settings() -> SourceSettings {

@@ -11,8 +11,9 @@ use std::time::{Duration, Instant};
 
 use mavlink::dialects::common::{MavMessage, TIMESYNC_DATA};
 use mavlink::{MavHeader, MavlinkReader, MavlinkVersion};
+use star::clock::monotonic_now_ns;
 use star::geometry::Pose;
-use star::mavlink_io::{monotonic_now_ns, MavlinkConfig, MavlinkHandle, MavlinkLink, PoseSample};
+use star::mavlink_io::{MavlinkConfig, MavlinkHandle, MavlinkLink, PoseSample};
 
 fn sample(capture_ns: u64, tracking: bool) -> PoseSample {
     PoseSample {

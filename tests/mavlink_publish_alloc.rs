@@ -9,8 +9,9 @@ use std::cell::Cell;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
+use star::clock::monotonic_now_ns;
 use star::geometry::Pose;
-use star::mavlink_io::{monotonic_now_ns, MavlinkConfig, MavlinkLink, PoseSample};
+use star::mavlink_io::{MavlinkConfig, MavlinkLink, PoseSample};
 
 thread_local! {
     static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };

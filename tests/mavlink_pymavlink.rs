@@ -18,10 +18,10 @@ use std::time::{Duration, Instant};
 
 use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion};
 use serde_json::Value;
+use star::clock::monotonic_now_ns;
 use star::geometry::Pose;
 use star::mavlink_io::{
-    monotonic_now_ns, LinkStats, MavlinkConfig, MavlinkLink, PoseMessage, PoseSample,
-    TransformConfig,
+    LinkStats, MavlinkConfig, MavlinkLink, PoseMessage, PoseSample, TransformConfig,
 };
 
 /// The autopilot clock of the receiver runs this far ahead of ours.

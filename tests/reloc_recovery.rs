@@ -11,7 +11,7 @@ use std::sync::Arc;
 use star::config::Config;
 use star::dataset::{write_gray8, Dataset, Trajectory};
 use star::imgproc::ImageU8;
-use star::localizer::offline::{localize_dataset, OfflineOptions, OfflineReport};
+use star::offline::{localize_dataset, OfflineOptions, OfflineReport};
 use star::reloc::{build_database_in, RelocConfig, RelocDatabase, Relocalizer};
 use star::render::cpu::CpuRenderer;
 use star::synth::preset::Preset;

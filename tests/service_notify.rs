@@ -61,7 +61,7 @@ fn notify_ready_status_and_progress_gated_watchdog() {
     let dog = svc.watchdog();
     let status = svc.status();
     status.set_state(ServiceState::Tracking);
-    status.keyframe_created(star::mavlink_io::monotonic_now_ns());
+    status.keyframe_created(star::clock::monotonic_now_ns());
     let fed = collect(&socket, Duration::from_millis(1300), || {
         dog.feed();
         status.frame_done();

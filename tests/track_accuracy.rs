@@ -15,7 +15,7 @@ use std::sync::Arc;
 
 use star::config::{Config, RendererKind};
 use star::dataset::Dataset;
-use star::localizer::offline::{localize_dataset, OfflineOptions};
+use star::offline::{localize_dataset, OfflineOptions};
 
 /// Frames per sequence (3 s at 50 Hz).
 const FRAMES: usize = 150;

@@ -12,9 +12,9 @@ use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use star::config::Config;
 use star::dataset::Dataset;
 use star::geometry::Pose;
-use star::localizer::offline::{localize_dataset, OfflineOptions};
 use star::localizer::{Localizer, LocalizerError, TrackState};
 use star::map::{Mesh, MeshGroup};
+use star::offline::{localize_dataset, OfflineOptions};
 use star::render::cpu::CpuRenderer;
 
 const FRAMES: usize = 40;

@@ -11,9 +11,9 @@
 use aravis::prelude::*;
 use aravis::{AcquisitionMode, Auto, Buffer, BufferStatus, Camera, PixelFormat, Stream};
 
-use super::clock::realtime_to_monotonic_ns;
 use super::convert::gray_from_grey;
 use super::{CameraError, FrameSource, SourceSettings};
+use crate::clock::realtime_to_monotonic_ns;
 use crate::ipc::{FrameHeader, FrameSlot, FRAME_MAX_HEIGHT, FRAME_MAX_WIDTH};
 
 /// Id that selects Aravis's in-process fake camera.
@@ -223,7 +223,7 @@ impl AravisSource {
         slot.header.capture_ns = if host_ns > 0 {
             realtime_to_monotonic_ns(host_ns)
         } else {
-            super::clock::monotonic_now_ns()
+            crate::clock::monotonic_now_ns()
         };
         slot.header.exposure_us = self.exposure_us;
         slot.header.gain_db = self.gain_db;

@@ -9,7 +9,7 @@
 //! virtual-camera writer). [`runner`] drives a source into a
 //! [`FramePublisher`](crate::ipc::FramePublisher), reconnecting with backoff.
 
-pub mod clock;
+pub mod config;
 pub mod convert;
 #[cfg(feature = "v4l2")]
 pub mod loopback;
@@ -23,7 +23,7 @@ pub mod v4l2;
 #[cfg(feature = "aravis")]
 pub mod aravis;
 
-pub use clock::monotonic_now_ns;
+pub use config::CameraConfig;
 pub use runner::{run_camera, RunError, RunSummary, RunnerSettings};
 pub use uri::SourceUri;
 

@@ -4,8 +4,8 @@
 
 use std::time::Duration;
 
-use super::clock::monotonic_now_ns;
 use super::{CameraError, FrameSource};
+use crate::clock::monotonic_now_ns;
 use crate::ipc::{FrameHeader, FrameSlot, FRAME_MAX_HEIGHT, FRAME_MAX_WIDTH};
 
 /// Diagonal gradient that shifts by one pixel per frame.

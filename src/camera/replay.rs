@@ -16,8 +16,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use super::clock::monotonic_now_ns;
 use super::{CameraError, FrameSource, SourceSettings};
+use crate::clock::monotonic_now_ns;
 use crate::ipc::{FrameHeader, FrameSlot, FRAME_MAX_HEIGHT, FRAME_MAX_WIDTH};
 
 /// One line of `rgb.txt`.

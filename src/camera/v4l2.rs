@@ -17,9 +17,9 @@ use v4l::video::capture::Parameters;
 use v4l::video::Capture;
 use v4l::{Device, Format, FourCC};
 
-use super::clock::monotonic_now_ns;
 use super::convert::{gray_from_grey, gray_from_jpeg, gray_from_yuyv};
 use super::{CameraError, FrameSource, SourceSettings};
+use crate::clock::monotonic_now_ns;
 use crate::ipc::{FrameHeader, FrameSlot, FRAME_MAX_HEIGHT, FRAME_MAX_WIDTH};
 
 /// Pixel formats read from V4L2, in order of preference.

@@ -22,12 +22,12 @@ use nalgebra::{Translation3, UnitQuaternion, Vector3, Vector6};
 
 use crate::config::TrackerConfig;
 use crate::dataset::{decode_gray_into, decode_u16, write_gray16, write_gray8};
+use crate::geometry::look::camera_rotation;
 use crate::geometry::{exp_se3, PinholeCamera, Pose};
 use crate::imgproc::ImageU8;
 use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderedView, Renderer};
 use crate::synth::corrupt::photometric::{PhotometricSpec, SensorModel};
-use crate::synth::look::camera_rotation;
 use crate::synth::{build_scene, SceneParams, SplitMix64};
 use crate::track::{Aligner, Keyframe, Pyramid};
 

@@ -29,18 +29,18 @@ use anyhow::{Context, Result};
 use nalgebra::{Translation3, Vector3};
 
 use crate::config::Config;
+use crate::geometry::look::camera_rotation;
 use crate::geometry::Pose;
 use crate::imgproc::{ImageF32, ImageU8};
-use crate::localizer::offline::median_p99;
+use crate::offline::median_p99;
 use crate::reloc::recover::{Candidate, Query, Ranked, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K};
 use crate::reloc::{build_database, try_candidate, Relocalizer, SearchRegion};
 use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderedView, Renderer};
+use crate::rng::SplitMix64;
 use crate::synth::corrupt::{DistortionWarp, SensorModel};
-use crate::synth::look::camera_rotation;
 use crate::synth::preset::Preset;
 use crate::synth::sequence::preset_scene;
-use crate::synth::SplitMix64;
 use crate::track::{Aligner, Keyframe, Pyramid};
 
 /// Runs the benchmark with `queries` random poses.

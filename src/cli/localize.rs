@@ -10,7 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::config::Config;
 use crate::dataset::Dataset;
-use crate::localizer::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport};
+use crate::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport};
 use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 
 use super::pose_arg::parse_pose;

@@ -22,7 +22,6 @@ mod replay;
 mod run;
 mod synth;
 mod track;
-mod track_loop;
 
 /// STAR: monocular localization against a colored mesh map.
 #[derive(Debug, Parser)]

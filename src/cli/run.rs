@@ -16,7 +16,8 @@ use crate::camera::{open_source, run_camera, RunnerSettings, SourceUri};
 use crate::config::Config;
 use crate::ipc::{create_node, load_iceoryx_config, FramePublisher};
 
-use super::track::{finish, initial_pose, load_config, start, stop_when, TrackArgs};
+use super::track::{finish, initial_pose, load_config, stop_when, TrackArgs};
+use crate::tracker::start;
 
 /// Options of `star run`.
 #[derive(Debug, clap::Args)]
@@ -52,6 +53,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         config.camera.intrinsics = *dataset.camera();
     }
     let init_pose = initial_pose(args.track.init_pose.as_deref(), &config)?;
+    let mut stop = stop_when(&args.track)?;
     let tracker = start(&config, init_pose, shutdown.clone())?;
     let done = Arc::new(AtomicBool::new(false));
     let camera = {
@@ -66,9 +68,8 @@ pub fn run(args: &RunArgs) -> Result<()> {
             })
             .context("starting the camera thread")?
     };
-    let mut stop = stop_when(&args.track);
     stop.source_done = Some(done);
-    let summary = tracker.run(&stop);
+    let summary = tracker.run(&mut stop);
     // Stop the camera too when the tracker ended first.
     shutdown.store(true, Ordering::Relaxed);
     let _ = camera.join();

@@ -8,23 +8,17 @@
 //! `--reloc`), a lost tracker searches it and restarts on its own.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
-use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
-use tracing::info;
 
 use crate::config::Config;
+use crate::dataset::TrajectoryWriter;
 use crate::geometry::Pose;
-use crate::ipc::{create_node, load_iceoryx_config, FrameSubscriber, PosePublisher};
-use crate::localizer::Localizer;
-use crate::mavlink_io::{monotonic_now_ns, MavlinkLink};
-use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
-use crate::service::{signals, Service};
+use crate::service::signals;
+use crate::tracker::{start, StopWhen, TrackSummary};
 
 use super::pose_arg::parse_pose;
-use super::track_loop::{StopWhen, TrackSummary, Tracker};
 
 /// Options shared by `star track` and `star run`.
 #[derive(Debug, Clone, clap::Args)]
@@ -42,8 +36,9 @@ pub struct TrackArgs {
     /// MAVLink connection overriding `mavlink.connection`.
     #[arg(long)]
     pub mavlink: Option<String>,
-    /// Write the tracked poses here at exit (TUM format; replay sources are
-    /// stamped in dataset time).
+    /// Stream the tracked poses to this file as they are produced (TUM
+    /// format, flushed at least once a second; replay sources are stamped in
+    /// dataset time).
     #[arg(long)]
     pub trajectory: Option<PathBuf>,
     /// Relocalization database (`star reloc build`) overriding
@@ -102,82 +97,22 @@ pub fn load_config(args: &TrackArgs) -> Result<Config> {
     Ok(config)
 }
 
-/// Opens the ports, loads the map, renders the first keyframe, starts the
-/// MAVLink link and tells systemd the service is ready.
-pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Result<Tracker> {
-    let iox =
-        load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
-    let node = create_node("star-track", &iox).context("iceoryx2 node")?;
-    let subscriber = FrameSubscriber::new(&node)
-        .context("frame subscriber")?
-        .with_spin(std::time::Duration::from_micros(config.ipc.spin_us));
-    let poses = PosePublisher::new(&node).context("pose publisher")?;
-    let service = Service::start(shutdown.clone()).context("service thread")?;
-    let mesh = &config.map.mesh;
-    let mesh_data = Arc::new(
-        crate::map::load_obj(mesh).with_context(|| format!("loading map {}", mesh.display()))?,
-    );
-    let relocalizer = match &config.reloc.database {
-        Some(path) => {
-            let db = RelocDatabase::read(path)?;
-            db.check_compatible(&config.camera.intrinsics, map_fingerprint(&mesh_data))?;
-            Some(Relocalizer::new(
-                db,
-                &config.reloc,
-                &config.camera.intrinsics,
-            )?)
-        }
+/// The stop conditions given on the command line; creates the trajectory
+/// file, so a bad `--trajectory` path fails before the run, not after it.
+pub fn stop_when(args: &TrackArgs) -> Result<StopWhen> {
+    let trajectory = match &args.trajectory {
+        Some(path) => Some(
+            TrajectoryWriter::create(path)
+                .with_context(|| format!("--trajectory {}", path.display()))?,
+        ),
         None => None,
     };
-    let kind = config.render.renderer;
-    let renderer = crate::render::select::make_renderer(kind, mesh_data)
-        .with_context(|| format!("starting the `{kind:?}` renderer"))?;
-    let mut localizer = Localizer::start(
-        renderer,
-        &config.camera.intrinsics,
-        &config.tracker,
-        &config.keyframe,
-        init_pose,
-        monotonic_now_ns(),
-    )
-    .context("starting the tracker")?;
-    if let Some(r) = relocalizer {
-        localizer
-            .set_relocalizer(r)
-            .context("relocalization database")?;
-    }
-    let mavlink = if config.mavlink.enabled {
-        Some(MavlinkLink::spawn(&config.mavlink, shutdown.clone()).context("MAVLink link")?)
-    } else {
-        None
-    };
-    service.ready();
-    info!(
-        mesh = %mesh.display(),
-        renderer = localizer.renderer_name(),
-        "tracker ready; waiting for frames"
-    );
-    Ok(Tracker {
-        subscriber,
-        poses,
-        localizer,
-        mavlink,
-        service,
-        shutdown,
-        silence: Duration::from_millis(config.ipc.silence_timeout_ms),
-        init_pose,
-        _node: node,
-    })
-}
-
-/// The stop conditions given on the command line.
-pub fn stop_when(args: &TrackArgs) -> StopWhen {
-    StopWhen {
+    Ok(StopWhen {
         frames: args.frames,
         idle: args.idle_exit_s.map(Duration::from_secs_f64),
         source_done: None,
-        keep_trajectory: args.trajectory.is_some(),
-    }
+        trajectory,
+    })
 }
 
 /// Runs `star track`.
@@ -185,23 +120,16 @@ pub fn run(args: &TrackArgs) -> Result<()> {
     let shutdown = signals::install_shutdown_handler()?;
     let config = load_config(args)?;
     let init_pose = initial_pose(args.init_pose.as_deref(), &config)?;
+    let mut stop = stop_when(args)?;
     let tracker = start(&config, init_pose, shutdown)?;
-    let summary = tracker.run(&stop_when(args))?;
+    let summary = tracker.run(&mut stop)?;
     finish(&summary, args.trajectory.as_deref())
 }
 
 /// Writes the trajectory (when asked) and prints the summary.
 pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
-    if let Some(path) = trajectory {
-        summary
-            .trajectory
-            .write(path)
-            .with_context(|| format!("writing {}", path.display()))?;
-        println!(
-            "track: wrote {} poses to {}",
-            summary.trajectory.len(),
-            path.display()
-        );
+    if let (Some(path), Some(poses)) = (trajectory, summary.trajectory_poses) {
+        println!("track: wrote {poses} poses to {}", path.display());
     }
     let rate = if summary.frames > 0 {
         100.0 * summary.tracked as f64 / summary.frames as f64

@@ -26,7 +26,7 @@ use std::path::{Path, PathBuf};
 pub use camera_file::{CameraFile, TUM_DEPTH_SCALE};
 pub use list::{format_frame_list, parse_frame_list, FrameEntry};
 pub use png_io::{decode_gray_into, decode_u16, luma601, write_gray16, write_gray8};
-pub use trajectory::Trajectory;
+pub use trajectory::{Trajectory, TrajectoryWriter};
 pub use writer::DatasetWriter;
 
 use crate::geometry::PinholeCamera;

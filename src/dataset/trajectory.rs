@@ -111,6 +111,87 @@ impl Trajectory {
     }
 }
 
+/// Writes a TUM trajectory as poses are produced, so a process killed
+/// mid-flight loses at most the last second: lines go into a fixed buffer
+/// and reach the file when it fills and at least once a second.
+///
+/// Formatting a pose into the buffer allocates nothing; the file is created
+/// (and the path checked) when the writer is.
+pub struct TrajectoryWriter {
+    path: std::path::PathBuf,
+    out: std::io::BufWriter<std::fs::File>,
+    poses: u64,
+    last_flush: std::time::Instant,
+}
+
+impl TrajectoryWriter {
+    /// Longest time a written pose stays in the buffer.
+    pub const FLUSH_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
+
+    /// Creates (truncates) `path` and writes the header line.
+    pub fn create(path: &Path) -> Result<Self, DatasetError> {
+        use std::io::Write;
+        let io = |source| DatasetError::Io {
+            path: path.to_owned(),
+            source,
+        };
+        let file = std::fs::File::create(path).map_err(io)?;
+        // 64 KiB: about 10 s of poses at 50 Hz, so the buffer never grows.
+        let mut out = std::io::BufWriter::with_capacity(64 * 1024, file);
+        out.write_all(b"# timestamp tx ty tz qx qy qz qw (world_from_camera)\n")
+            .and_then(|()| out.flush())
+            .map_err(io)?;
+        Ok(Self {
+            path: path.to_owned(),
+            out,
+            poses: 0,
+            last_flush: std::time::Instant::now(),
+        })
+    }
+
+    /// Appends one pose (the caller keeps timestamps increasing), and
+    /// flushes when the last flush is [`Self::FLUSH_INTERVAL`] old.
+    pub fn push(&mut self, stamp_s: f64, world_from_camera: &Pose) -> Result<(), DatasetError> {
+        use std::io::Write;
+        let t = world_from_camera.translation.vector;
+        let q = world_from_camera.rotation.coords; // [x, y, z, w]
+        let written = writeln!(
+            self.out,
+            "{} {} {} {} {} {} {} {}",
+            stamp_s, t.x, t.y, t.z, q[0], q[1], q[2], q[3]
+        );
+        written.map_err(|source| DatasetError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
+        self.poses += 1;
+        if self.last_flush.elapsed() >= Self::FLUSH_INTERVAL {
+            self.flush()?;
+        }
+        Ok(())
+    }
+
+    /// Writes the buffered lines to the file.
+    pub fn flush(&mut self) -> Result<(), DatasetError> {
+        use std::io::Write;
+        self.last_flush = std::time::Instant::now();
+        self.out.flush().map_err(|source| DatasetError::Io {
+            path: self.path.clone(),
+            source,
+        })
+    }
+
+    /// Poses written so far.
+    pub fn poses(&self) -> u64 {
+        self.poses
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -180,5 +261,26 @@ mod tests {
         assert!(matches!(err, DatasetError::NonMonotonic { line: 2, .. }));
         let err = Trajectory::read(Path::new("/nonexistent/gt.txt")).unwrap_err();
         assert!(matches!(err, DatasetError::MissingFile { .. }));
+    }
+
+    #[test]
+    fn streamed_trajectory_reads_back_equal() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("streamed.txt");
+        let t = sample();
+        let mut w = TrajectoryWriter::create(&path).expect("create");
+        for (stamp, pose) in t.stamps_s.iter().zip(&t.poses) {
+            w.push(*stamp, pose).expect("push");
+        }
+        w.flush().expect("flush");
+        assert_eq!(w.poses(), t.len() as u64);
+        let back = Trajectory::read(&path).expect("read back");
+        assert_eq!(back.stamps_s, t.stamps_s);
+        assert_eq!(back.poses.len(), t.poses.len());
+        let missing = dir.path().join("no/such/dir/t.txt");
+        let err = TrajectoryWriter::create(&missing)
+            .err()
+            .expect("missing dir");
+        assert!(err.to_string().contains("no/such/dir"), "{err}");
     }
 }

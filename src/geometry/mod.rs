@@ -12,7 +12,8 @@
 //!   centers, and the tracker's bilinear sampling uses the same convention.
 
 pub mod camera;
+pub mod look;
 pub mod se3;
 
 pub use camera::{CameraError, Distortion, PinholeCamera, UndistortMap};
-pub use se3::{exp_se3, hat, log_se3, renormalized, Pose};
+pub use se3::{adjoint, exp_se3, hat, log_se3, renormalized, Pose};

@@ -5,7 +5,7 @@
 //! `exp(hat(xi))`; `log_se3` is its inverse on the principal branch
 //! (rotation angle in `[0, pi]`).
 
-use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
 /// A rigid transform. Named after what it maps: `world_from_camera`.
 pub type Pose = Isometry3<f64>;
@@ -74,6 +74,18 @@ pub fn renormalized(mut pose: Pose) -> Pose {
 /// Angle of the rotation part of `pose`, in radians, in `[0, pi]`.
 pub fn rotation_angle_rad(pose: &Pose) -> f64 {
     pose.rotation.angle()
+}
+
+/// The adjoint of `pose` for twists ordered `[v; w]`:
+/// `pose * exp(xi) * pose^-1 = exp(adjoint(pose) * xi)`.
+pub fn adjoint(pose: &Pose) -> Matrix6<f64> {
+    let r = pose.rotation.to_rotation_matrix().into_inner();
+    let t = pose.translation.vector;
+    let mut ad = Matrix6::zeros();
+    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&(hat(&t) * r));
+    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    ad
 }
 
 #[cfg(test)]

@@ -34,7 +34,7 @@ use tracing::{debug, info, warn};
 use super::frame::{Frame, FrameError, FrameSlot, FrameView};
 use super::services::{open_event_service, open_frame_service, FRAME_EVENT_SERVICE, FRAME_SERVICE};
 use super::IpcError;
-use crate::camera::monotonic_now_ns;
+use crate::clock::monotonic_now_ns;
 
 /// Camera-side counters.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]

@@ -11,12 +11,14 @@
 //! Each process calls [`services::create_node`] first, which removes the
 //! resources of crashed processes.
 
+pub mod config;
 pub mod frame;
 pub mod frame_transport;
 pub mod pose;
 pub mod pose_transport;
 pub mod services;
 
+pub use config::IpcConfig;
 pub use frame::{
     Frame, FrameError, FrameHeader, FrameSlot, FrameView, PixelFormat, FRAME_CAPACITY_BYTES,
     FRAME_MAX_HEIGHT, FRAME_MAX_WIDTH, NO_DATASET_STAMP,

@@ -17,16 +17,18 @@
 //! After [`Localizer::start`], [`Localizer::process_frame`] allocates nothing
 //! while tracking.
 
-pub mod offline;
+pub mod config;
 pub mod policy;
 mod relocalize;
 pub mod worker;
 
+pub use config::KeyframeConfig;
+
 use nalgebra::Matrix6;
 
-use crate::config::{KeyframeConfig, TrackerConfig};
-use crate::geometry::{exp_se3, log_se3, renormalized, PinholeCamera, Pose};
+use crate::geometry::{adjoint, exp_se3, log_se3, renormalized, PinholeCamera, Pose};
 use crate::render::Renderer;
+use crate::track::TrackerConfig;
 use crate::track::{AlignQuality, Aligner, Keyframe, Pyramid};
 
 use worker::{RenderRequest, RenderWorker};
@@ -445,17 +447,6 @@ impl Localizer {
             }
         }
     }
-}
-
-/// Adjoint of `T` for twists ordered `[v; w]`: `T exp(xi) T^-1 = exp(Ad_T xi)`.
-pub fn adjoint(t: &Pose) -> Matrix6<f64> {
-    let r = t.rotation.to_rotation_matrix().into_inner();
-    let tx = crate::geometry::hat(&t.translation.vector) * r;
-    let mut m = Matrix6::zeros();
-    m.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-    m.fixed_view_mut::<3, 3>(0, 3).copy_from(&tx);
-    m.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-    m
 }
 
 fn pose_is_finite(p: &Pose) -> bool {

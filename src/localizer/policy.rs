@@ -4,7 +4,7 @@
 //! translation large relative to scene depth, rotation large), when quality
 //! degrades, or when the keyframe is old.
 
-use crate::config::KeyframeConfig;
+use super::config::KeyframeConfig;
 use crate::track::{Alignment, Keyframe};
 
 /// True when a new keyframe should be rendered at the current estimate.

@@ -8,10 +8,10 @@
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TryRecvError, TrySendError};
 use std::thread::JoinHandle;
 
-use crate::config::TrackerConfig;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::render::{RenderedView, Renderer};
 use crate::track::Keyframe;
+use crate::track::TrackerConfig;
 
 /// Number of keyframe buffers in circulation.
 const POOL: usize = 3;

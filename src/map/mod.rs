@@ -11,12 +11,14 @@
 //!   relies on, with [`MapError`] / [`MeshProblem`] naming the defect.
 //! - [`subdivide`]: 1-to-4 subdivision for large benchmark meshes.
 
+mod config;
 mod error;
 mod obj;
 mod obj_write;
 mod subdivide;
 mod validate;
 
+pub use config::MapConfig;
 pub use error::{MapError, MeshProblem, IN_MEMORY};
 pub use obj::{load_gray_texture, load_obj, luma601_255};
 pub use obj_write::write_obj;

@@ -2,7 +2,7 @@
 //! how fast, and the two mounting transforms that take a tracker pose into the
 //! autopilot's frames.
 //!
-//! Takes TOML (through [`crate::config::Config`]), gives out a validated
+//! Takes its TOML section (through the aggregate `Config`), gives out a validated
 //! [`MavlinkConfig`] whose transforms convert to [`Pose`]s with
 //! [`TransformConfig::to_pose`].
 //!
@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::geometry::Pose;
 use crate::mavlink_io::link::LinkAddress;
+use crate::settings::{first_failure, SettingError};
 
 /// MAVLink component id of a visual-inertial odometry source
 /// (MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY).
@@ -152,32 +153,38 @@ impl Default for MavlinkConfig {
 }
 
 impl MavlinkConfig {
-    /// Checks every value; `Err((key, reason))` names the key below `mavlink.`.
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        if let Err(e) = LinkAddress::parse(&self.connection) {
-            return Err(("connection", e.to_string()));
-        }
-        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0 && self.rate_hz <= 1000.0) {
-            return Err((
+    /// Checks every value; keys are relative to `[mavlink]`.
+    pub fn validate(&self) -> Result<(), SettingError> {
+        LinkAddress::parse(&self.connection)
+            .map_err(|e| SettingError::caused_by("connection", e))?;
+        first_failure([
+            (
                 "rate_hz",
+                self.rate_hz.is_finite() && self.rate_hz > 0.0 && self.rate_hz <= 1000.0,
                 format!("expected 0 < rate_hz <= 1000, found {}", self.rate_hz),
-            ));
-        }
-        if self.system_id == 0 {
-            return Err(("system_id", "expected 1..=255, found 0".into()));
-        }
-        if self.component_id == 0 {
-            return Err(("component_id", "expected 1..=255, found 0".into()));
-        }
-        if self.max_pose_age_ms == 0 {
-            return Err(("max_pose_age_ms", "expected > 0, found 0".into()));
-        }
+            ),
+            (
+                "system_id",
+                self.system_id != 0,
+                "expected 1..=255, found 0".into(),
+            ),
+            (
+                "component_id",
+                self.component_id != 0,
+                "expected 1..=255, found 0".into(),
+            ),
+            (
+                "max_pose_age_ms",
+                self.max_pose_age_ms != 0,
+                "expected > 0, found 0".into(),
+            ),
+        ])?;
         self.ned_from_world
             .validate()
-            .map_err(|e| ("ned_from_world", e))?;
+            .map_err(|e| SettingError::new("ned_from_world", e))?;
         self.body_from_camera
             .validate()
-            .map_err(|e| ("body_from_camera", e))?;
+            .map_err(|e| SettingError::new("body_from_camera", e))?;
         Ok(())
     }
 
@@ -248,14 +255,18 @@ mod tests {
             rate_hz: 0.0,
             ..Default::default()
         };
-        assert_eq!(c.validate().unwrap_err().0, "rate_hz");
+        assert_eq!(c.validate().unwrap_err().key, "rate_hz");
         let c = MavlinkConfig {
             connection: "udp:1.2.3.4".into(),
             ..Default::default()
         };
-        let (key, reason) = c.validate().unwrap_err();
-        assert_eq!(key, "connection");
-        assert!(reason.contains("udp:1.2.3.4"), "{reason}");
+        let e = c.validate().unwrap_err();
+        assert_eq!(e.key, "connection");
+        assert!(e.reason.contains("udp:1.2.3.4"), "{e}");
+        assert!(
+            std::error::Error::source(&e).is_some(),
+            "keeps the parser's error"
+        );
     }
 
     #[test]

@@ -32,7 +32,7 @@
 
 use nalgebra::{Matrix3, Matrix6, Vector3};
 
-use crate::geometry::{hat, Pose};
+use crate::geometry::{adjoint, hat, Pose};
 
 /// Indices of the diagonal in the 21-float upper triangle.
 pub const UPPER_TRIANGLE_DIAGONAL: [usize; 6] = [0, 6, 11, 15, 18, 20];
@@ -144,18 +144,6 @@ fn euler_rates_from_angular_velocity(pitch_rad: f64, yaw_rad: f64) -> Matrix3<f6
         sp * sy / cp,
         1.0,
     )
-}
-
-/// The adjoint of `pose` for twists ordered `[v; w]`:
-/// `pose * exp(xi) * pose^-1 = exp(adjoint(pose) * xi)`.
-pub fn adjoint(pose: &Pose) -> Matrix6<f64> {
-    let r = pose.rotation.to_rotation_matrix().into_inner();
-    let t = pose.translation.vector;
-    let mut ad = Matrix6::zeros();
-    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-    ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&(hat(&t) * r));
-    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-    ad
 }
 
 /// Converts the covariance of a right (camera-frame) twist,

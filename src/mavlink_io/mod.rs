@@ -51,7 +51,6 @@ pub use config::{MavlinkConfig, PoseMessage, TransformConfig};
 pub use frames::{FrameConverter, NedPose};
 pub use link::{LinkAddress, LinkError};
 pub use stats::LinkStats;
-pub use timesync::monotonic_now_ns;
 
 use crate::geometry::Pose;
 use sender::Mailbox;
@@ -90,13 +89,8 @@ pub enum MavlinkError {
     #[error(transparent)]
     Address(#[from] link::AddressError),
     /// The configuration failed validation.
-    #[error("invalid [mavlink] config: key `mavlink.{key}`: {reason}")]
-    Config {
-        /// Key below `mavlink.`.
-        key: &'static str,
-        /// What is wrong.
-        reason: String,
-    },
+    #[error("invalid [mavlink] config: {0}")]
+    Config(#[source] crate::settings::SettingError),
     /// A thread could not be started.
     #[error("cannot start MAVLink thread {name}: {source}")]
     Thread {
@@ -170,7 +164,7 @@ impl MavlinkLink {
     ) -> Result<MavlinkHandle, MavlinkError> {
         config
             .validate()
-            .map_err(|(key, reason)| MavlinkError::Config { key, reason })?;
+            .map_err(|e| MavlinkError::Config(e.within("mavlink")))?;
         let address = LinkAddress::parse(&config.connection)?;
         let shared = Arc::new(Shared {
             config: config.clone(),

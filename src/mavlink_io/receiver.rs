@@ -15,8 +15,9 @@ use mavlink::MavHeader;
 use super::link::Link;
 use super::messages;
 use super::stats::bump;
-use super::timesync::{monotonic_now_ns, to_public_ns, TimesyncEvent};
+use super::timesync::{to_public_ns, TimesyncEvent};
 use super::Shared;
+use crate::clock::monotonic_now_ns;
 
 /// Wait while there is no (working) link.
 const IDLE: Duration = Duration::from_millis(20);

@@ -16,8 +16,9 @@ use super::link::Link;
 use super::messages::{self, LinkState};
 use super::reset::ResetCounter;
 use super::stats::bump;
-use super::timesync::{monotonic_now_ns, to_public_ns};
+use super::timesync::to_public_ns;
 use super::{PoseMessage, PoseSample, Shared};
+use crate::clock::monotonic_now_ns;
 
 /// HEARTBEAT period.
 const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);

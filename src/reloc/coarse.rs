@@ -12,9 +12,9 @@
 //! gradient times focal length, which does not depend on the level, so the
 //! stored points align against any frame level of about that size.
 
-use crate::config::TrackerConfig;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::render::RenderedView;
+use crate::track::TrackerConfig;
 use crate::track::{KeyPoint, Keyframe};
 
 use super::grid::thumb_render_camera;
@@ -184,26 +184,17 @@ pub fn to_keypoints(points: &[CoarsePoint], coarse: &PinholeCamera, out: &mut Ve
     let room = out.capacity();
     for p in points.iter().take(room) {
         let z = p.depth_mm as f32 * 1e-3;
-        let px = (p.x as f32 - cx) / fx * z;
-        let py = (p.y as f32 - cy) / fy * z;
         let gx = p.grad_x as f32 / GRAD_SCALE;
         let gy = p.grad_y as f32 / GRAD_SCALE;
-        let inv_z = 1.0 / z;
-        let ru = gx * fx * inv_z;
-        let rv = gy * fy * inv_z;
-        let rz = -(gx * fx * px + gy * fy * py) * inv_z * inv_z;
-        out.push(KeyPoint {
-            p_keyframe: [px, py, z],
-            gray: p.gray as f32,
-            jacobian: [
-                ru,
-                rv,
-                rz,
-                py * rz - z * rv,
-                z * ru - px * rz,
-                px * rv - py * ru,
-            ],
-        });
+        out.push(KeyPoint::from_pixel(
+            p.x as f32,
+            p.y as f32,
+            z,
+            p.gray as f32,
+            gx,
+            gy,
+            [fx, fy, cx, cy],
+        ));
     }
 }
 

@@ -2,9 +2,10 @@
 //! virtual cameras, and how the STAR loop searches, verifies and accepts a
 //! relocalization while lost.
 //!
-//! Takes TOML (through [`crate::config::Config`]), gives out a validated
+//! Takes its TOML section (through the aggregate `Config`), gives out a validated
 //! [`RelocConfig`]; [`RelocConfig::validate`] names the key and the reason.
 
+use crate::settings::SettingError;
 use serde::{Deserialize, Serialize};
 
 /// `[reloc]`: database grid, search and acceptance gate.
@@ -152,8 +153,13 @@ impl Default for RelocConfig {
 }
 
 impl RelocConfig {
-    /// Checks every value; on error gives the key (without `reloc.`) and why.
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+    /// Checks every value; keys are relative to `[reloc]`.
+    pub fn validate(&self) -> Result<(), SettingError> {
+        self.check()
+            .map_err(|(key, reason)| SettingError::new(key, reason))
+    }
+
+    fn check(&self) -> Result<(), (&'static str, String)> {
         let pos = |v: f64| v.is_finite() && v > 0.0;
         let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
         if !(pos(self.grid_spacing_m) && self.grid_spacing_m >= 0.05) {

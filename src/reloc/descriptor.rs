@@ -11,7 +11,7 @@
 //! All buffers live in [`Thumbnailer`], so computing a descriptor allocates
 //! nothing after construction.
 
-use crate::synth::SplitMix64;
+use crate::rng::SplitMix64;
 
 /// Thumbnail width, pixels.
 pub const THUMB_W: usize = 80;

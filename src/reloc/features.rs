@@ -14,7 +14,7 @@
 //! Scale is covered by the pyramid.
 
 use super::descriptor::Descriptor;
-use crate::synth::SplitMix64;
+use crate::rng::SplitMix64;
 
 /// Side of the square patch the comparison pairs are drawn in, pixels of
 /// the keypoint's level.
@@ -709,7 +709,7 @@ mod tests {
 
     #[test]
     fn batch_matching_agrees_with_one_at_a_time() {
-        let mut rng = crate::synth::SplitMix64::new(7);
+        let mut rng = crate::rng::SplitMix64::new(7);
         let mut draw = || Descriptor(std::array::from_fn(|_| rng.next_u64()));
         let train: Vec<Descriptor> = (0..1000).map(|_| draw()).collect();
         let queries: Vec<Descriptor> = (0..21).map(|_| draw()).collect();

@@ -16,10 +16,10 @@
 
 use nalgebra::{Translation3, Vector3};
 
+use crate::geometry::look::camera_rotation;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
 use crate::render::{RenderError, RenderedView, Renderer};
-use crate::synth::look::camera_rotation;
 
 use super::coarse::{CoarseExtractor, CoarsePoint};
 use super::config::RelocConfig;

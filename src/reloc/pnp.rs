@@ -14,7 +14,7 @@ use nalgebra::{
 };
 
 use crate::geometry::{exp_se3, renormalized, Pose};
-use crate::synth::SplitMix64;
+use crate::rng::SplitMix64;
 
 /// Points nearer than this in front of the camera (or behind it) are never
 /// inliers, meters.

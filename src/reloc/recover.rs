@@ -10,8 +10,8 @@
 
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
-use crate::config::TrackerConfig;
 use crate::geometry::{PinholeCamera, Pose};
+use crate::track::TrackerConfig;
 use crate::track::{AlignQuality, Aligner, Alignment, Keyframe, Pyramid, MAX_LEVELS};
 
 use super::coarse::{coarse_camera, frame_level, to_keypoints};

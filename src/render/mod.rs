@@ -16,6 +16,8 @@ pub mod cpu;
 pub mod gpu;
 pub mod select;
 
+pub use select::{RenderConfig, RendererKind};
+
 /// Depth value of a pixel that sees no surface (unmapped space or a hole).
 pub const NO_DEPTH: f32 = 0.0;
 

@@ -19,12 +19,38 @@
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
 
+use serde::{Deserialize, Serialize};
+
 use super::cpu::CpuRenderer;
 use super::gpu::{AdapterPreference, GpuRenderer};
 use super::{RenderError, RenderedView, Renderer};
-use crate::config::RendererKind;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
+
+/// Which renderer draws keyframes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum RendererKind {
+    /// Hardware adapter, then software adapter, then the CPU rasterizer.
+    #[default]
+    Auto,
+    /// A hardware wgpu adapter, which must exist at start; on a runtime
+    /// failure, the software adapter, then the CPU rasterizer.
+    Gpu,
+    /// wgpu's software adapter (Mesa lavapipe/llvmpipe), which must exist at
+    /// start; on a runtime failure, the CPU rasterizer.
+    Software,
+    /// The built-in CPU rasterizer.
+    Cpu,
+}
+
+/// `[render]`
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderConfig {
+    /// `auto`, `gpu`, `software` or `cpu`.
+    pub renderer: RendererKind,
+}
 
 /// One renderer of a fallback chain.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -41,7 +41,7 @@ pub use notify::Notifier;
 pub use status::{ServiceState, StatusBoard};
 pub use watchdog::{Watchdog, WatchdogGate};
 
-use crate::mavlink_io::monotonic_now_ns;
+use crate::clock::monotonic_now_ns;
 
 /// How often `STATUS=` is refreshed.
 pub const STATUS_PERIOD: Duration = Duration::from_secs(1);

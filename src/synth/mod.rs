@@ -5,7 +5,7 @@
 //!   no occluders) and a `truth` mesh (no holes, with occluders), plus its
 //!   free space.
 //! - [`texture`]: the seeded PRNG and the procedural gray textures.
-//! - [`trajectory`] (with [`look`]): seeded 50 Hz camera trajectories in
+//! - [`trajectory`] (with [`crate::geometry::look`]): seeded 50 Hz camera trajectories in
 //!   the scene's free space (`slow_loop`, `aggressive`).
 //! - [`corrupt`]: sensor corruptions (gain/bias drift, vignetting, noise,
 //!   lens distortion, motion blur).
@@ -14,7 +14,6 @@
 //!   dataset folder (`star synth`).
 
 pub mod corrupt;
-pub mod look;
 pub mod preset;
 pub mod scene;
 pub mod sequence;

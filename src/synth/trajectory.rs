@@ -17,8 +17,8 @@ use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::Serialize;
 
-use super::look::camera_rotation;
 use crate::dataset::Trajectory;
+use crate::geometry::look::camera_rotation;
 use crate::geometry::Pose;
 
 /// Largest optical-axis elevation (up or down), degrees.

@@ -17,8 +17,8 @@
 
 use nalgebra::Vector6;
 
-use crate::config::{IlluminationModel, TrackerConfig};
 use crate::geometry::{exp_se3, renormalized, PinholeCamera, Pose};
+use crate::track::{IlluminationModel, TrackerConfig};
 
 use super::keyframe::Keyframe;
 use super::normal_eq::{Accumulator6, NormalEquations};

@@ -8,10 +8,10 @@
 //! them to 3D keyframe points and precomputes the inverse-compositional
 //! Jacobian of each. All storage is allocated at construction and reused.
 
-use crate::config::TrackerConfig;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::imgproc::ImageF32;
 use crate::render::{RenderedView, NO_DEPTH};
+use crate::track::TrackerConfig;
 
 use super::pyramid::Pyramid;
 
@@ -24,6 +24,46 @@ pub struct KeyPoint {
     pub gray: f32,
     /// `d I_ref(pi(K exp(delta) p)) / d delta` at `delta = 0`, `delta = [v; w]`.
     pub jacobian: [f32; 6],
+}
+
+impl KeyPoint {
+    /// The keyframe point at pixel `(x_px, y_px)` with depth `depth_m`,
+    /// rendered intensity `gray` and image gradient `(grad_x, grad_y)`
+    /// (gray levels per pixel), back-projected through the pinhole
+    /// `[fx, fy, cx, cy]`, with its inverse-compositional Jacobian
+    /// `J = grad * d pi / d p * [I | -[p]x]`. The one constructor the tracker's
+    /// keyframe preparation and relocalization's coarse points share.
+    #[inline]
+    pub fn from_pixel(
+        x_px: f32,
+        y_px: f32,
+        depth_m: f32,
+        gray: f32,
+        grad_x: f32,
+        grad_y: f32,
+        [fx, fy, cx, cy]: [f32; 4],
+    ) -> Self {
+        let z = depth_m;
+        let px = (x_px - cx) / fx * z;
+        let py = (y_px - cy) / fy * z;
+        let inv_z = 1.0 / z;
+        let ru = grad_x * fx * inv_z;
+        let rv = grad_y * fy * inv_z;
+        let rz = -(grad_x * fx * px + grad_y * fy * py) * inv_z * inv_z;
+        // J = r * [I | -[p]x], and r * (-[p]x) = p x r.
+        Self {
+            p_keyframe: [px, py, z],
+            gray,
+            jacobian: [
+                ru,
+                rv,
+                rz,
+                py * rz - z * rv,
+                z * ru - px * rz,
+                px * rv - py * ru,
+            ],
+        }
+    }
 }
 
 /// Points of one pyramid level.
@@ -283,26 +323,9 @@ fn select_level(
         // `select_cells` stores the pixel index in p_keyframe[0]'s bits.
         let i = kp.p_keyframe[0].to_bits() as usize;
         let (x, y) = (i % w, i / w);
-        let z = d[i];
-        let px = (x as f32 - cx) / fx * z;
-        let py = (y as f32 - cy) / fy * z;
         let gx = 0.5 * (g[i + 1] - g[i - 1]);
         let gy = 0.5 * (g[i + w] - g[i - w]);
-        let inv_z = 1.0 / z;
-        let ru = gx * fx * inv_z;
-        let rv = gy * fy * inv_z;
-        let rz = -(gx * fx * px + gy * fy * py) * inv_z * inv_z;
-        // J = r * [I | -[p]x], and r * (-[p]x) = p x r.
-        kp.p_keyframe = [px, py, z];
-        kp.gray = g[i];
-        kp.jacobian = [
-            ru,
-            rv,
-            rz,
-            py * rz - z * rv,
-            z * ru - px * rz,
-            px * rv - py * ru,
-        ];
+        *kp = KeyPoint::from_pixel(x as f32, y as f32, d[i], g[i], gx, gy, [fx, fy, cx, cy]);
     }
 }
 

@@ -11,6 +11,7 @@
 //! - [`normal_eq`]: fixed-size normal equations.
 
 pub mod align;
+pub mod config;
 pub mod keyframe;
 pub mod normal_eq;
 pub mod pyramid;
@@ -19,10 +20,9 @@ pub mod pyramid;
 mod tests;
 
 pub use align::{AlignQuality, Aligner, Alignment, MAX_LEVELS};
+pub use config::{IlluminationModel, TrackerConfig};
 pub use keyframe::{KeyPoint, Keyframe, KeyframeLevel};
 pub use pyramid::Pyramid;
-
-use crate::config::TrackerConfig;
 
 /// The configuration pyramids and keyframes are built with: one level
 /// coarser than tracking aligns on (`tracker.pyramid_levels`), capped at

@@ -3,9 +3,9 @@
 
 use nalgebra::{Translation3, UnitQuaternion, Vector2, Vector3};
 
-use crate::config::{IlluminationModel, TrackerConfig};
 use crate::geometry::{Distortion, PinholeCamera, Pose};
 use crate::render::RenderedView;
+use crate::track::{IlluminationModel, TrackerConfig};
 
 use super::*;
 

@@ -5,7 +5,7 @@
 use super::build::{Face, MeshBuilder, UvMap};
 use super::lambert;
 use super::params::SceneParams;
-use crate::synth::texture::SplitMix64;
+use crate::rng::SplitMix64;
 
 /// A box standing on the floor, rotated about `z`.
 #[derive(Debug, Clone, Copy, PartialEq)]

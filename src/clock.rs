@@ -1,5 +1,6 @@
-//! CLOCK_MONOTONIC and CLOCK_REALTIME readings in nanoseconds, and the
-//! conversion of driver timestamps to the monotonic clock every frame uses.
+//! The one clock: CLOCK_MONOTONIC and CLOCK_REALTIME readings in
+//! nanoseconds, and the conversion of driver timestamps to the monotonic
+//! clock that capture times, IPC latencies and MAVLink `usec` all use.
 
 fn clock_ns(clock: libc::clockid_t) -> u64 {
     let mut ts = libc::timespec {
@@ -7,8 +8,11 @@ fn clock_ns(clock: libc::clockid_t) -> u64 {
         tv_nsec: 0,
     };
     // SAFETY: `ts` is a valid, writable timespec; both clocks always exist on Linux.
-    unsafe { libc::clock_gettime(clock, &mut ts) };
-    (ts.tv_sec as u64) * 1_000_000_000 + ts.tv_nsec as u64
+    let rc = unsafe { libc::clock_gettime(clock, &mut ts) };
+    if rc != 0 {
+        return 0;
+    }
+    (ts.tv_sec as u64).saturating_mul(1_000_000_000) + ts.tv_nsec as u64
 }
 
 /// Now on CLOCK_MONOTONIC, nanoseconds.

@@ -7,8 +7,10 @@
 //! listener with a short timeout so it sees the shutdown flag within 100 ms,
 //! feeds the watchdog on every iteration (a loop stuck in a render or a
 //! deadlock stops feeding it), and allocates nothing per frame: the pose
-//! message, the MAVLink sample and the trajectory buffer (preallocated) are
-//! plain values.
+//! message and the MAVLink sample are plain values, and the trajectory is
+//! formatted into a fixed buffer that reaches its file at least once a
+//! second ([`TrajectoryWriter`]), so a killed process loses at most a second
+//! of it and a long flight holds no growing list.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -18,22 +20,21 @@ use anyhow::{Context, Result};
 use nalgebra::Matrix6;
 use tracing::{info, warn};
 
-use crate::dataset::Trajectory;
+use crate::clock::monotonic_now_ns;
+use crate::dataset::TrajectoryWriter;
 use crate::geometry::Pose;
 use crate::ipc::{
     FrameSubscriber, FrameView, PoseMsg, PosePublisher, TrackingState, NO_DATASET_STAMP,
 };
 use crate::localizer::{FrameOutput, Localizer, TrackState};
 use crate::mavlink_io::frames::{covariance_camera_to_world, upper_triangle};
-use crate::mavlink_io::{monotonic_now_ns, LinkStats, MavlinkHandle, PoseSample};
+use crate::mavlink_io::{LinkStats, MavlinkHandle, PoseSample};
 use crate::service::{Service, ServiceState};
 
 /// Longest wait on the frame event before the loop checks its flags again.
 const POLL: Duration = Duration::from_millis(100);
-/// Poses kept for `--trajectory` without reallocating (10 min at 50 Hz).
-const TRAJECTORY_CAPACITY: usize = 30_000;
 
-/// Everything the loop runs with, built by `track::start`.
+/// Everything the loop runs with, built by [`super::start`].
 pub struct Tracker {
     /// Frame subscriber (zero-copy).
     pub subscriber: FrameSubscriber,
@@ -52,11 +53,11 @@ pub struct Tracker {
     /// The initial pose (used for the pose message until the first fix).
     pub init_pose: Pose,
     /// The iceoryx2 node of the ports (dropped after them).
-    pub(super) _node: iceoryx2::node::Node<iceoryx2::service::ipc::Service>,
+    pub(crate) _node: iceoryx2::node::Node<iceoryx2::service::ipc::Service>,
 }
 
-/// When the loop ends besides SIGTERM/SIGINT.
-#[derive(Debug, Clone, Default)]
+/// When the loop ends besides SIGTERM/SIGINT, and where the poses go.
+#[derive(Default)]
 pub struct StopWhen {
     /// After this many processed frames.
     pub frames: Option<u64>,
@@ -65,8 +66,9 @@ pub struct StopWhen {
     /// Once this flag is set and no frame arrived for `POLL` (the camera
     /// thread of `star run` finished).
     pub source_done: Option<Arc<AtomicBool>>,
-    /// Keep the tracked poses for a trajectory file.
-    pub keep_trajectory: bool,
+    /// Stream the tracked poses to this file (created before the loop
+    /// starts, so a bad path fails at start, not at the end).
+    pub trajectory: Option<TrajectoryWriter>,
 }
 
 /// What the loop did.
@@ -90,23 +92,19 @@ pub struct TrackSummary {
     pub active_s: f64,
     /// MAVLink counters, when enabled.
     pub link: Option<LinkStats>,
-    /// Tracked poses, stamped in dataset time for replay sources.
-    pub trajectory: Trajectory,
+    /// Tracked poses written to the trajectory file, when one was given.
+    pub trajectory_poses: Option<u64>,
     /// The renderer in use.
     pub renderer: String,
 }
 
 impl Tracker {
     /// Runs until SIGTERM/SIGINT or a `stop` condition.
-    pub fn run(mut self, stop: &StopWhen) -> Result<TrackSummary> {
+    pub fn run(mut self, stop: &mut StopWhen) -> Result<TrackSummary> {
         let mut summary = TrackSummary {
             renderer: self.localizer.renderer_name().to_string(),
             ..TrackSummary::default()
         };
-        if stop.keep_trajectory {
-            summary.trajectory.stamps_s.reserve(TRAJECTORY_CAPACITY);
-            summary.trajectory.poses.reserve(TRAJECTORY_CAPACITY);
-        }
         let status = self.service.status();
         let watchdog = self.service.watchdog();
         let mut state = LoopState {
@@ -115,6 +113,7 @@ impl Tracker {
             keyframe_id: 0,
             localizer_rejects: 0,
             publisher_changes: 0,
+            trajectory_errors: 0,
         };
         let mut first_frame_at: Option<Instant> = None;
         let mut last_frame_at = Instant::now();
@@ -137,7 +136,7 @@ impl Tracker {
                     silent = false;
                 }
                 match frame.view() {
-                    Ok(view) => self.process(&view, &mut state, &mut summary, stop),
+                    Ok(view) => self.process(&view, &mut state, &mut summary, &mut *stop),
                     Err(e) => {
                         state.localizer_rejects += 1;
                         warn!(error = %e, "rejected frame");
@@ -194,6 +193,10 @@ impl Tracker {
             link.shutdown();
         }
         self.service.stop();
+        if let Some(writer) = stop.trajectory.as_mut() {
+            writer.flush().context("trajectory file")?;
+            summary.trajectory_poses = Some(writer.poses());
+        }
         Ok(summary)
     }
 
@@ -202,7 +205,7 @@ impl Tracker {
         view: &FrameView<'_>,
         state: &mut LoopState,
         summary: &mut TrackSummary,
-        stop: &StopWhen,
+        stop: &mut StopWhen,
     ) {
         let header = view.header;
         let out = match self.localizer.process_frame(
@@ -236,13 +239,18 @@ impl Tracker {
             summary.tracked += 1;
             state.last_pose = pose;
             status.set_state(ServiceState::Tracking);
-            if stop.keep_trajectory {
+            if let Some(writer) = stop.trajectory.as_mut() {
                 let stamp_s = if header.dataset_stamp_ns == NO_DATASET_STAMP {
                     header.capture_ns as f64 * 1e-9
                 } else {
                     header.dataset_stamp_ns as f64 * 1e-9
                 };
-                summary.trajectory.push(stamp_s, pose);
+                if let Err(e) = writer.push(stamp_s, &pose) {
+                    state.trajectory_errors += 1;
+                    if state.trajectory_errors.is_power_of_two() {
+                        warn!(error = %e, failures = state.trajectory_errors, "cannot write the trajectory");
+                    }
+                }
             }
         } else {
             summary.lost += 1;
@@ -285,6 +293,7 @@ struct LoopState {
     keyframe_id: u64,
     localizer_rejects: u64,
     publisher_changes: u64,
+    trajectory_errors: u64,
 }
 
 fn log_state_change(previous: Option<TrackState>, out: &FrameOutput) {

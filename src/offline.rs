@@ -12,7 +12,7 @@ use crate::geometry::Pose;
 use crate::imgproc::ImageU8;
 use crate::render::Renderer;
 
-use super::{Localizer, LocalizerError, TrackState};
+use crate::localizer::{Localizer, LocalizerError, TrackState};
 
 /// Errors of an offline run.
 #[derive(Debug, thiserror::Error)]

@@ -1,0 +1,98 @@
+//! The tracker process (`star track`, and the tracker thread of `star
+//! run`): iceoryx2 frames in, poses out to the iceoryx2 pose service and to
+//! the autopilot over MAVLink, the trajectory streamed to a file.
+//!
+//! [`start`] opens the ports, loads the map and the relocalization database,
+//! starts the renderer, renders the first keyframe, starts the MAVLink link
+//! and tells systemd the service is ready; [`Tracker::run`]
+//! (`frame_loop.rs`) is the loop, until SIGTERM/SIGINT or a [`StopWhen`]
+//! condition. It sits above `localizer`, `ipc`, `mavlink_io` and `service`,
+//! and below `cli`, which only parses arguments and prints.
+
+mod frame_loop;
+
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use tracing::info;
+
+use crate::clock::monotonic_now_ns;
+use crate::config::Config;
+use crate::geometry::Pose;
+use crate::ipc::{create_node, load_iceoryx_config, FrameSubscriber, PosePublisher};
+use crate::localizer::Localizer;
+use crate::mavlink_io::MavlinkLink;
+use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
+use crate::service::Service;
+
+pub use frame_loop::{StopWhen, TrackSummary, Tracker};
+
+/// Opens the ports, loads the map, renders the first keyframe, starts the
+/// MAVLink link and tells systemd the service is ready.
+pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Result<Tracker> {
+    let iox =
+        load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
+    let node = create_node("star-track", &iox).context("iceoryx2 node")?;
+    let subscriber = FrameSubscriber::new(&node)
+        .context("frame subscriber")?
+        .with_spin(std::time::Duration::from_micros(config.ipc.spin_us));
+    let poses = PosePublisher::new(&node).context("pose publisher")?;
+    let service = Service::start(shutdown.clone()).context("service thread")?;
+    let mesh = &config.map.mesh;
+    let mesh_data = Arc::new(
+        crate::map::load_obj(mesh).with_context(|| format!("loading map {}", mesh.display()))?,
+    );
+    let relocalizer = match &config.reloc.database {
+        Some(path) => {
+            let db = RelocDatabase::read(path)?;
+            db.check_compatible(&config.camera.intrinsics, map_fingerprint(&mesh_data))?;
+            Some(Relocalizer::new(
+                db,
+                &config.reloc,
+                &config.camera.intrinsics,
+            )?)
+        }
+        None => None,
+    };
+    let kind = config.render.renderer;
+    let renderer = crate::render::select::make_renderer(kind, mesh_data)
+        .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+    let mut localizer = Localizer::start(
+        renderer,
+        &config.camera.intrinsics,
+        &config.tracker,
+        &config.keyframe,
+        init_pose,
+        monotonic_now_ns(),
+    )
+    .context("starting the tracker")?;
+    if let Some(r) = relocalizer {
+        localizer
+            .set_relocalizer(r)
+            .context("relocalization database")?;
+    }
+    let mavlink = if config.mavlink.enabled {
+        Some(MavlinkLink::spawn(&config.mavlink, shutdown.clone()).context("MAVLink link")?)
+    } else {
+        None
+    };
+    service.ready();
+    info!(
+        mesh = %mesh.display(),
+        renderer = localizer.renderer_name(),
+        "tracker ready; waiting for frames"
+    );
+    Ok(Tracker {
+        subscriber,
+        poses,
+        localizer,
+        mavlink,
+        service,
+        shutdown,
+        silence: Duration::from_millis(config.ipc.silence_timeout_ms),
+        init_pose,
+        _node: node,
+    })
+}
