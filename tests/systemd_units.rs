@@ -181,3 +181,48 @@ fn systemd_analyze_verify_accepts_the_installed_units() {
         "a misspelled key went unnoticed: {warnings:#?}"
     );
 }
+
+/// `systemd-analyze security --offline=true UNIT`'s overall exposure (0 safest, 10 worst).
+fn exposure(unit: &Path) -> f64 {
+    let out = Command::new("systemd-analyze")
+        .args(["security", "--offline=true", "--no-pager"])
+        .arg(unit)
+        .output()
+        .expect("run systemd-analyze security");
+    let text = String::from_utf8_lossy(&out.stdout).into_owned()
+        + &String::from_utf8_lossy(&out.stderr);
+    let line = text
+        .lines()
+        .find(|l| l.contains("Overall exposure level"))
+        .unwrap_or_else(|| panic!("no exposure level for {}:\n{text}", unit.display()));
+    let value = line
+        .rsplit(':')
+        .next()
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse::<f64>().ok());
+    value.unwrap_or_else(|| panic!("cannot read the exposure in `{line}`"))
+}
+
+#[test]
+fn units_are_locked_down() {
+    if !have_systemd_analyze() {
+        return;
+    }
+    for unit in UNITS {
+        let path = repo().join("systemd").join(unit);
+        let level = exposure(&path);
+        eprintln!("{unit}: exposure {level}");
+        assert!(level <= 3.0, "{unit}: exposure {level} > 3.0");
+    }
+    // The check can fail: the same unit without its sandbox scores worse.
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(repo().join("systemd/star-track.service")).unwrap();
+    let open: String = text
+        .lines()
+        .filter(|l| !l.starts_with("CapabilityBoundingSet=") && !l.starts_with("SystemCallFilter="))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let path = tmp.path().join("star-track.service");
+    std::fs::write(&path, open).unwrap();
+    assert!(exposure(&path) > 3.0, "the score does not see a missing sandbox");
+}
