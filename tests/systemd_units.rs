@@ -189,8 +189,8 @@ fn exposure(unit: &Path) -> f64 {
         .arg(unit)
         .output()
         .expect("run systemd-analyze security");
-    let text = String::from_utf8_lossy(&out.stdout).into_owned()
-        + &String::from_utf8_lossy(&out.stderr);
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
     let line = text
         .lines()
         .find(|l| l.contains("Overall exposure level"))
@@ -224,5 +224,8 @@ fn units_are_locked_down() {
         .collect();
     let path = tmp.path().join("star-track.service");
     std::fs::write(&path, open).unwrap();
-    assert!(exposure(&path) > 3.0, "the score does not see a missing sandbox");
+    assert!(
+        exposure(&path) > 3.0,
+        "the score does not see a missing sandbox"
+    );
 }

@@ -64,6 +64,17 @@ impl CameraConfig {
     }
 }
 
+/// Slowest replay: one recorded second takes 100 s.
+pub const MIN_REPLAY_SPEED: f64 = 0.01;
+/// Fastest replay.
+pub const MAX_REPLAY_SPEED: f64 = 100.0;
+
+/// True for a replay speed factor within [`MIN_REPLAY_SPEED`]..=[`MAX_REPLAY_SPEED`]
+/// (NaN is not).
+pub fn replay_speed_is_sane(speed: f64) -> bool {
+    (MIN_REPLAY_SPEED..=MAX_REPLAY_SPEED).contains(&speed)
+}
+
 impl CameraConfig {
     /// Checks every value against its valid range; keys are relative to `[camera]`.
     pub fn validate(&self) -> Result<(), SettingError> {
@@ -108,8 +119,11 @@ impl CameraConfig {
             ),
             (
                 "replay_speed",
-                self.replay_speed.is_finite() && self.replay_speed > 0.0,
-                format!("expected a positive factor, found {}", self.replay_speed),
+                replay_speed_is_sane(self.replay_speed),
+                format!(
+                    "expected {MIN_REPLAY_SPEED}..={MAX_REPLAY_SPEED}, found {}",
+                    self.replay_speed
+                ),
             ),
         ])
     }

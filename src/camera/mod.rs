@@ -23,7 +23,7 @@ pub mod v4l2;
 #[cfg(feature = "aravis")]
 pub mod aravis;
 
-pub use config::CameraConfig;
+pub use config::{replay_speed_is_sane, CameraConfig, MAX_REPLAY_SPEED, MIN_REPLAY_SPEED};
 pub use runner::{run_camera, RunError, RunSummary, RunnerSettings};
 pub use uri::SourceUri;
 

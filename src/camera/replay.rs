@@ -93,10 +93,15 @@ impl ReplaySource {
     /// Reads the frame list of `dir`. `settings.replay_speed` scales the
     /// rate, `settings.replay_loop` restarts at the end.
     pub fn open(dir: &Path, settings: &SourceSettings) -> Result<Self, CameraError> {
-        if !(settings.replay_speed.is_finite() && settings.replay_speed > 0.0) {
+        if !super::replay_speed_is_sane(settings.replay_speed) {
             return Err(CameraError::Unsupported {
                 device: format!("replay:{}", dir.display()),
-                reason: format!("speed must be positive, found {}", settings.replay_speed),
+                reason: format!(
+                    "speed must be within {}..={}, found {}",
+                    super::MIN_REPLAY_SPEED,
+                    super::MAX_REPLAY_SPEED,
+                    settings.replay_speed
+                ),
             });
         }
         Ok(Self {

@@ -50,8 +50,10 @@ pub fn run(args: &CameraArgs) -> Result<()> {
     let mut settings = config.camera.source_settings();
     if let Some(speed) = args.speed {
         anyhow::ensure!(
-            speed.is_finite() && speed > 0.0,
-            "--speed must be positive, found {speed}"
+            crate::camera::replay_speed_is_sane(speed),
+            "--speed must be within {}..={}, found {speed}",
+            crate::camera::MIN_REPLAY_SPEED,
+            crate::camera::MAX_REPLAY_SPEED
         );
         settings.replay_speed = speed;
     }

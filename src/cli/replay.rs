@@ -32,8 +32,10 @@ pub struct ReplayArgs {
 /// Runs the replay.
 pub fn run(args: &ReplayArgs) -> Result<()> {
     anyhow::ensure!(
-        args.speed.is_finite() && args.speed > 0.0,
-        "--speed must be positive, found {}",
+        crate::camera::replay_speed_is_sane(args.speed),
+        "--speed must be within {}..={}, found {}",
+        crate::camera::MIN_REPLAY_SPEED,
+        crate::camera::MAX_REPLAY_SPEED,
         args.speed
     );
     match &args.to {

@@ -90,8 +90,10 @@ pub fn load_config(args: &TrackArgs) -> Result<Config> {
         );
     }
     if let Some(s) = args.idle_exit_s {
-        if !(s.is_finite() && s > 0.0) {
-            bail!("--idle-exit-s must be positive, found {s}");
+        // A day: beyond it the option means "never", and a huge value would
+        // not fit a Duration.
+        if !(s > 0.0 && s <= 86_400.0) {
+            bail!("--idle-exit-s must be within 0 < s <= 86400, found {s}");
         }
     }
     Ok(config)
