@@ -20,8 +20,9 @@ use star::map::{subdivide, Mesh};
 use star::render::cpu::CpuRenderer;
 use star::render::{RenderedView, Renderer};
 
-mod common;
-use common::room_scene::{poses, room};
+#[path = "../tests/common/room.rs"]
+mod room;
+use room::{poses, room};
 
 fn bench_mesh(c: &mut Criterion, name: &str, mesh: Mesh, threads: Option<usize>) {
     bench_mesh_at(c, name, mesh, threads, poses());

@@ -19,8 +19,9 @@ use star::map::{subdivide, Mesh};
 use star::render::gpu::{AdapterPreference, GpuRenderer};
 use star::render::{RenderedView, Renderer};
 
-mod common;
-use common::room_scene::{poses, room};
+#[path = "../tests/common/room.rs"]
+mod room;
+use room::{poses, room};
 
 fn bench_mesh(c: &mut Criterion, class: &str, which: AdapterPreference, name: &str, mesh: &Mesh) {
     let camera = PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5);

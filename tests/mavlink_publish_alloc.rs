@@ -4,38 +4,18 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+mod common;
+
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
+use common::counting_alloc::{start_counting, stop_counting, CountingAlloc};
 use star::clock::monotonic_now_ns;
 use star::geometry::Pose;
 use star::mavlink_io::{MavlinkConfig, MavlinkLink, PoseSample};
 
-thread_local! {
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-struct Counting;
-
-// SAFETY: forwards to the system allocator; only adds a thread-local count.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAlloc = CountingAlloc;
 
 #[test]
 fn publish_does_not_allocate() {
@@ -55,7 +35,7 @@ fn publish_does_not_allocate() {
     };
     // Warm up (first use of thread-locals, the mutex, the condvar).
     link.publish(sample);
-    let before = ALLOCATIONS.with(Cell::get);
+    start_counting();
     for k in 0..2000u64 {
         link.publish(PoseSample {
             capture_ns: monotonic_now_ns() + k,
@@ -64,12 +44,10 @@ fn publish_does_not_allocate() {
         });
         let _ = link.stats();
     }
-    let after = ALLOCATIONS.with(Cell::get);
+    let allocations = stop_counting();
     assert_eq!(
-        after - before,
-        0,
-        "publish/stats allocated {} times",
-        after - before
+        allocations, 0,
+        "publish/stats allocated {allocations} times"
     );
     // The link did take samples from the mailbox.
     let end = std::time::Instant::now() + std::time::Duration::from_secs(5);

@@ -9,15 +9,19 @@
 
 #![allow(clippy::expect_used, clippy::unwrap_used)]
 
+mod common;
+
 use std::sync::Arc;
 
 use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use star::config::CameraConfig;
 use star::geometry::{PinholeCamera, Pose};
-use star::map::{GrayTexture, Mesh, MeshGroup};
+use star::map::Mesh;
 use star::render::cpu::CpuRenderer;
 use star::render::gpu::{self, AdapterPreference, GpuRenderer};
 use star::render::{RenderedView, Renderer};
+
+use common::room::textured_room;
 
 /// Agreement figures of one or more views.
 #[derive(Debug, Default, Clone, Copy)]
@@ -214,125 +218,6 @@ fn run_views(label: &str, mesh: Arc<Mesh>, poses: &[Pose], unorm8: bool) {
         &format!("{label} [{:?} textures]", gpu.texture_format()),
         total,
     );
-}
-
-/// A deterministic texture: stripes, blobs and fine noise.
-fn texture(seed: u32, size: u32) -> GrayTexture {
-    let mut state = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
-    let texels = (0..size * size)
-        .map(|i| {
-            state ^= state << 13;
-            state ^= state >> 17;
-            state ^= state << 5;
-            let (x, y) = ((i % size) as f32, (i / size) as f32);
-            let stripes = if ((x / 16.0) as u32 + (y / 24.0) as u32) % 2 == 0 {
-                170.0
-            } else {
-                70.0
-            };
-            let blob = 40.0 * ((x * 0.11 + seed as f32).sin() * (y * 0.07).cos());
-            let noise = (state % 32) as f32;
-            (stripes + blob + noise).clamp(0.0, 255.0)
-        })
-        .collect();
-    GrayTexture {
-        width: size,
-        height: size,
-        texels,
-    }
-}
-
-/// A textured 6 x 5 x 3 m room (world z up) with two textured boxes.
-fn textured_room() -> Mesh {
-    let mut mesh = Mesh::default();
-    let quad = |mesh: &mut Mesh, c: [[f32; 3]; 4], texture: u32, gray: f32| {
-        let base = mesh.positions.len() as u32;
-        let first_index = mesh.indices.len() as u32;
-        let (w, h) = {
-            let d = |a: [f32; 3], b: [f32; 3]| {
-                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-            };
-            (d(c[0], c[1]), d(c[1], c[2]))
-        };
-        mesh.positions.extend(c);
-        mesh.gray.extend([gray, gray * 0.9, gray, gray * 0.95]);
-        // 1.5 m of surface per texture repeat.
-        let (u, v) = (w / 1.5, h / 1.5);
-        mesh.uvs.extend([[0.0, 0.0], [u, 0.0], [u, v], [0.0, v]]);
-        mesh.indices
-            .extend([base, base + 1, base + 2, base, base + 2, base + 3]);
-        mesh.groups.push(MeshGroup {
-            first_index,
-            index_count: 6,
-            texture: Some(texture),
-        });
-    };
-    let (x, y, z) = (6.0, 5.0, 3.0);
-    quad(
-        &mut mesh,
-        [[0.0, 0.0, 0.0], [x, 0.0, 0.0], [x, y, 0.0], [0.0, y, 0.0]],
-        0,
-        255.0,
-    );
-    quad(
-        &mut mesh,
-        [[0.0, 0.0, z], [x, 0.0, z], [x, y, z], [0.0, y, z]],
-        1,
-        230.0,
-    );
-    quad(
-        &mut mesh,
-        [[0.0, 0.0, 0.0], [x, 0.0, 0.0], [x, 0.0, z], [0.0, 0.0, z]],
-        2,
-        255.0,
-    );
-    quad(
-        &mut mesh,
-        [[x, 0.0, 0.0], [x, y, 0.0], [x, y, z], [x, 0.0, z]],
-        3,
-        200.0,
-    );
-    quad(
-        &mut mesh,
-        [[x, y, 0.0], [0.0, y, 0.0], [0.0, y, z], [x, y, z]],
-        2,
-        180.0,
-    );
-    quad(
-        &mut mesh,
-        [[0.0, y, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, z], [0.0, y, z]],
-        3,
-        255.0,
-    );
-    for (cx, cy, s, hgt) in [(4.0f32, 1.5f32, 0.4f32, 1.0f32), (2.0, 3.5, 0.3, 1.6)] {
-        let p = |dx: f32, dy: f32, zz: f32| [cx + dx, cy + dy, zz];
-        for (a, b) in [
-            ((-s, -s), (s, -s)),
-            ((s, -s), (s, s)),
-            ((s, s), (-s, s)),
-            ((-s, s), (-s, -s)),
-        ] {
-            quad(
-                &mut mesh,
-                [
-                    p(a.0, a.1, 0.0),
-                    p(b.0, b.1, 0.0),
-                    p(b.0, b.1, hgt),
-                    p(a.0, a.1, hgt),
-                ],
-                1,
-                210.0,
-            );
-        }
-        quad(
-            &mut mesh,
-            [p(-s, -s, hgt), p(s, -s, hgt), p(s, s, hgt), p(-s, s, hgt)],
-            0,
-            160.0,
-        );
-    }
-    mesh.textures = (0..4).map(|i| texture(i + 1, 128)).collect();
-    mesh
 }
 
 fn room_poses() -> Vec<Pose> {

@@ -10,41 +10,21 @@
 
 #![allow(clippy::expect_used, clippy::unwrap_used)]
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+mod common;
+
 use std::sync::Arc;
 
+use common::counting_alloc::{
+    start_counting_all_threads, stop_counting_all_threads, CountingAlloc,
+};
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 use star::geometry::{PinholeCamera, Pose};
 use star::map::{GrayTexture, Mesh, MeshGroup};
 use star::render::cpu::CpuRenderer;
 use star::render::{RenderedView, Renderer};
 
-struct Counting;
-
-static COUNTING: AtomicBool = AtomicBool::new(false);
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAlloc = CountingAlloc;
 
 /// A textured 10 x 10 m floor at y = 1.5 and a wall at z = 4, as grids of
 /// 40 x 40 quads (6400 triangles): enough for several setup chunks.
@@ -117,17 +97,15 @@ fn steady_state_render_does_not_allocate() {
         for p in &poses {
             renderer.render(p, &camera, &mut out).expect("render");
         }
-        ALLOCATIONS.store(0, Ordering::SeqCst);
-        COUNTING.store(true, Ordering::SeqCst);
+        start_counting_all_threads();
         for _ in 0..3 {
             for p in &poses {
                 renderer.render(p, &camera, &mut out).expect("render");
             }
         }
-        COUNTING.store(false, Ordering::SeqCst);
+        let allocations = stop_counting_all_threads();
         let hits = out.depth_m.data().iter().filter(|&&d| d > 0.0).count();
         assert!(hits > 10_000, "the scene should fill the view, {hits} hits");
-        let allocations = ALLOCATIONS.load(Ordering::SeqCst);
         assert!(
             allocations <= 1,
             "{threads} threads: {allocations} allocations in 48 steady-state renders \

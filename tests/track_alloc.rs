@@ -2,11 +2,11 @@
 //! allocator watches the tracking thread through 240 frames of a moving
 //! camera, keyframe swaps included.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicUsize, Ordering};
+mod common;
+
 use std::sync::Arc;
 
+use common::counting_alloc::{start_counting, stop_counting, CountingAlloc};
 use nalgebra::{Translation3, UnitQuaternion};
 use star::config::{KeyframeConfig, TrackerConfig};
 use star::geometry::{PinholeCamera, Pose};
@@ -15,33 +15,8 @@ use star::map::{GrayTexture, Mesh, MeshGroup};
 use star::render::cpu::CpuRenderer;
 use star::render::{RenderedView, Renderer};
 
-struct Counting;
-
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-thread_local! {
-    static COUNTING: Cell<bool> = const { Cell::new(false) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.with(Cell::get) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.with(Cell::get) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAlloc = CountingAlloc;
 
 /// A 6 x 6 m textured wall at z = 3 m, facing the camera.
 fn wall() -> Mesh {
@@ -129,7 +104,7 @@ fn steady_state_tracking_does_not_allocate() {
         assert_eq!(out.state, TrackState::Tracking, "frame {i}");
     }
     let keyframes_before = localizer.stats().keyframes;
-    COUNTING.with(|c| c.set(true));
+    start_counting();
     let mut max_err_m: f64 = 0.0;
     for (i, img) in images.iter().enumerate().skip(20) {
         let out = localizer
@@ -155,8 +130,7 @@ fn steady_state_tracking_does_not_allocate() {
         // Give the render thread time so keyframes really swap during the run.
         std::thread::sleep(std::time::Duration::from_millis(2));
     }
-    COUNTING.with(|c| c.set(false));
-    let allocations = ALLOCATIONS.load(Ordering::Relaxed);
+    let allocations = stop_counting();
     let swaps = localizer.stats().keyframes - keyframes_before;
     assert!(
         swaps >= 3,

@@ -1,5 +1,7 @@
 //! Helpers shared by integration tests: the Python tools (evo) of the
-//! project's virtual environment, and per-test iceoryx2 resource prefixes.
+//! project's virtual environment, per-test iceoryx2 resource prefixes, the
+//! counting allocator of the allocation tests and the room meshes (which
+//! the renderer benchmarks include too).
 //!
 //! The venv is `$STAR_VENV`, or `<repo>/.venv` by default. When it is
 //! missing, a test fails if `CI` or `STAR_REQUIRE_VENV` is set, and otherwise
@@ -7,6 +9,9 @@
 
 #![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 #![allow(dead_code)]
+
+pub mod counting_alloc;
+pub mod room;
 
 use std::path::PathBuf;
 use std::process::Command;

@@ -1,3 +1,0 @@
-//! Scenes shared by the benchmarks.
-
-pub mod room_scene;
