@@ -93,8 +93,9 @@ impl Config {
 
     /// Checks every section; the error names the file and the dotted key.
     pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
-        let sections: [(&str, Result<(), SettingError>); 6] = [
+        let sections: [(&str, Result<(), SettingError>); 7] = [
             ("camera", self.camera.validate()),
+            ("map", self.map.validate()),
             ("ipc", self.ipc.validate()),
             ("tracker", self.tracker.validate()),
             ("keyframe", self.keyframe.validate()),

@@ -57,7 +57,9 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         .clone()
         .unwrap_or_else(|| args.dataset.join("map").join("map.obj"));
     let mesh = Arc::new(
-        crate::map::load_obj(&map_path)
+        config
+            .map
+            .load_mesh_from(&map_path)
             .with_context(|| format!("loading map {}", map_path.display()))?,
     );
     let relocalizer = match &args.reloc {

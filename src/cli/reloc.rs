@@ -59,7 +59,9 @@ fn build(args: &BuildArgs) -> Result<()> {
     };
     let map_path = args.map.clone().unwrap_or_else(|| config.map.mesh.clone());
     let mesh = Arc::new(
-        crate::map::load_obj(&map_path)
+        config
+            .map
+            .load_mesh_from(&map_path)
             .with_context(|| format!("loading map {}", map_path.display()))?,
     );
     let kind = config.render.renderer;

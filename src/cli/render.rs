@@ -126,7 +126,9 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         (None, Some(c)) => c.map.mesh.clone(),
         (None, None) => bail!("no map: give --map MESH.obj or --config with [map].mesh"),
     };
-    let mesh = crate::map::load_obj(&map_path)
+    let placement = config.as_ref().map(|c| c.map.clone()).unwrap_or_default();
+    let mesh = placement
+        .load_mesh_from(&map_path)
         .with_context(|| format!("loading map {}", map_path.display()))?;
     let triangles = mesh.triangle_count();
     let mesh = Arc::new(mesh);

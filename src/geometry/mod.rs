@@ -14,6 +14,8 @@
 pub mod camera;
 pub mod look;
 pub mod se3;
+pub mod transform;
 
 pub use camera::{CameraError, Distortion, PinholeCamera, UndistortMap};
 pub use se3::{adjoint, exp_se3, hat, log_se3, renormalized, Pose};
+pub use transform::TransformConfig;

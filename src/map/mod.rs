@@ -18,7 +18,7 @@ mod obj_write;
 mod subdivide;
 mod validate;
 
-pub use config::MapConfig;
+pub use config::{MapConfig, MeshTransformConfig, MESH_SCALE_RANGE};
 pub use error::{MapError, MeshProblem, IN_MEMORY};
 pub use obj::{load_gray_texture, load_obj, luma601_255};
 pub use obj_write::write_obj;

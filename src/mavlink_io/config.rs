@@ -3,17 +3,16 @@
 //! autopilot's frames.
 //!
 //! Takes its TOML section (through the aggregate `Config`), gives out a validated
-//! [`MavlinkConfig`] whose transforms convert to [`Pose`]s with
+//! [`MavlinkConfig`] whose transforms convert to [`crate::geometry::Pose`]s with
 //! [`TransformConfig::to_pose`].
 //!
 //! Rotation convention for `rpy_deg = [roll, pitch, yaw]`: the aerospace
 //! Z-Y-X order, `R = Rz(yaw) * Ry(pitch) * Rx(roll)`, the same as MAVLink's
 //! attitude angles. A rotation may instead be given as `quaternion_wxyz`.
 
-use nalgebra::{Quaternion, Rotation3, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::Pose;
+pub use crate::geometry::TransformConfig;
 use crate::mavlink_io::link::LinkAddress;
 use crate::settings::{first_failure, SettingError};
 
@@ -31,76 +30,6 @@ pub enum PoseMessage {
     /// ODOMETRY (331): position and quaternion, covariance, quality,
     /// `estimator_type` VISION. Velocities are sent as NaN (unknown).
     Odometry,
-}
-
-/// A rigid transform in the config: a translation and at most one rotation.
-///
-/// With neither `rpy_deg` nor `quaternion_wxyz` the rotation is the identity.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields, default)]
-pub struct TransformConfig {
-    /// Translation `[x, y, z]` in meters, expressed in the target frame.
-    pub translation_m: [f64; 3],
-    /// Rotation as `[roll, pitch, yaw]` in degrees, `Rz(yaw) Ry(pitch) Rx(roll)`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub rpy_deg: Option<[f64; 3]>,
-    /// Rotation as a unit quaternion `[w, x, y, z]`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub quaternion_wxyz: Option<[f64; 4]>,
-}
-
-impl TransformConfig {
-    /// A transform from a translation and roll/pitch/yaw in degrees.
-    pub fn from_rpy_deg(translation_m: [f64; 3], rpy_deg: [f64; 3]) -> Self {
-        Self {
-            translation_m,
-            rpy_deg: Some(rpy_deg),
-            quaternion_wxyz: None,
-        }
-    }
-
-    /// Checks the values; `Err` holds the reason (the caller adds the key).
-    pub fn validate(&self) -> Result<(), String> {
-        if self.translation_m.iter().any(|v| !v.is_finite()) {
-            return Err(format!(
-                "translation_m must be finite, found {:?}",
-                self.translation_m
-            ));
-        }
-        match (self.rpy_deg, self.quaternion_wxyz) {
-            (Some(_), Some(_)) => Err("give either rpy_deg or quaternion_wxyz, not both".into()),
-            (Some(rpy), None) if rpy.iter().any(|v| !v.is_finite()) => {
-                Err(format!("rpy_deg must be finite, found {rpy:?}"))
-            }
-            (None, Some(q)) => {
-                let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-                if !norm.is_finite() || (norm - 1.0).abs() > 1e-3 {
-                    Err(format!(
-                        "quaternion_wxyz must be a unit quaternion (norm 1 +- 1e-3), found {q:?} with norm {norm}"
-                    ))
-                } else {
-                    Ok(())
-                }
-            }
-            _ => Ok(()),
-        }
-    }
-
-    /// The transform as a [`Pose`]. Call [`Self::validate`] first; an invalid
-    /// quaternion is normalized here.
-    pub fn to_pose(&self) -> Pose {
-        let rotation = match (self.rpy_deg, self.quaternion_wxyz) {
-            (Some([r, p, y]), _) => UnitQuaternion::from_rotation_matrix(
-                &Rotation3::from_euler_angles(r.to_radians(), p.to_radians(), y.to_radians()),
-            ),
-            (None, Some([w, x, y, z])) => {
-                UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z))
-            }
-            (None, None) => UnitQuaternion::identity(),
-        };
-        let [x, y, z] = self.translation_m;
-        Pose::from_parts(Translation3::new(x, y, z), rotation)
-    }
 }
 
 /// `[mavlink]`: the link to the autopilot.
@@ -221,8 +150,8 @@ mod tests {
         let h = std::f64::consts::FRAC_1_SQRT_2;
         let q = TransformConfig {
             translation_m: [1.0, 2.0, 3.0],
-            rpy_deg: None,
             quaternion_wxyz: Some([h, 0.0, 0.0, h]),
+            ..Default::default()
         };
         q.validate().expect("unit quaternion");
         let d = rpy.to_pose().inverse() * q.to_pose();
@@ -236,7 +165,7 @@ mod tests {
             quaternion_wxyz: Some([1.0, 0.0, 0.0, 0.0]),
             ..Default::default()
         };
-        assert!(both.validate().unwrap_err().contains("not both"));
+        assert!(both.validate().unwrap_err().contains("not several"));
         let not_unit = TransformConfig {
             quaternion_wxyz: Some([2.0, 0.0, 0.0, 0.0]),
             ..Default::default()

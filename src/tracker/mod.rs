@@ -42,7 +42,10 @@ pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Res
     let service = Service::start(shutdown.clone()).context("service thread")?;
     let mesh = &config.map.mesh;
     let mesh_data = Arc::new(
-        crate::map::load_obj(mesh).with_context(|| format!("loading map {}", mesh.display()))?,
+        config
+            .map
+            .load_mesh()
+            .with_context(|| format!("loading map {}", mesh.display()))?,
     );
     let relocalizer = match &config.reloc.database {
         Some(path) => {
