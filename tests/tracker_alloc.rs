@@ -252,27 +252,26 @@ fn camera_thread(
     // Sequence number -> image index, and the first counted sequence.
     let mut image_of_sequence = Vec::new();
     let mut first_counted: Option<u64> = None;
-    let read_poses = |report: &mut CameraReport,
-                          image_of_sequence: &[usize],
-                          first_counted: Option<u64>| {
-        while let Some(msg) = poses.try_next().expect("pose service") {
-            report.poses += 1;
-            let tracking = msg.tracking_state() == Some(TrackingState::Tracking);
-            if tracking {
-                let image = image_of_sequence[msg.frame_sequence as usize];
-                let error = (pose_at(image).inverse() * msg.world_from_camera())
-                    .translation
-                    .vector
-                    .norm();
-                report.max_error_m = report.max_error_m.max(error);
-            }
-            if let Some(first) = first_counted {
-                if (first..first + COUNTED).contains(&msg.frame_sequence) && tracking {
-                    report.counted_poses += 1;
+    let read_poses =
+        |report: &mut CameraReport, image_of_sequence: &[usize], first_counted: Option<u64>| {
+            while let Some(msg) = poses.try_next().expect("pose service") {
+                report.poses += 1;
+                let tracking = msg.tracking_state() == Some(TrackingState::Tracking);
+                if tracking {
+                    let image = image_of_sequence[msg.frame_sequence as usize];
+                    let error = (pose_at(image).inverse() * msg.world_from_camera())
+                        .translation
+                        .vector
+                        .norm();
+                    report.max_error_m = report.max_error_m.max(error);
+                }
+                if let Some(first) = first_counted {
+                    if (first..first + COUNTED).contains(&msg.frame_sequence) && tracking {
+                        report.counted_poses += 1;
+                    }
                 }
             }
-        }
-    };
+        };
     let start = Instant::now();
     let mut image = 0;
     while image < images.len() {
@@ -420,7 +419,9 @@ fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
     let mut view = RenderedView::for_camera(&camera());
     let images: Vec<Vec<u8>> = (0..IMAGES)
         .map(|i| {
-            truth.render(&pose_at(i), &camera(), &mut view).expect("render");
+            truth
+                .render(&pose_at(i), &camera(), &mut view)
+                .expect("render");
             view.gray.to_u8().data().to_vec()
         })
         .collect();
@@ -437,7 +438,9 @@ fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
     config.keyframe.max_interval_s = 0.2;
     config.mavlink.connection = format!("udpout:{}", mavlink.local_addr().unwrap());
     config.ipc.iceoryx2_config = iceoryx.clone();
-    config.validate(Path::new("tracker_alloc")).expect("valid config");
+    config
+        .validate(Path::new("tracker_alloc"))
+        .expect("valid config");
 
     let shutdown = Arc::new(AtomicBool::new(false));
     let mut tracker = star::tracker::start(&config, init_pose, shutdown).expect("start");
