@@ -3,10 +3,14 @@
 //! poses out to the iceoryx2 pose service and to MAVLink.
 //!
 //! Takes a started [`Tracker`] (map loaded, first keyframe rendered, ports
-//! open); gives out a [`TrackSummary`]. The loop wakes on the frame event
+//! open); gives out a [`TrackSummary`]. One job, one loop:
+//! [`Tracker::run`] is [`Tracker::step`] until it returns [`Step::Stop`],
+//! then [`Tracker::finish`]; a step is one iteration (one frame tracked and
+//! its pose sent, or one wait for a frame). The loop wakes on the frame event
 //! listener with a short timeout so it sees the shutdown flag within 100 ms,
 //! feeds the watchdog on every iteration (a loop stuck in a render or a
-//! deadlock stops feeding it), and allocates nothing per frame: the pose
+//! deadlock stops feeding it), and allocates nothing per frame but
+//! iceoryx2's one per pose sample (`tests/tracker_alloc.rs`): the pose
 //! message and the MAVLink sample are plain values, and the trajectory is
 //! formatted into a fixed buffer that reaches its file at least once a
 //! second ([`TrajectoryWriter`]), so a killed process loses at most a second
@@ -29,7 +33,7 @@ use crate::ipc::{
 use crate::localizer::{FrameOutput, Localizer, TrackState};
 use crate::mavlink_io::frames::{covariance_camera_to_world, upper_triangle};
 use crate::mavlink_io::{LinkStats, MavlinkHandle, PoseSample};
-use crate::service::{Service, ServiceState};
+use crate::service::{Service, ServiceState, StatusBoard, Watchdog};
 
 /// Longest wait on the frame event before the loop checks its flags again.
 const POLL: Duration = Duration::from_millis(100);
@@ -52,6 +56,8 @@ pub struct Tracker {
     pub silence: Duration,
     /// The initial pose (used for the pose message until the first fix).
     pub init_pose: Pose,
+    /// The loop's state from one iteration to the next.
+    pub(super) looping: LoopState,
     /// The iceoryx2 node of the ports (dropped after them).
     pub(crate) _node: iceoryx2::node::Node<iceoryx2::service::ipc::Service>,
 }
@@ -98,90 +104,181 @@ pub struct TrackSummary {
     pub renderer: String,
 }
 
-impl Tracker {
-    /// Runs until SIGTERM/SIGINT or a `stop` condition.
-    pub fn run(mut self, stop: &mut StopWhen) -> Result<TrackSummary> {
-        let mut summary = TrackSummary {
-            renderer: self.localizer.renderer_name().to_string(),
-            ..TrackSummary::default()
-        };
-        let status = self.service.status();
-        let watchdog = self.service.watchdog();
-        let mut state = LoopState {
-            last_pose: self.init_pose,
+/// What one iteration of the loop ([`Tracker::step`]) did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Step {
+    /// A frame was tracked: its pose went to the pose service, to MAVLink
+    /// and to the trajectory file.
+    Tracked,
+    /// A frame was processed without a pose (lost): the last pose went to
+    /// the pose service and to MAVLink, marked lost.
+    Lost,
+    /// A frame arrived but was rejected (inconsistent header, or refused by
+    /// the localizer: wrong size, timestamps out of order); nothing went out.
+    Rejected,
+    /// No frame was pending; the loop waited for one (at most `POLL`).
+    Waited,
+    /// The loop is over; [`Tracker::finish`] ends the run.
+    Stop(StopReason),
+}
+
+/// Why the loop ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopReason {
+    /// SIGTERM/SIGINT set the shutdown flag.
+    Shutdown,
+    /// [`StopWhen::frames`] frames were processed, the last one in this step.
+    FrameLimit,
+    /// No frame for [`StopWhen::idle`].
+    Idle,
+    /// [`StopWhen::source_done`] is set and no frame came for `POLL`.
+    SourceDone,
+}
+
+/// The loop's state from one iteration to the next.
+pub(super) struct LoopState {
+    status: Arc<StatusBoard>,
+    watchdog: Watchdog,
+    frames: u64,
+    tracked: u64,
+    lost: u64,
+    /// The last tracked pose (`None`: none yet, use [`Tracker::init_pose`]).
+    last_pose: Option<Pose>,
+    previous: Option<TrackState>,
+    keyframe_id: u64,
+    localizer_rejects: u64,
+    publisher_changes: u64,
+    trajectory_errors: u64,
+    first_frame_at: Option<Instant>,
+    /// The last frame's arrival; the first step sets it, so the silence
+    /// clock starts with the loop, not with [`super::start`].
+    last_frame_at: Option<Instant>,
+    silent: bool,
+}
+
+impl LoopState {
+    /// The state before the first iteration of `service`'s loop.
+    pub(super) fn new(service: &Service) -> Self {
+        Self {
+            status: service.status(),
+            watchdog: service.watchdog(),
+            frames: 0,
+            tracked: 0,
+            lost: 0,
+            last_pose: None,
             previous: None,
             keyframe_id: 0,
             localizer_rejects: 0,
             publisher_changes: 0,
             trajectory_errors: 0,
-        };
-        let mut first_frame_at: Option<Instant> = None;
-        let mut last_frame_at = Instant::now();
-        let mut silent = false;
-        while !self.shutdown.load(Ordering::Relaxed) {
-            watchdog.feed();
-            let received = self.subscriber.take_latest().context("receiving frames")?;
-            if let Some(frame) = received {
-                let now = Instant::now();
-                first_frame_at.get_or_insert(now);
-                last_frame_at = now;
-                let changes = self.subscriber.stats().publisher_changes;
-                if silent || changes != state.publisher_changes {
-                    // A gap or a new camera: the velocity is stale.
-                    self.localizer.forget_motion();
-                    state.publisher_changes = changes;
-                }
-                if silent {
-                    info!("camera frames resumed");
-                    silent = false;
-                }
-                match frame.view() {
-                    Ok(view) => self.process(&view, &mut state, &mut summary, &mut *stop),
-                    Err(e) => {
-                        state.localizer_rejects += 1;
-                        warn!(error = %e, "rejected frame");
-                    }
-                }
-                drop(frame);
-                status.frame_done();
-                if stop.frames.is_some_and(|n| summary.frames >= n) {
-                    info!(frames = summary.frames, "frame limit reached");
-                    break;
-                }
-                continue;
-            }
-            let waited = self
-                .subscriber
-                .wait_for_frame(POLL)
-                .context("waiting for frames");
-            if let Err(e) = waited {
-                if self.shutdown.load(Ordering::Relaxed) {
-                    break;
-                }
-                return Err(e);
-            }
-            let quiet = last_frame_at.elapsed();
-            if quiet >= self.silence && !silent {
-                silent = true;
-                status.set_state(ServiceState::Waiting);
-                warn!(silence_ms = quiet.as_millis() as u64, "no camera frames");
-            }
-            if first_frame_at.is_some() && stop.idle.is_some_and(|d| quiet >= d) {
-                info!("no frames for the idle limit; stopping");
-                break;
-            }
-            if quiet >= POLL
-                && stop
-                    .source_done
-                    .as_ref()
-                    .is_some_and(|f| f.load(Ordering::Relaxed))
-            {
-                info!("camera finished; stopping");
-                break;
-            }
+            first_frame_at: None,
+            last_frame_at: None,
+            silent: false,
         }
-        if let Some(start) = first_frame_at {
-            summary.active_s = last_frame_at.duration_since(start).as_secs_f64();
+    }
+}
+
+impl Tracker {
+    /// Runs until SIGTERM/SIGINT or a `stop` condition: [`Tracker::step`]
+    /// until it returns [`Step::Stop`], then [`Tracker::finish`].
+    pub fn run(mut self, stop: &mut StopWhen) -> Result<TrackSummary> {
+        while !matches!(self.step(stop)?, Step::Stop(_)) {}
+        self.finish(stop)
+    }
+
+    /// One iteration of the loop. Feeds the watchdog, then tracks the newest
+    /// frame and sends its pose out; or, when no frame is pending, waits for
+    /// one (at most `POLL`) and checks the silence warning and the idle and
+    /// camera-finished conditions. In steady state it allocates nothing but
+    /// iceoryx2's one `Rc` per pose sample (`tests/tracker_alloc.rs`).
+    ///
+    /// Errors when iceoryx2 fails, except for a wait that SIGTERM/SIGINT
+    /// interrupted: that is [`StopReason::Shutdown`].
+    pub fn step(&mut self, stop: &mut StopWhen) -> Result<Step> {
+        if self.shutdown.load(Ordering::Relaxed) {
+            return Ok(Step::Stop(StopReason::Shutdown));
+        }
+        self.looping.watchdog.feed();
+        let received = self.subscriber.take_latest().context("receiving frames")?;
+        if let Some(frame) = received {
+            let now = Instant::now();
+            let state = &mut self.looping;
+            state.first_frame_at.get_or_insert(now);
+            state.last_frame_at = Some(now);
+            let changes = self.subscriber.stats().publisher_changes;
+            if state.silent || changes != state.publisher_changes {
+                // A gap or a new camera: the velocity is stale.
+                self.localizer.forget_motion();
+                state.publisher_changes = changes;
+            }
+            if state.silent {
+                info!("camera frames resumed");
+                state.silent = false;
+            }
+            let outcome = match frame.view() {
+                Ok(view) => self.process(&view, stop),
+                Err(e) => {
+                    self.looping.localizer_rejects += 1;
+                    warn!(error = %e, "rejected frame");
+                    Step::Rejected
+                }
+            };
+            drop(frame);
+            self.looping.status.frame_done();
+            let frames = self.looping.frames;
+            if stop.frames.is_some_and(|n| frames >= n) {
+                info!(frames, "frame limit reached");
+                return Ok(Step::Stop(StopReason::FrameLimit));
+            }
+            return Ok(outcome);
+        }
+        let last_frame_at = *self.looping.last_frame_at.get_or_insert_with(Instant::now);
+        let waited = self
+            .subscriber
+            .wait_for_frame(POLL)
+            .context("waiting for frames");
+        if let Err(e) = waited {
+            if self.shutdown.load(Ordering::Relaxed) {
+                return Ok(Step::Stop(StopReason::Shutdown));
+            }
+            return Err(e);
+        }
+        let state = &mut self.looping;
+        let quiet = last_frame_at.elapsed();
+        if quiet >= self.silence && !state.silent {
+            state.silent = true;
+            state.status.set_state(ServiceState::Waiting);
+            warn!(silence_ms = quiet.as_millis() as u64, "no camera frames");
+        }
+        if state.first_frame_at.is_some() && stop.idle.is_some_and(|d| quiet >= d) {
+            info!("no frames for the idle limit; stopping");
+            return Ok(Step::Stop(StopReason::Idle));
+        }
+        if quiet >= POLL
+            && stop
+                .source_done
+                .as_ref()
+                .is_some_and(|f| f.load(Ordering::Relaxed))
+        {
+            info!("camera finished; stopping");
+            return Ok(Step::Stop(StopReason::SourceDone));
+        }
+        Ok(Step::Waited)
+    }
+
+    /// Ends the run: stops the MAVLink link and the service thread, flushes
+    /// the trajectory file and says what the loop did.
+    pub fn finish(mut self, stop: &mut StopWhen) -> Result<TrackSummary> {
+        let state = &self.looping;
+        let mut summary = TrackSummary {
+            frames: state.frames,
+            tracked: state.tracked,
+            lost: state.lost,
+            renderer: self.localizer.renderer_name().to_string(),
+            ..TrackSummary::default()
+        };
+        if let (Some(start), Some(last)) = (state.first_frame_at, state.last_frame_at) {
+            summary.active_s = last.duration_since(start).as_secs_f64();
         }
         let sub = self.subscriber.stats();
         summary.rejected = sub.rejected + state.localizer_rejects;
@@ -200,14 +297,10 @@ impl Tracker {
         Ok(summary)
     }
 
-    fn process(
-        &mut self,
-        view: &FrameView<'_>,
-        state: &mut LoopState,
-        summary: &mut TrackSummary,
-        stop: &mut StopWhen,
-    ) {
+    /// Tracks one frame and sends its pose out.
+    fn process(&mut self, view: &FrameView<'_>, stop: &mut StopWhen) -> Step {
         let header = view.header;
+        let state = &mut self.looping;
         let out = match self.localizer.process_frame(
             view.pixels,
             view.width(),
@@ -221,24 +314,26 @@ impl Tracker {
                 if state.localizer_rejects.is_power_of_two() {
                     warn!(error = %e, rejected = state.localizer_rejects, "frame rejected");
                 }
-                return;
+                return Step::Rejected;
             }
         };
-        summary.frames += 1;
-        let status = self.service.status();
+        state.frames += 1;
         if out.keyframe_id != state.keyframe_id {
             state.keyframe_id = out.keyframe_id;
-            status.keyframe_created(monotonic_now_ns());
+            state.status.keyframe_created(monotonic_now_ns());
         }
         log_state_change(state.previous, &out);
         state.previous = Some(out.state);
         let tracking = out.state == TrackState::Tracking && out.world_from_camera.is_some();
-        let pose = out.world_from_camera.unwrap_or(state.last_pose);
+        let pose = out
+            .world_from_camera
+            .or(state.last_pose)
+            .unwrap_or(self.init_pose);
         let covariance_world = covariance_camera_to_world(&pose, &out.covariance);
         if tracking {
-            summary.tracked += 1;
-            state.last_pose = pose;
-            status.set_state(ServiceState::Tracking);
+            state.tracked += 1;
+            state.last_pose = Some(pose);
+            state.status.set_state(ServiceState::Tracking);
             if let Some(writer) = stop.trajectory.as_mut() {
                 let stamp_s = if header.dataset_stamp_ns == NO_DATASET_STAMP {
                     header.capture_ns as f64 * 1e-9
@@ -253,8 +348,8 @@ impl Tracker {
                 }
             }
         } else {
-            summary.lost += 1;
-            status.set_state(ServiceState::Lost);
+            state.lost += 1;
+            state.status.set_state(ServiceState::Lost);
         }
         let mut msg = PoseMsg::new(
             header.capture_ns,
@@ -271,6 +366,9 @@ impl Tracker {
         msg.mean_residual = out.quality.residual_rms;
         msg.visible_fraction = out.quality.visible_ratio;
         msg.reset_counter = u32::from(out.reset_counter);
+        // iceoryx2 0.10 allocates one small `Rc` per loaned sample
+        // (`Publisher::loan_uninit` -> `ChunkMutSharedState::new`), freed
+        // when the sample is sent: the one allocation of an iteration.
         if let Err(e) = self.poses.publish(&msg) {
             warn!(error = %e, "cannot publish the pose on iceoryx2");
         }
@@ -284,16 +382,12 @@ impl Tracker {
                 tracking,
             });
         }
+        if tracking {
+            Step::Tracked
+        } else {
+            Step::Lost
+        }
     }
-}
-
-struct LoopState {
-    last_pose: Pose,
-    previous: Option<TrackState>,
-    keyframe_id: u64,
-    localizer_rejects: u64,
-    publisher_changes: u64,
-    trajectory_errors: u64,
 }
 
 fn log_state_change(previous: Option<TrackState>, out: &FrameOutput) {

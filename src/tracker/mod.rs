@@ -6,7 +6,8 @@
 //! starts the renderer, renders the first keyframe, starts the MAVLink link
 //! and tells systemd the service is ready; [`Tracker::run`]
 //! (`frame_loop.rs`) is the loop, until SIGTERM/SIGINT or a [`StopWhen`]
-//! condition. It sits above `localizer`, `ipc`, `mavlink_io` and `service`,
+//! condition: [`Tracker::step`] (one iteration: one frame in, one pose out)
+//! until it returns [`Step::Stop`], then [`Tracker::finish`]. It sits above `localizer`, `ipc`, `mavlink_io` and `service`,
 //! and below `cli`, which only parses arguments and prints.
 
 mod frame_loop;
@@ -27,7 +28,7 @@ use crate::mavlink_io::MavlinkLink;
 use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 use crate::service::Service;
 
-pub use frame_loop::{StopWhen, TrackSummary, Tracker};
+pub use frame_loop::{Step, StopReason, StopWhen, TrackSummary, Tracker};
 
 /// Opens the ports, loads the map, renders the first keyframe, starts the
 /// MAVLink link and tells systemd the service is ready.
@@ -87,6 +88,7 @@ pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Res
         renderer = localizer.renderer_name(),
         "tracker ready; waiting for frames"
     );
+    let looping = frame_loop::LoopState::new(&service);
     Ok(Tracker {
         subscriber,
         poses,
@@ -96,6 +98,7 @@ pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Res
         shutdown,
         silence: Duration::from_millis(config.ipc.silence_timeout_ms),
         init_pose,
+        looping,
         _node: node,
     })
 }
