@@ -7,52 +7,16 @@ mod common;
 use std::sync::Arc;
 
 use common::counting_alloc::{start_counting, stop_counting, CountingAlloc};
+use common::wall::wall;
 use nalgebra::{Translation3, UnitQuaternion};
 use star::config::{KeyframeConfig, TrackerConfig};
 use star::geometry::{PinholeCamera, Pose};
 use star::localizer::{Localizer, TrackState};
-use star::map::{GrayTexture, Mesh, MeshGroup};
 use star::render::cpu::CpuRenderer;
 use star::render::{RenderedView, Renderer};
 
 #[global_allocator]
 static GLOBAL: CountingAlloc = CountingAlloc;
-
-/// A 6 x 6 m textured wall at z = 3 m, facing the camera.
-fn wall() -> Mesh {
-    let n = 512u32;
-    let mut texels = Vec::with_capacity((n * n) as usize);
-    for y in 0..n {
-        for x in 0..n {
-            let (u, v) = (x as f32 / n as f32, y as f32 / n as f32);
-            let g = 128.0
-                + 60.0 * (40.0 * u + 4.0 * (9.0 * v).sin()).sin() * (31.0 * v).cos()
-                + 40.0 * (((u * 17.0).floor() + (v * 13.0).floor()) % 2.0 - 0.5);
-            texels.push(g.clamp(0.0, 255.0));
-        }
-    }
-    Mesh {
-        positions: vec![
-            [-3.0, -3.0, 3.0],
-            [3.0, -3.0, 3.0],
-            [3.0, 3.0, 3.0],
-            [-3.0, 3.0, 3.0],
-        ],
-        gray: vec![255.0; 4],
-        uvs: vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
-        indices: vec![0, 1, 2, 0, 2, 3],
-        groups: vec![MeshGroup {
-            first_index: 0,
-            index_count: 6,
-            texture: Some(0),
-        }],
-        textures: vec![GrayTexture {
-            width: n,
-            height: n,
-            texels,
-        }],
-    }
-}
 
 fn pose_at(i: usize) -> Pose {
     let t = i as f64 * 0.02;

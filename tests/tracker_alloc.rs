@@ -24,14 +24,16 @@
 
 #![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::net::UdpSocket;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+mod common;
+
+use common::counting_alloc::{start_counting, stop_counting, CountingAlloc};
+use common::wall::wall;
 use mavlink::dialects::common::MavMessage;
 use mavlink::{MavlinkReader, MavlinkVersion};
 use nalgebra::{Translation3, UnitQuaternion};
@@ -42,57 +44,12 @@ use star::geometry::{PinholeCamera, Pose};
 use star::ipc::{
     create_node, load_iceoryx_config, FrameHeader, FramePublisher, PoseSubscriber, TrackingState,
 };
-use star::map::{GrayTexture, Mesh, MeshGroup};
 use star::render::cpu::CpuRenderer;
 use star::render::{RenderedView, Renderer};
 use star::tracker::{Step, StopWhen, Tracker};
 
-struct CountingAllocator;
-
-thread_local! {
-    /// Whether this thread's allocations are being counted.
-    static COUNTING: Cell<bool> = const { Cell::new(false) };
-    /// Allocations this thread made while counting.
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-fn count_one() {
-    let _ = COUNTING.try_with(|on| {
-        if on.get() {
-            let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
-        }
-    });
-}
-
-/// Starts counting this thread's allocations from zero.
-fn start_counting() {
-    ALLOCATIONS.with(|n| n.set(0));
-    COUNTING.with(|c| c.set(true));
-}
-
-/// Stops counting and returns this thread's count.
-fn stop_counting() -> u64 {
-    COUNTING.with(|c| c.set(false));
-    ALLOCATIONS.with(|n| n.get())
-}
-
-// SAFETY: forwards to the system allocator; only adds a thread-local count.
-unsafe impl GlobalAlloc for CountingAllocator {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        count_one();
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        count_one();
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: CountingAllocator = CountingAllocator;
+static GLOBAL: CountingAlloc = CountingAlloc;
 
 /// Frames tracked before counting starts: keyframes swap every ~8 frames,
 /// so the warm-up sees several swaps.
@@ -110,42 +67,6 @@ const DEADLINE: Duration = Duration::from_secs(120);
 
 fn camera() -> PinholeCamera {
     PinholeCamera::new(WIDTH, HEIGHT, 210.0, 210.0, 159.5, 127.5)
-}
-
-/// A 6 x 6 m textured wall at z = 3 m, facing the camera.
-fn wall() -> Mesh {
-    let n = 512u32;
-    let mut texels = Vec::with_capacity((n * n) as usize);
-    for y in 0..n {
-        for x in 0..n {
-            let (u, v) = (x as f32 / n as f32, y as f32 / n as f32);
-            let g = 128.0
-                + 60.0 * (40.0 * u + 4.0 * (9.0 * v).sin()).sin() * (31.0 * v).cos()
-                + 40.0 * (((u * 17.0).floor() + (v * 13.0).floor()) % 2.0 - 0.5);
-            texels.push(g.clamp(0.0, 255.0));
-        }
-    }
-    Mesh {
-        positions: vec![
-            [-3.0, -3.0, 3.0],
-            [3.0, -3.0, 3.0],
-            [3.0, 3.0, 3.0],
-            [-3.0, 3.0, 3.0],
-        ],
-        gray: vec![255.0; 4],
-        uvs: vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
-        indices: vec![0, 1, 2, 0, 2, 3],
-        groups: vec![MeshGroup {
-            first_index: 0,
-            index_count: 6,
-            texture: Some(0),
-        }],
-        textures: vec![GrayTexture {
-            width: n,
-            height: n,
-            texels,
-        }],
-    }
 }
 
 /// The camera's path (`world_from_camera`): slow sways around the origin.

@@ -12,6 +12,7 @@
 
 pub mod counting_alloc;
 pub mod room;
+pub mod wall;
 
 use std::path::PathBuf;
 use std::process::Command;
