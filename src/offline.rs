@@ -20,6 +20,9 @@ pub enum OfflineError {
     /// No `--init-pose` and no ground truth to start from.
     #[error("no initial pose: give one, or provide groundtruth.txt in {0}")]
     NoInitialPose(std::path::PathBuf),
+    /// A cold start without a relocalization database.
+    #[error("a cold start (no initial pose) needs a relocalization database")]
+    ColdStartWithoutDatabase,
     /// The loop could not start.
     #[error(transparent)]
     Localizer(#[from] LocalizerError),
@@ -39,6 +42,24 @@ pub struct OfflineOptions {
     pub realtime: bool,
     /// Relocalize from this database when lost.
     pub relocalizer: Option<crate::reloc::Relocalizer>,
+    /// How the start pose is used.
+    pub start: StartMode,
+}
+
+/// How an offline run starts.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum StartMode {
+    /// The start pose (`init_pose`, else the ground truth) is trusted and
+    /// tracked from at once: the tracker benchmarks' setting.
+    #[default]
+    Trusted,
+    /// The start pose (`init_pose`, else the ground truth) is a hint that
+    /// must pass the relocalization gate before a pose is output, as in
+    /// flight.
+    Hint,
+    /// No start pose: the first frames are searched in the database (needs
+    /// `relocalizer`), as in flight without a hint.
+    Cold,
 }
 
 /// What an offline run produced.
@@ -79,6 +100,68 @@ pub struct OfflineReport {
     pub renderer: String,
     /// Accuracy against the dataset's ground truth, when it has one.
     pub evaluation: Option<Evaluation>,
+    /// Integrity against the ground truth (no alignment), when it has one.
+    pub integrity: Option<Integrity>,
+}
+
+/// Poses output that were wrong: the figure that matters most.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Integrity {
+    /// Poses output more than [`WRONG_POSITION_M`] or [`WRONG_ROTATION_DEG`]
+    /// from the ground truth, in the world frame, without alignment.
+    pub wrong_poses: usize,
+    /// Poses compared (those with a ground-truth pose within 5 ms).
+    pub poses_checked: usize,
+    /// Largest position error among the poses output, m.
+    pub max_position_error_m: f64,
+    /// Largest rotation error among the poses output, degrees.
+    pub max_rotation_error_deg: f64,
+    /// Dataset time from the first frame to the first pose output, s.
+    pub first_pose_after_s: Option<f64>,
+}
+
+/// A pose further than this from the truth is wrong, m.
+pub const WRONG_POSITION_M: f64 = 0.10;
+/// A pose turned further than this from the truth is wrong, degrees.
+pub const WRONG_ROTATION_DEG: f64 = 5.0;
+
+/// Counts the poses of `estimate` that are wrong against `truth`.
+pub fn integrity(truth: &Trajectory, estimate: &Trajectory, first_stamp_s: f64) -> Integrity {
+    let mut out = Integrity {
+        first_pose_after_s: estimate.stamps_s.first().map(|t| t - first_stamp_s),
+        ..Integrity::default()
+    };
+    for (stamp_s, pose) in estimate.stamps_s.iter().zip(&estimate.poses) {
+        let nearest = truth
+            .stamps_s
+            .partition_point(|t| *t < *stamp_s)
+            .min(truth.stamps_s.len().saturating_sub(1));
+        let candidates = [nearest.saturating_sub(1), nearest];
+        let Some(&k) = candidates
+            .iter()
+            .filter(|&&k| k < truth.stamps_s.len())
+            .min_by(|&&a, &&b| {
+                (truth.stamps_s[a] - stamp_s)
+                    .abs()
+                    .total_cmp(&(truth.stamps_s[b] - stamp_s).abs())
+            })
+        else {
+            continue;
+        };
+        if (truth.stamps_s[k] - stamp_s).abs() > 0.005 {
+            continue;
+        }
+        let error = truth.poses[k].inverse() * pose;
+        let position_m = error.translation.vector.norm();
+        let rotation_deg = error.rotation.angle().to_degrees();
+        out.poses_checked += 1;
+        out.max_position_error_m = out.max_position_error_m.max(position_m);
+        out.max_rotation_error_deg = out.max_rotation_error_deg.max(rotation_deg);
+        if !(position_m <= WRONG_POSITION_M && rotation_deg <= WRONG_ROTATION_DEG) {
+            out.wrong_poses += 1;
+        }
+    }
+    out
 }
 
 /// Runs the STAR loop over `dataset` with `renderer` (built on the map).
@@ -95,9 +178,16 @@ pub fn localize_dataset(
         .max_frames
         .map_or(dataset.len(), |m| m.min(dataset.len()));
     let first_stamp_s = dataset.frames[0].timestamp_s;
-    let init = match options.init_pose {
-        Some(p) => p,
-        None => nearest_pose(dataset, first_stamp_s)
+    let init = match (options.start, options.init_pose, &options.relocalizer) {
+        (StartMode::Cold, _, Some(r)) => r
+            .database()
+            .entries
+            .first()
+            .map(|e| e.world_from_camera)
+            .ok_or(OfflineError::ColdStartWithoutDatabase)?,
+        (StartMode::Cold, _, None) => return Err(OfflineError::ColdStartWithoutDatabase),
+        (_, Some(p), _) => p,
+        (_, None, _) => nearest_pose(dataset, first_stamp_s)
             .ok_or_else(|| OfflineError::NoInitialPose(dataset.root.clone()))?,
     };
     let to_ns = |t_s: f64| ((t_s - first_stamp_s) * 1e9).round().max(0.0) as u64 + 1_000_000_000;
@@ -111,6 +201,9 @@ pub fn localize_dataset(
     )?;
     if let Some(r) = &options.relocalizer {
         localizer.set_relocalizer(r.clone())?;
+    }
+    if options.start != StartMode::Trusted {
+        localizer.verify_start(&config.reloc, options.start == StartMode::Hint);
     }
     let mut image = ImageU8::new(camera.width as usize, camera.height as usize, 0);
     let mut scratch = Vec::new();
@@ -132,6 +225,7 @@ pub fn localize_dataset(
         min_correlation: 1.0,
         renderer: localizer.renderer_name().to_string(),
         evaluation: None,
+        integrity: None,
     };
     let levels = config.tracker.pyramid_levels as usize;
     let mut points: Vec<Vec<u32>> = vec![Vec::with_capacity(n); levels];
@@ -205,6 +299,7 @@ pub fn localize_dataset(
         })
         .collect();
     if let Some(gt) = &dataset.ground_truth {
+        report.integrity = Some(integrity(gt, &report.estimate, first_stamp_s));
         if !report.estimate.is_empty() {
             report.evaluation = eval::evaluate(gt, &report.estimate, 0.005, Some(1)).ok();
         }

@@ -10,7 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::config::Config;
 use crate::dataset::Dataset;
-use crate::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport};
+use crate::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport, StartMode};
 use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 
 use super::pose_arg::parse_pose;
@@ -42,6 +42,23 @@ pub struct LocalizeArgs {
     /// Relocalization database (`star reloc build`): relocalize when lost.
     #[arg(long)]
     pub reloc: Option<PathBuf>,
+    /// How the run starts: `trusted` tracks from the start pose at once
+    /// (the benchmarks' setting); `hint` verifies it through the
+    /// relocalization gate first, as in flight; `cold` has no start pose and
+    /// searches the database (needs --reloc), as in flight without a hint.
+    #[arg(long, value_enum, default_value = "trusted")]
+    pub start: StartArg,
+}
+
+/// `--start`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum StartArg {
+    /// Track from the start pose at once.
+    Trusted,
+    /// Verify the start pose through the relocalization gate first.
+    Hint,
+    /// No start pose: search the relocalization database.
+    Cold,
 }
 
 /// Runs `star localize`.
@@ -79,6 +96,11 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         max_frames: args.max_frames,
         realtime: args.realtime,
         relocalizer,
+        start: match args.start {
+            StartArg::Trusted => StartMode::Trusted,
+            StartArg::Hint => StartMode::Hint,
+            StartArg::Cold => StartMode::Cold,
+        },
     };
     let n = options
         .max_frames
@@ -140,6 +162,20 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
             report.reloc_attempts,
             report.relocalizations,
             report.reset_counters.last().copied().unwrap_or(0)
+        );
+    }
+    if let Some(i) = &report.integrity {
+        let first = i
+            .first_pose_after_s
+            .map_or("none".to_string(), |s| format!("{s:.2} s"));
+        println!(
+            "  integrity: wrong poses sent {} of {} checked (> {} cm or > {} deg from the truth); largest error {:.2} cm / {:.2} deg; first pose after {first}",
+            i.wrong_poses,
+            i.poses_checked,
+            crate::offline::WRONG_POSITION_M * 100.0,
+            crate::offline::WRONG_ROTATION_DEG,
+            i.max_position_error_m * 100.0,
+            i.max_rotation_error_deg
         );
     }
     if let Some(e) = &report.evaluation {

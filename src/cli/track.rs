@@ -53,16 +53,20 @@ pub struct TrackArgs {
     pub idle_exit_s: Option<f64>,
 }
 
-/// The initial pose: `--init-pose`, else `tracker.init_pose`.
-pub fn initial_pose(arg: Option<&str>, config: &Config) -> Result<Pose> {
+/// The initial pose hint: `--init-pose`, else `tracker.init_pose`, else
+/// none (a cold start, which needs a relocalization database). Either way
+/// it is verified before any pose goes out.
+pub fn initial_pose(arg: Option<&str>, config: &Config) -> Result<Option<Pose>> {
     if let Some(text) = arg {
-        return parse_pose(text).context("--init-pose");
+        return parse_pose(text).context("--init-pose").map(Some);
     }
     match config.tracker.init_pose {
         Some([tx, ty, tz, qx, qy, qz, qw]) => {
-            parse_pose(&format!("{tx} {ty} {tz} {qx} {qy} {qz} {qw}")).context("tracker.init_pose")
+            parse_pose(&format!("{tx} {ty} {tz} {qx} {qy} {qz} {qw}"))
+                .context("tracker.init_pose")
+                .map(Some)
         }
-        None => bail!("no initial pose: set `tracker.init_pose` in the config or pass --init-pose"),
+        None => Ok(None),
     }
 }
 

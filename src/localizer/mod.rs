@@ -160,6 +160,9 @@ pub struct Localizer {
     lost_since_ns: Option<u64>,
     /// Frames still to verify after an accepted relocalization.
     verify_left: u32,
+    /// Gate settings for a verified start without a database
+    /// ([`Localizer::verify_start`]).
+    start_gate: Option<crate::reloc::RelocConfig>,
 }
 
 impl Localizer {
@@ -221,6 +224,7 @@ impl Localizer {
             reloc: None,
             lost_since_ns: None,
             verify_left: 0,
+            start_gate: None,
         })
     }
 
@@ -366,6 +370,16 @@ impl Localizer {
                 );
                 self.lost_since_ns = Some(self.last.map_or(capture_ns, |(t, _)| t));
             }
+            if self.verify_left > 0 && self.reloc.is_none() {
+                // Verifying the start pose or the last keyframe without a
+                // database is retried every lost frame: not a warning.
+                tracing::debug!(
+                    inliers = q.inlier_ratio,
+                    correlation = q.correlation,
+                    "not verified; still searching"
+                );
+                self.verify_left = 0;
+            }
             if self.verify_left > 0 {
                 tracing::warn!(
                     inliers = q.inlier_ratio,
@@ -386,6 +400,7 @@ impl Localizer {
                 self.relocalize(pixels, stride, capture_ns);
                 out.reset_counter = self.reset_counter;
             }
+            self.reverify_without_database(capture_ns);
             return Ok(out);
         }
         if dt_s > 0.0 {

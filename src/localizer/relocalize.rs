@@ -19,6 +19,7 @@
 use crate::geometry::Pose;
 use crate::reloc::recover::start_yaws_rad;
 use crate::reloc::recover::{correlation, passes_gate, Candidate, MAX_TOP_K};
+use crate::reloc::RelocConfig;
 use crate::reloc::{
     try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict,
 };
@@ -54,8 +55,7 @@ impl Localizer {
         if self.verify_left == 0 {
             return None;
         }
-        let reloc = self.reloc.as_ref()?;
-        let config = reloc.config();
+        let config = gate_config(&self.reloc, &self.start_gate)?;
         let yaws = start_yaws_rad(config, 0.0);
         match verify_candidate(
             &mut self.reloc_aligner,
@@ -72,16 +72,16 @@ impl Localizer {
 
     /// Whether a frame that passed the ordinary lost test may be output.
     pub(super) fn may_resume(&self, capture_ns: u64, q: &AlignQuality) -> bool {
-        let Some(reloc) = &self.reloc else {
+        let Some(config) = gate_config(&self.reloc, &self.start_gate) else {
             return true;
         };
         if self.verify_left > 0 {
-            return passes_gate(q, reloc.config());
+            return passes_gate(q, config);
         }
         if self.state == TrackState::Tracking {
             return true;
         }
-        self.lost_s(capture_ns) <= reloc.config().resume_window_s
+        self.lost_s(capture_ns) <= config.resume_window_s
     }
 
     /// With relocalization enabled, tracking also needs the keyframe points
@@ -90,7 +90,7 @@ impl Localizer {
     /// look-alike wall) can pass the inlier test with an affine photometric
     /// fit, but does not correlate.
     pub(super) fn correlation_ok(&self, camera_from_keyframe: &crate::geometry::Pose) -> bool {
-        let Some(reloc) = &self.reloc else {
+        let Some(config) = gate_config(&self.reloc, &self.start_gate) else {
             return true;
         };
         let ncc = correlation(
@@ -101,11 +101,47 @@ impl Localizer {
             1,
         );
         tracing::trace!(?ncc, "tracking correlation");
-        let ok = ncc.is_some_and(|c| c >= reloc.config().track_min_correlation);
+        let ok = ncc.is_some_and(|c| c >= config.track_min_correlation);
         if !ok && self.state == TrackState::Tracking {
             tracing::debug!(?ncc, "frame does not correlate with the keyframe");
         }
         ok
+    }
+
+    /// Makes the start pose a hint that must pass the relocalization gate
+    /// (`gate`, the `[reloc]` settings) before any pose is output: the
+    /// loop starts lost. With `hint`, the first frames are aligned against
+    /// the keyframe rendered at the start pose through the same coarse
+    /// multi-start search and gate as a relocalization candidate, then
+    /// `verify_frames` more; without one (a cold start), the first frame is
+    /// searched in the database at once. While lost, without a database,
+    /// each frame past `resume_window_s` is verified against the last
+    /// keyframe the same way, so a wrong hint or a loss costs time and never
+    /// a wrong pose.
+    pub fn verify_start(&mut self, gate: &RelocConfig, hint: bool) {
+        self.start_gate = Some(gate.clone());
+        self.state = TrackState::Lost;
+        self.lost_since_ns = Some(0);
+        self.verify_left = if hint { gate.verify_frames + 1 } else { 0 };
+        tracing::info!(
+            hint,
+            database = self.reloc.is_some(),
+            "searching: no pose is output until one passes the relocalization gate"
+        );
+    }
+
+    /// Without a database: a lost frame past the resume window starts a
+    /// verification against the last keyframe (coarse multi-start search and
+    /// the gate), as a relocalization candidate would be verified.
+    pub(super) fn reverify_without_database(&mut self, capture_ns: u64) {
+        if self.reloc.is_some() || self.verify_left > 0 {
+            return;
+        }
+        if let Some(gate) = &self.start_gate {
+            if self.lost_s(capture_ns) > gate.resume_window_s {
+                self.verify_left = gate.verify_frames + 1;
+            }
+        }
     }
 
     /// True when a lost frame should be searched in the database.
@@ -263,4 +299,16 @@ impl Localizer {
         tracing::debug!(candidates = n_tried, "relocalization failed for this frame");
         self.reloc = Some(reloc);
     }
+}
+
+/// The gate settings: the database's, else those given to
+/// [`Localizer::verify_start`]; `None` when neither was set.
+fn gate_config<'a>(
+    reloc: &'a Option<Box<Relocalizer>>,
+    start_gate: &'a Option<RelocConfig>,
+) -> Option<&'a RelocConfig> {
+    reloc
+        .as_deref()
+        .map(Relocalizer::config)
+        .or(start_gate.as_ref())
 }

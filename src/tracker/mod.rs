@@ -16,7 +16,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use tracing::info;
 
 use crate::clock::monotonic_now_ns;
@@ -32,7 +32,13 @@ pub use frame_loop::{Step, StopReason, StopWhen, TrackSummary, Tracker};
 
 /// Opens the ports, loads the map, renders the first keyframe, starts the
 /// MAVLink link and tells systemd the service is ready.
-pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Result<Tracker> {
+///
+/// The tracker starts `searching` and outputs nothing until a frame passes
+/// the relocalization gate ([`Localizer::verify_start`]): `hint` (from
+/// `--init-pose` or `tracker.init_pose`) is tried first; with a database
+/// and no hint, the first frame is searched in the database (a cold
+/// start). Without a database a hint is required.
+pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> Result<Tracker> {
     let iox =
         load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
     let node = create_node("star-track", &iox).context("iceoryx2 node")?;
@@ -60,6 +66,18 @@ pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Res
         }
         None => None,
     };
+    // Any pose of the map will do for the first keyframe of a cold start:
+    // it is never tracked against before a relocalization replaces it.
+    let init_pose = match (hint, &relocalizer) {
+        (Some(pose), _) => pose,
+        (None, Some(r)) => match r.database().entries.first() {
+            Some(entry) => entry.world_from_camera,
+            None => bail!("relocalization database {} has no views", r.database().path.display()),
+        },
+        (None, None) => bail!(
+            "no initial pose and no relocalization database: set `tracker.init_pose` or pass --init-pose, or build a database (`star reloc build`) and set `reloc.database`"
+        ),
+    };
     let kind = config.render.renderer;
     let renderer = crate::render::select::make_renderer(kind, mesh_data)
         .with_context(|| format!("starting the `{kind:?}` renderer"))?;
@@ -77,6 +95,7 @@ pub fn start(config: &Config, init_pose: Pose, shutdown: Arc<AtomicBool>) -> Res
             .set_relocalizer(r)
             .context("relocalization database")?;
     }
+    localizer.verify_start(&config.reloc, hint.is_some());
     let mavlink = if config.mavlink.enabled {
         Some(MavlinkLink::spawn(&config.mavlink, shutdown.clone()).context("MAVLink link")?)
     } else {
