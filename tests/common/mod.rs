@@ -11,6 +11,7 @@
 #![allow(dead_code)]
 
 pub mod counting_alloc;
+pub mod reloc_fixture;
 pub mod room;
 pub mod wall;
 

@@ -1,0 +1,168 @@
+//! Integrity: no wrong pose is ever sent (more than 10 cm or 5 degrees from
+//! the truth, counted without alignment by `star::offline::integrity`), under
+//! the faults that broke the closed world: a cold start without a pose, a
+//! wrong initial hint 1-3 m off (with and without a database), a covered
+//! lens, and frames from a different place. Where recovery is possible it
+//! must happen; where it is not, nothing is sent.
+
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+mod common;
+
+use common::reloc_fixture::{
+    assembled, fixture, frame_path, run_with, write_image, Fixture, FAULT_START, FRAMES,
+};
+use nalgebra::{Translation3, Vector3};
+use star::dataset::Dataset;
+use star::geometry::Pose;
+use star::offline::{OfflineOptions, OfflineReport, StartMode};
+use star::synth::preset::Preset;
+use star::synth::sequence::{write_sequence, SequenceOptions};
+
+/// The frame rate of the fixture sequence.
+const RATE_HZ: f64 = 50.0;
+
+fn integrity(report: &OfflineReport, what: &str) -> star::offline::Integrity {
+    let i = report.integrity.expect("the dataset has ground truth");
+    eprintln!(
+        "{what}: {} poses sent, {} wrong, largest error {:.3} m / {:.2} deg, first pose after {:?} s, {} reloc attempts",
+        report.estimate.len(),
+        i.wrong_poses,
+        i.max_position_error_m,
+        i.max_rotation_error_deg,
+        i.first_pose_after_s,
+        report.reloc_attempts
+    );
+    assert_eq!(report.frames, FRAMES, "{what}: every frame processed");
+    assert_eq!(
+        i.poses_checked,
+        report.estimate.len(),
+        "{what}: every pose checked"
+    );
+    assert_eq!(i.wrong_poses, 0, "{what}: wrong poses sent");
+    i
+}
+
+fn plain(fx: &Fixture) -> Dataset {
+    Dataset::open(&fx.root).expect("dataset")
+}
+
+#[test]
+fn cold_start_and_wrong_hints_cost_time_never_a_wrong_pose() {
+    let fx = fixture();
+    let ds = plain(&fx);
+
+    // A cold start: no pose at all; the first frames are searched in the
+    // database. The figure targets 2 s median; one start must be well within.
+    let options = OfflineOptions {
+        start: StartMode::Cold,
+        ..OfflineOptions::default()
+    };
+    let report = run_with(&fx, &ds, options, true);
+    let i = integrity(&report, "cold start");
+    let first_s = i.first_pose_after_s.expect("cold start: a pose was found");
+    assert!(first_s <= 2.0, "cold start: first pose after {first_s} s");
+    assert!(report.estimate.len() >= FRAMES - (first_s * RATE_HZ) as usize - 5);
+
+    // A right hint is confirmed within two frames.
+    let options = OfflineOptions {
+        start: StartMode::Hint,
+        init_pose: Some(fx.gt.poses[0]),
+        ..OfflineOptions::default()
+    };
+    let report = run_with(&fx, &ds, options, false);
+    let i = integrity(&report, "right hint, no database");
+    assert!(i.first_pose_after_s.expect("confirmed") <= 2.0 / RATE_HZ + 1e-9);
+
+    // Wrong hints, 1 to 3 m off: with a database the tracker finds the
+    // truth; without one it sends nothing.
+    let truth = fx.gt.poses[0];
+    for (offset_m, direction) in [
+        (1.0, [1.0, 0.0, 0.0]),
+        (2.0, [0.0, -1.0, 0.0]),
+        (3.0, [-0.7, 0.7, 0.0]),
+    ] {
+        let shift = Vector3::from(direction).normalize() * offset_m;
+        let hint = Pose::from_parts(
+            Translation3::from(truth.translation.vector + shift),
+            truth.rotation,
+        );
+        let with_db = OfflineOptions {
+            start: StartMode::Hint,
+            init_pose: Some(hint),
+            ..OfflineOptions::default()
+        };
+        let what = format!("hint {offset_m} m off, database");
+        let report = run_with(&fx, &ds, with_db.clone(), true);
+        let i = integrity(&report, &what);
+        let first_s = i
+            .first_pose_after_s
+            .unwrap_or_else(|| panic!("{what}: never recovered"));
+        assert!(first_s <= 2.0, "{what}: first pose after {first_s} s");
+
+        let what = format!("hint {offset_m} m off, no database");
+        let report = run_with(&fx, &ds, with_db, false);
+        integrity(&report, &what);
+    }
+}
+
+#[test]
+fn covered_lens_and_another_place_send_nothing() {
+    let fx = fixture();
+    let tmp = tempfile::tempdir().expect("tmp");
+
+    // A covered lens for 1 s: dark, with sensor noise.
+    let covered = write_image(&tmp.path().join("covered.png"), |x, y| {
+        (6 + ((x * 7919 + y * 104_729) % 7)) as u8
+    });
+    let fault_end = FAULT_START + 50;
+    let ds = assembled(&fx, &tmp.path().join("covered"), |i| {
+        let image = if (FAULT_START..fault_end).contains(&i) {
+            covered.clone()
+        } else {
+            frame_path(&fx, i)
+        };
+        (image, fx.gt.poses[i])
+    });
+    let report = run_with(&fx, &ds, OfflineOptions::default(), true);
+    integrity(&report, "covered lens");
+    let tracked: Vec<bool> = report.tracked.iter().map(|t| t.1).collect();
+    assert!(
+        tracked[FAULT_START + 2..fault_end].iter().all(|t| !t),
+        "covered lens: a pose was sent while the lens was covered"
+    );
+    let recovered = (fault_end..FRAMES).find(|&i| tracked[i]);
+    let recovered = recovered.expect("covered lens: never recovered");
+    assert!(
+        recovered <= fault_end + 50,
+        "covered lens: recovered at {recovered}"
+    );
+
+    // Frames from another place: another seed's room (same generator, same
+    // kinds of texture, another layout). Any pose sent for them is wrong;
+    // their truth is set 1 km away so the count sees it.
+    let other = tmp.path().join("other");
+    let options = SequenceOptions {
+        preset: Preset::by_name("realistic").expect("preset"),
+        seed: 11,
+        frames: FRAMES,
+        write_depth: false,
+    };
+    write_sequence(&other, &options, &mut |_| {}).expect("other sequence");
+    let other_ds = Dataset::open(&other).expect("other dataset");
+    let elsewhere = Pose::translation(1000.0, 0.0, 0.0);
+    let ds = assembled(&fx, &tmp.path().join("elsewhere"), |i| {
+        if i >= FAULT_START {
+            (other.join(&other_ds.frames[i].path), elsewhere)
+        } else {
+            (frame_path(&fx, i), fx.gt.poses[i])
+        }
+    });
+    let report = run_with(&fx, &ds, OfflineOptions::default(), true);
+    integrity(&report, "another place");
+    let sent_elsewhere = report.tracked[FAULT_START + 2..]
+        .iter()
+        .filter(|t| t.1)
+        .count();
+    assert_eq!(sent_elsewhere, 0, "poses sent for frames of another place");
+}
