@@ -252,7 +252,7 @@ mod tests {
         )
         .expect("valid pose");
         assert_eq!(
-            c.tracker.init_pose,
+            c.tracker.world_from_camera_init,
             Some([1.0, 2.0, 1.5, 0.0, 0.0, 0.0, 1.0])
         );
         for text in [
@@ -262,6 +262,22 @@ mod tests {
             let err = Config::parse(text, Path::new("a.toml")).expect_err(text);
             assert!(err.to_string().contains("init_pose"), "{err}");
         }
+    }
+
+    #[test]
+    fn tracker_keys_carry_units_and_old_names_still_parse() {
+        let new = Config::parse(
+            "[tracker]\nhuber_min_gray = 5.0\noutlier_cut_gray = 30.0\n",
+            Path::new("a.toml"),
+        )
+        .expect("new names");
+        let old = Config::parse(
+            "[tracker]\nhuber_min = 5.0\noutlier_cut = 30.0\n",
+            Path::new("a.toml"),
+        )
+        .expect("old names");
+        assert_eq!(new, old);
+        assert_eq!(new.tracker.huber_min_gray, 5.0);
     }
 
     #[test]

@@ -35,7 +35,7 @@ pub enum OfflineError {
 #[derive(Debug, Clone, Default)]
 pub struct OfflineOptions {
     /// Start pose; the ground truth nearest the first frame when `None`.
-    pub init_pose: Option<Pose>,
+    pub world_from_camera_start: Option<Pose>,
     /// Process at most this many frames.
     pub max_frames: Option<usize>,
     /// Pace frames at the recorded rate (as a live camera would deliver them).
@@ -178,7 +178,11 @@ pub fn localize_dataset(
         .max_frames
         .map_or(dataset.len(), |m| m.min(dataset.len()));
     let first_stamp_s = dataset.frames[0].timestamp_s;
-    let init = match (options.start, options.init_pose, &options.relocalizer) {
+    let init = match (
+        options.start,
+        options.world_from_camera_start,
+        &options.relocalizer,
+    ) {
         (StartMode::Cold, _, Some(r)) => r
             .database()
             .entries

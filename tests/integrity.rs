@@ -67,7 +67,7 @@ fn cold_start_and_wrong_hints_cost_time_never_a_wrong_pose() {
     // A right hint is confirmed within two frames.
     let options = OfflineOptions {
         start: StartMode::Hint,
-        init_pose: Some(fx.gt.poses[0]),
+        world_from_camera_start: Some(fx.gt.poses[0]),
         ..OfflineOptions::default()
     };
     let report = run_with(&fx, &ds, options, false);
@@ -89,7 +89,7 @@ fn cold_start_and_wrong_hints_cost_time_never_a_wrong_pose() {
         );
         let with_db = OfflineOptions {
             start: StartMode::Hint,
-            init_pose: Some(hint),
+            world_from_camera_start: Some(hint),
             ..OfflineOptions::default()
         };
         let what = format!("hint {offset_m} m off, database");

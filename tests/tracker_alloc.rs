@@ -349,15 +349,18 @@ fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
         })
         .collect();
 
-    let init_pose = pose_at(0);
+    let world_from_camera_start = pose_at(0);
     let mut config = Config::default();
     config.camera.intrinsics = camera();
     config.map.mesh = mesh_path;
     config.render.renderer = RendererKind::Cpu;
     config.tracker.pyramid_levels = 3;
     config.tracker.max_points = 3000;
-    let (t, q) = (init_pose.translation.vector, init_pose.rotation.coords);
-    config.tracker.init_pose = Some([t.x, t.y, t.z, q[0], q[1], q[2], q[3]]);
+    let (t, q) = (
+        world_from_camera_start.translation.vector,
+        world_from_camera_start.rotation.coords,
+    );
+    config.tracker.world_from_camera_init = Some([t.x, t.y, t.z, q[0], q[1], q[2], q[3]]);
     config.keyframe.max_interval_s = 0.2;
     config.mavlink.connection = format!("udpout:{}", mavlink.local_addr().unwrap());
     config.ipc.iceoryx2_config = iceoryx.clone();
@@ -369,7 +372,8 @@ fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
         .expect("valid config");
 
     let shutdown = Arc::new(AtomicBool::new(false));
-    let mut tracker = star::tracker::start(&config, Some(init_pose), shutdown).expect("start");
+    let mut tracker =
+        star::tracker::start(&config, Some(world_from_camera_start), shutdown).expect("start");
     let mut stop = StopWhen {
         trajectory: Some(TrajectoryWriter::create(&trajectory).expect("trajectory file")),
         ..StopWhen::default()

@@ -90,9 +90,9 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
     let kind = config.render.renderer;
     let renderer = crate::render::select::make_renderer(kind, mesh)
         .with_context(|| format!("starting the `{kind:?}` renderer"))?;
-    let init_pose = args.init_pose.as_deref().map(parse_pose).transpose()?;
+    let world_from_camera_start = args.init_pose.as_deref().map(parse_pose).transpose()?;
     let options = OfflineOptions {
-        init_pose,
+        world_from_camera_start,
         max_frames: args.max_frames,
         realtime: args.realtime,
         relocalizer,

@@ -52,9 +52,9 @@ pub fn run(args: &RunArgs) -> Result<()> {
             .with_context(|| format!("opening dataset {}", dir.display()))?;
         config.camera.intrinsics = *dataset.camera();
     }
-    let init_pose = initial_pose(args.track.init_pose.as_deref(), &config)?;
+    let hint = initial_pose(args.track.init_pose.as_deref(), &config)?;
     let mut stop = stop_when(&args.track)?;
-    let tracker = start(&config, init_pose, shutdown.clone())?;
+    let tracker = start(&config, hint, shutdown.clone())?;
     let done = Arc::new(AtomicBool::new(false));
     let camera = {
         let (config, shutdown, done) = (config.clone(), shutdown.clone(), done.clone());

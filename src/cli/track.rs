@@ -60,7 +60,7 @@ pub fn initial_pose(arg: Option<&str>, config: &Config) -> Result<Option<Pose>> 
     if let Some(text) = arg {
         return parse_pose(text).context("--init-pose").map(Some);
     }
-    match config.tracker.init_pose {
+    match config.tracker.world_from_camera_init {
         Some([tx, ty, tz, qx, qy, qz, qw]) => {
             parse_pose(&format!("{tx} {ty} {tz} {qx} {qy} {qz} {qw}"))
                 .context("tracker.init_pose")
@@ -125,9 +125,9 @@ pub fn stop_when(args: &TrackArgs) -> Result<StopWhen> {
 pub fn run(args: &TrackArgs) -> Result<()> {
     let shutdown = signals::install_shutdown_handler()?;
     let config = load_config(args)?;
-    let init_pose = initial_pose(args.init_pose.as_deref(), &config)?;
+    let hint = initial_pose(args.init_pose.as_deref(), &config)?;
     let mut stop = stop_when(args)?;
-    let tracker = start(&config, init_pose, shutdown)?;
+    let tracker = start(&config, hint, shutdown)?;
     let summary = tracker.run(&mut stop)?;
     finish(&summary, args.trajectory.as_deref())
 }

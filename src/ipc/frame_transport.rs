@@ -610,11 +610,11 @@ mod tests {
         // arrives 40 µs after its stamp: the prediction sits on the
         // schedule, within the 250 µs polling window of the on-time case.
         let on_time = start + 200 * PERIOD_NS + 40_000;
-        let predicted = p.next_arrival_ns().expect("a prediction");
+        let predicted_ns = p.next_arrival_ns().expect("a prediction");
         assert!(
-            predicted.abs_diff(on_time) < 250_000,
+            predicted_ns.abs_diff(on_time) < 250_000,
             "predicted {} µs from the on-time arrival",
-            (predicted as i64 - on_time as i64) / 1000
+            (predicted_ns as i64 - on_time as i64) / 1000
         );
     }
 

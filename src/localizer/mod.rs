@@ -293,12 +293,14 @@ impl Localizer {
         self.pyramid.fill_from_u8(pixels, stride);
 
         // Constant-velocity prediction.
-        let (prev_ns, prev_pose) = self
+        let (prev_ns, world_from_camera_prev) = self
             .last
             .unwrap_or((capture_ns, self.keyframe.world_from_keyframe));
         let dt_s = (capture_ns.saturating_sub(prev_ns)) as f64 * 1e-9;
-        let predicted = renormalized(prev_pose * exp_se3(&(self.velocity * dt_s.min(0.2))));
-        let camera_from_keyframe = predicted.inverse() * self.keyframe.world_from_keyframe;
+        let world_from_camera_predicted =
+            renormalized(world_from_camera_prev * exp_se3(&(self.velocity * dt_s.min(0.2))));
+        let camera_from_keyframe =
+            world_from_camera_predicted.inverse() * self.keyframe.world_from_keyframe;
 
         // The frame that verifies a relocalization comes after the time the
         // search took (the vehicle moved on, 15 cm in 0.3 s at walking
@@ -326,7 +328,7 @@ impl Localizer {
         };
         let world_from_camera =
             self.keyframe.world_from_keyframe * result.camera_from_keyframe.inverse();
-        let jump_m = (predicted.inverse() * world_from_camera)
+        let jump_m = (world_from_camera_predicted.inverse() * world_from_camera)
             .translation
             .vector
             .norm();
@@ -404,7 +406,7 @@ impl Localizer {
             return Ok(out);
         }
         if dt_s > 0.0 {
-            let step = log_se3(&(prev_pose.inverse() * world_from_camera));
+            let step = log_se3(&(world_from_camera_prev.inverse() * world_from_camera));
             self.velocity = step / dt_s;
         }
         self.last = Some((capture_ns, world_from_camera));

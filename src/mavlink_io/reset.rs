@@ -59,9 +59,9 @@ impl ResetCounter {
             tracing::info!("tracking resumed: incrementing reset_counter");
             reset = true;
         }
-        if let Some((last_ns, last_pose)) = &self.last_sent {
+        if let Some((last_ns, ned_from_body_last)) = &self.last_sent {
             let dt_s = capture_ns.saturating_sub(*last_ns) as f64 * 1e-9;
-            let delta = last_pose.inverse() * ned_from_body;
+            let delta = ned_from_body_last.inverse() * ned_from_body;
             let moved_m = delta.translation.vector.norm();
             let turned_rad = delta.rotation.angle();
             if moved_m > JUMP_BASE_M + JUMP_SPEED_M_PER_S * dt_s

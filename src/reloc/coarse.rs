@@ -110,7 +110,7 @@ impl CoarseExtractor {
             pyramid_levels: COARSE_LEVEL + 1,
             // The tracker keeps max_points >> level, at least 200.
             max_points: (MAX_COARSE_POINTS as u32) << COARSE_LEVEL,
-            gradient_threshold: COARSE_GRADIENT_THRESHOLD,
+            gradient_threshold_gray: COARSE_GRADIENT_THRESHOLD,
             ..TrackerConfig::default()
         };
         Self {

@@ -317,22 +317,22 @@ impl Aligner {
         // which a joint least-squares fit of the gain does.
         let (a, b) = self.photometric(points, model, &mut scale.reference);
         let warped = &self.warped[..points.len()];
-        let huber_min = self.config.huber_min;
+        let huber_min_gray = self.config.huber_min_gray;
         let k = *scale.huber_k.get_or_insert_with(|| {
             let abs_residuals = points
                 .iter()
                 .zip(warped)
                 .filter(|(_, wv)| !wv.is_nan())
                 .map(|(pt, &wv)| (wv - (a * pt.gray + b)).abs());
-            (1.345 * 1.4826 * approx_median_of(abs_residuals, 0.0, 256.0)).max(huber_min)
+            (1.345 * 1.4826 * approx_median_of(abs_residuals, 0.0, 256.0)).max(huber_min_gray)
         });
-        let cut = (4.0 * k).max(self.config.outlier_cut);
+        let cut = (4.0 * k).max(self.config.outlier_cut_gray);
         let rho_cut = k * (cut - 0.5 * k);
         let mut acc = Accumulator6::default();
         let mut energy = 0.0f64;
         let mut inliers = 0usize;
         let mut inlier_sq_sum = 0.0f64;
-        let inlier_th = self.config.inlier_threshold;
+        let inlier_th = self.config.inlier_threshold_gray;
         let mut moments = [0.0f64; 5];
         for (pt, &wv) in points.iter().zip(warped.iter()) {
             if wv.is_nan() {

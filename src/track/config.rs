@@ -32,20 +32,25 @@ pub struct TrackerConfig {
     pub block_size_px: u32,
     /// Gradient magnitude above the block median needed for selection,
     /// gray levels per pixel.
-    pub gradient_threshold: f32,
+    #[serde(alias = "gradient_threshold")]
+    pub gradient_threshold_gray: f32,
     /// Fewest visible points for a level to be used.
     pub min_points: u32,
     /// Most Levenberg-Marquardt iterations per level.
     pub max_iterations: u32,
     /// Smallest Huber threshold, gray levels.
-    pub huber_min: f32,
+    #[serde(alias = "huber_min")]
+    pub huber_min_gray: f32,
     /// Residuals above this (or above 4 Huber thresholds) get zero weight.
-    pub outlier_cut: f32,
+    #[serde(alias = "outlier_cut")]
+    pub outlier_cut_gray: f32,
     /// A residual below this counts as an inlier in the quality figures.
-    pub inlier_threshold: f32,
+    #[serde(alias = "inlier_threshold")]
+    pub inlier_threshold_gray: f32,
     /// Initial pose of `star track` / `star run`, `world_from_camera` in TUM
     /// order `[tx, ty, tz, qx, qy, qz, qw]`; absent: `--init-pose` must give it.
-    pub init_pose: Option<[f64; 7]>,
+    #[serde(rename = "init_pose")]
+    pub world_from_camera_init: Option<[f64; 7]>,
 }
 
 impl Default for TrackerConfig {
@@ -55,13 +60,13 @@ impl Default for TrackerConfig {
             illumination: IlluminationModel::Affine,
             max_points: 6000,
             block_size_px: 32,
-            gradient_threshold: 4.0,
+            gradient_threshold_gray: 4.0,
             min_points: 40,
             max_iterations: 12,
-            huber_min: 4.0,
-            outlier_cut: 40.0,
-            inlier_threshold: 20.0,
-            init_pose: None,
+            huber_min_gray: 4.0,
+            outlier_cut_gray: 40.0,
+            inlier_threshold_gray: 20.0,
+            world_from_camera_init: None,
         }
     }
 }
@@ -77,7 +82,7 @@ impl TrackerConfig {
     /// Checks every value against its valid range; keys are relative to `[tracker]`.
     pub fn validate(&self) -> Result<(), SettingError> {
         let t = self;
-        if let Some(p) = &t.init_pose {
+        if let Some(p) = &t.world_from_camera_init {
             let q_norm = (p[3] * p[3] + p[4] * p[4] + p[5] * p[5] + p[6] * p[6]).sqrt();
             if p.iter().any(|v| !v.is_finite()) || q_norm < 1e-6 {
                 return Err(SettingError::new(
@@ -103,11 +108,11 @@ impl TrackerConfig {
                 format!("expected 8..=256, found {}", t.block_size_px),
             ),
             (
-                "gradient_threshold",
-                t.gradient_threshold.is_finite() && t.gradient_threshold >= 0.0,
+                "gradient_threshold_gray",
+                t.gradient_threshold_gray.is_finite() && t.gradient_threshold_gray >= 0.0,
                 format!(
                     "expected a finite value >= 0, found {}",
-                    t.gradient_threshold
+                    t.gradient_threshold_gray
                 ),
             ),
             (
@@ -121,18 +126,18 @@ impl TrackerConfig {
                 format!("expected 1..=100, found {}", t.max_iterations),
             ),
             (
-                "huber_min",
-                t.huber_min.is_finite() && t.huber_min > 0.0,
-                format!("expected a finite value > 0, found {}", t.huber_min),
+                "huber_min_gray",
+                t.huber_min_gray.is_finite() && t.huber_min_gray > 0.0,
+                format!("expected a finite value > 0, found {}", t.huber_min_gray),
             ),
             (
-                "outlier_cut",
-                t.outlier_cut.is_finite()
-                    && t.outlier_cut > t.huber_min
-                    && t.inlier_threshold > 0.0,
+                "outlier_cut_gray",
+                t.outlier_cut_gray.is_finite()
+                    && t.outlier_cut_gray > t.huber_min_gray
+                    && t.inlier_threshold_gray > 0.0,
                 format!(
-                    "expected outlier_cut > huber_min and inlier_threshold > 0, found {} and {}",
-                    t.outlier_cut, t.inlier_threshold
+                    "expected outlier_cut_gray > huber_min_gray and inlier_threshold_gray > 0, found {} and {}",
+                    t.outlier_cut_gray, t.inlier_threshold_gray
                 ),
             ),
         ])

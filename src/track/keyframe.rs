@@ -284,7 +284,7 @@ fn select_level(
     // computed once per block.
     let block = (config.block_size_px as usize >> level).max(MIN_BLOCK_PX);
     let max_points = config.max_points_per_level(level);
-    let offset = config.gradient_threshold;
+    let offset = config.gradient_threshold_gray;
     let blocks_x = w.div_ceil(block);
     let n_blocks = blocks_x * h.div_ceil(block);
     let thresholds = &mut thresholds[..n_blocks];

@@ -55,7 +55,7 @@ pub struct Tracker {
     /// The camera counts as silent after this long without a frame.
     pub silence: Duration,
     /// The initial pose (used for the pose message until the first fix).
-    pub init_pose: Pose,
+    pub world_from_camera_start: Pose,
     /// The loop's state from one iteration to the next.
     pub(super) looping: LoopState,
     /// The iceoryx2 node of the ports (dropped after them).
@@ -142,8 +142,8 @@ pub(super) struct LoopState {
     frames: u64,
     tracked: u64,
     lost: u64,
-    /// The last tracked pose (`None`: none yet, use [`Tracker::init_pose`]).
-    last_pose: Option<Pose>,
+    /// The last tracked pose (`None`: none yet, use [`Tracker::world_from_camera_start`]).
+    world_from_camera_last: Option<Pose>,
     previous: Option<TrackState>,
     keyframe_id: u64,
     localizer_rejects: u64,
@@ -165,7 +165,7 @@ impl LoopState {
             frames: 0,
             tracked: 0,
             lost: 0,
-            last_pose: None,
+            world_from_camera_last: None,
             previous: None,
             keyframe_id: 0,
             localizer_rejects: 0,
@@ -327,12 +327,12 @@ impl Tracker {
         let tracking = out.state == TrackState::Tracking && out.world_from_camera.is_some();
         let pose = out
             .world_from_camera
-            .or(state.last_pose)
-            .unwrap_or(self.init_pose);
+            .or(state.world_from_camera_last)
+            .unwrap_or(self.world_from_camera_start);
         let covariance_world = covariance_camera_to_world(&pose, &out.covariance);
         if tracking {
             state.tracked += 1;
-            state.last_pose = Some(pose);
+            state.world_from_camera_last = Some(pose);
             state.status.set_state(ServiceState::Tracking);
             if let Some(writer) = stop.trajectory.as_mut() {
                 let stamp_s = if header.dataset_stamp_ns == NO_DATASET_STAMP {

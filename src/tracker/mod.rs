@@ -68,7 +68,7 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
     };
     // Any pose of the map will do for the first keyframe of a cold start:
     // it is never tracked against before a relocalization replaces it.
-    let init_pose = match (hint, &relocalizer) {
+    let world_from_camera_start = match (hint, &relocalizer) {
         (Some(pose), _) => pose,
         (None, Some(r)) => match r.database().entries.first() {
             Some(entry) => entry.world_from_camera,
@@ -86,7 +86,7 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
         &config.camera.intrinsics,
         &config.tracker,
         &config.keyframe,
-        init_pose,
+        world_from_camera_start,
         monotonic_now_ns(),
     )
     .context("starting the tracker")?;
@@ -116,7 +116,7 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
         service,
         shutdown,
         silence: Duration::from_millis(config.ipc.silence_timeout_ms),
-        init_pose,
+        world_from_camera_start,
         looping,
         _node: node,
     })
