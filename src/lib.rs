@@ -5,6 +5,7 @@
 //! publishes frames, the tracker aligns each frame against a keyframe rendered
 //! from the map, and the pose goes to the autopilot over MAVLink.
 
+pub mod bench;
 pub mod camera;
 pub mod cli;
 pub mod clock;

@@ -102,6 +102,8 @@ pub struct OfflineReport {
     pub evaluation: Option<Evaluation>,
     /// Integrity against the ground truth (no alignment), when it has one.
     pub integrity: Option<Integrity>,
+    /// Wall time from the start of the run to the first pose output, s.
+    pub first_pose_wall_s: Option<f64>,
 }
 
 /// Poses output that were wrong: the figure that matters most.
@@ -230,6 +232,7 @@ pub fn localize_dataset(
         renderer: localizer.renderer_name().to_string(),
         evaluation: None,
         integrity: None,
+        first_pose_wall_s: None,
     };
     let levels = config.tracker.pyramid_levels as usize;
     let mut points: Vec<Vec<u32>> = vec![Vec::with_capacity(n); levels];
@@ -271,6 +274,9 @@ pub fn localize_dataset(
                 match (out.state, out.world_from_camera) {
                     (TrackState::Tracking, Some(pose)) => {
                         report.estimate.push(stamp_s, pose);
+                        report
+                            .first_pose_wall_s
+                            .get_or_insert(wall_start.elapsed().as_secs_f64());
                         let q = &out.quality;
                         report.min_inlier_ratio = report.min_inlier_ratio.min(q.inlier_ratio);
                         report.min_correlation = report.min_correlation.min(q.correlation);

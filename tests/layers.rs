@@ -28,6 +28,8 @@ const LAYERS: &[&[&str]] = &[
     &["config"],
     // The processes.
     &["tracker", "offline"],
+    // Benchmark runners (they drive the processes' code).
+    &["bench"],
     // Arguments and printing only.
     &["cli"],
 ];

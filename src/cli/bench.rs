@@ -9,6 +9,8 @@
 //!   thread from the identity, and prints time and error per pair and in
 //!   summary. `scripts/bench_vs_opencv.py` runs OpenCV's RGB odometry on the
 //!   same pairs and prints both side by side.
+//! - `star bench integrity`: wrong poses sent, cold starts, kidnaps and
+//!   wrong hints ([`crate::bench::integrity`]).
 //! - `star bench reloc`: relocalization success rate and timings on the
 //!   synthetic realistic scene ([`super::bench_reloc`]).
 
@@ -60,6 +62,29 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
         repeat: u32,
     },
+    /// Integrity under faults: wrong poses sent, cold starts without a
+    /// pose, kidnaps and wrong initial hints on a synthetic sequence, paced
+    /// at 50 Hz, with the time each takes to recover.
+    Integrity {
+        /// Configuration file; default settings otherwise.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Preset of the sequence (`star synth --list-presets`).
+        #[arg(long, default_value = "realistic")]
+        preset: String,
+        /// Seed of the sequence and of the random starts.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Frames of the sequence.
+        #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(300..=20000))]
+        frames: u64,
+        /// Cold starts, kidnaps and wrong hints, each.
+        #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        trials: u64,
+        /// Keep the sequence in this folder.
+        #[arg(long)]
+        keep: Option<PathBuf>,
+    },
     /// Relocalization on the synthetic realistic scene: success rate,
     /// retrieval distance, search and recovery time.
     Reloc {
@@ -86,6 +111,28 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
         BenchCommand::Pairs { out, count, seed } => write_pairs(out, *count, *seed),
         BenchCommand::Track { pairs, csv, repeat } => {
             track_pairs(pairs, csv.as_deref(), *repeat as usize)
+        }
+        BenchCommand::Integrity {
+            config,
+            preset,
+            seed,
+            frames,
+            trials,
+            keep,
+        } => {
+            let config = match config {
+                Some(p) => crate::config::Config::load(p)
+                    .with_context(|| format!("loading config {}", p.display()))?,
+                None => crate::config::Config::default(),
+            };
+            crate::bench::integrity::run(&crate::bench::integrity::IntegrityOptions {
+                preset: preset.clone(),
+                seed: *seed,
+                frames: *frames as usize,
+                trials: *trials as usize,
+                config,
+                keep: keep.clone(),
+            })
         }
         BenchCommand::Reloc {
             config,

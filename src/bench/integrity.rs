@@ -1,0 +1,325 @@
+//! `star bench integrity`: the figure that matters most, wrong poses sent
+//! (more than 10 cm or 5 degrees from the truth), over cold starts, kidnaps
+//! (teleports) and wrong initial hints, with the time each takes to recover.
+//!
+//! Stages: [`sequence`] writes a synthetic sequence of a preset; [`database`]
+//! builds the relocalization database over the region it flies through
+//! (the config's `[reloc]` grid, landmarks included); [`cold_starts`],
+//! [`kidnaps`] and [`wrong_hints`] each run the offline STAR loop on
+//! excerpts of the sequence from random, seeded places; [`print`] reports.
+//! Frames are paced at the camera rate, as in flight, so the first-pose
+//! times are wall-clock times on this machine.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use nalgebra::{Translation3, Vector3};
+
+use crate::config::Config;
+use crate::dataset::{Dataset, Trajectory};
+use crate::geometry::Pose;
+use crate::map::Mesh;
+use crate::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport, StartMode};
+use crate::reloc::{build_database_in, RelocDatabase, Relocalizer};
+use crate::render::cpu::CpuRenderer;
+use crate::rng::SplitMix64;
+use crate::synth::preset::Preset;
+use crate::synth::sequence::{write_sequence, SequenceOptions};
+
+/// What `star bench integrity` runs.
+#[derive(Debug, Clone)]
+pub struct IntegrityOptions {
+    /// Preset of the sequence.
+    pub preset: String,
+    /// Seed of the sequence and of the random starts.
+    pub seed: u64,
+    /// Frames of the sequence.
+    pub frames: usize,
+    /// Cold starts, kidnaps and wrong hints, each.
+    pub trials: usize,
+    /// Configuration (`[reloc]`, `[tracker]`, `[keyframe]`, `[render]`).
+    pub config: Config,
+    /// Keep the sequence here (a temporary folder otherwise).
+    pub keep: Option<PathBuf>,
+}
+
+/// One trial's outcome.
+#[derive(Debug, Clone, Copy)]
+struct Trial {
+    wrong: usize,
+    sent: usize,
+    /// Wall time from the start (cold, hint) or from the jump (kidnap) to
+    /// the first correct pose, s; `None` when none came.
+    recovered_s: Option<f64>,
+}
+
+/// Runs the bench and prints its figures.
+pub fn run(options: &IntegrityOptions) -> Result<()> {
+    let tmp = tempfile_dir(options.keep.as_deref())?;
+    let root = tmp.join("seq");
+    let dataset = sequence(&root, options)?;
+    let truth = dataset
+        .ground_truth
+        .clone()
+        .context("the synthetic sequence has ground truth")?;
+    let mesh = Arc::new(
+        crate::map::load_obj(&root.join("map").join("map.obj")).context("loading the map")?,
+    );
+    let db = database(&mesh, &dataset, &truth, &options.config)?;
+    println!(
+        "integrity: preset {} seed {}: {} frames; database {} views, {} landmarks over the flown region",
+        options.preset,
+        options.seed,
+        dataset.len(),
+        db.entries.len(),
+        db.landmarks.len()
+    );
+    let mut rng = SplitMix64::new(options.seed ^ 0x1a7e_9e11);
+    let runner = Runner {
+        dataset: &dataset,
+        truth: &truth,
+        mesh: &mesh,
+        db: &db,
+        config: &options.config,
+    };
+    let cold = cold_starts(&runner, options.trials, &mut rng)?;
+    print("cold start (no pose)", &cold, 2.0);
+    let kidnap = kidnaps(&runner, options.trials, &mut rng)?;
+    print(
+        "kidnap (teleport > 1 m), camera time after the jump",
+        &kidnap,
+        1.0,
+    );
+    let hints = wrong_hints(&runner, options.trials, &mut rng)?;
+    print("wrong hint 1-3 m off", &hints, 2.0);
+    let all: Vec<Trial> = cold.iter().chain(&kidnap).chain(&hints).copied().collect();
+    let wrong: usize = all.iter().map(|t| t.wrong).sum();
+    let sent: usize = all.iter().map(|t| t.sent).sum();
+    println!(
+        "integrity: wrong poses sent {wrong} of {sent} over {} runs",
+        all.len()
+    );
+    if options.keep.is_none() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    Ok(())
+}
+
+fn tempfile_dir(keep: Option<&Path>) -> Result<PathBuf> {
+    let dir = match keep {
+        Some(dir) => dir.to_path_buf(),
+        None => std::env::temp_dir().join(format!("star-bench-integrity-{}", std::process::id())),
+    };
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    Ok(dir)
+}
+
+/// Writes the preset's sequence to `root` and opens it.
+fn sequence(root: &Path, options: &IntegrityOptions) -> Result<Dataset> {
+    let preset = Preset::by_name(&options.preset)
+        .with_context(|| format!("unknown preset `{}`", options.preset))?;
+    let sequence = SequenceOptions {
+        preset,
+        seed: options.seed,
+        frames: options.frames,
+        write_depth: false,
+    };
+    write_sequence(root, &sequence, &mut |_| {}).context("writing the sequence")?;
+    Dataset::open(root).context("opening the sequence")
+}
+
+/// The database over the region the sequence flies through, 0.5 m around
+/// it, at the sequence's mean height (the flight's height band).
+fn database(
+    mesh: &Mesh,
+    dataset: &Dataset,
+    truth: &Trajectory,
+    config: &Config,
+) -> Result<RelocDatabase> {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in &truth.poses {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p.translation.vector[k] as f32);
+            hi[k] = hi[k].max(p.translation.vector[k] as f32);
+        }
+    }
+    let mean_z =
+        truth.poses.iter().map(|p| p.translation.z).sum::<f64>() / truth.len().max(1) as f64;
+    let mut reloc = config.reloc.clone();
+    reloc.heights_m = vec![mean_z];
+    reloc.landmark_heights_m = vec![mean_z];
+    reloc.bounds_margin_m = 0.0;
+    let pad = 0.5;
+    let region = (
+        [lo[0] - pad, lo[1] - pad, (mean_z - 0.1) as f32],
+        [hi[0] + pad, hi[1] + pad, (mean_z + 0.1) as f32],
+    );
+    let mut renderer = CpuRenderer::new(Arc::new(mesh.clone())).context("CPU renderer")?;
+    let bar = indicatif::ProgressBar::new(0);
+    let db = build_database_in(
+        mesh,
+        dataset.camera(),
+        &mut renderer,
+        &reloc,
+        Some(region),
+        &mut |done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        },
+    )
+    .context("building the database")?;
+    bar.finish_and_clear();
+    Ok(db)
+}
+
+struct Runner<'a> {
+    dataset: &'a Dataset,
+    truth: &'a Trajectory,
+    mesh: &'a Arc<Mesh>,
+    db: &'a RelocDatabase,
+    config: &'a Config,
+}
+
+impl Runner<'_> {
+    /// Runs frames `order` of the sequence (truth to match), paced, from
+    /// `start`.
+    fn run(&self, order: &[usize], start: StartMode, hint: Option<Pose>) -> Result<OfflineReport> {
+        let mut ds = self.dataset.clone();
+        let stamps: Vec<f64> = self.dataset.frames.iter().map(|f| f.timestamp_s).collect();
+        let mut truth = Trajectory::default();
+        ds.frames = order
+            .iter()
+            .enumerate()
+            .map(|(k, &i)| {
+                let mut f = self.dataset.frames[i].clone();
+                f.path = self.dataset.root.join(&f.path);
+                f.timestamp_s = stamps[0] + k as f64 / 50.0;
+                truth.push(f.timestamp_s, self.truth.poses[i]);
+                f
+            })
+            .collect();
+        ds.ground_truth = Some(truth);
+        let renderer =
+            crate::render::select::make_renderer(self.config.render.renderer, self.mesh.clone())
+                .context("renderer")?;
+        let options = OfflineOptions {
+            world_from_camera_start: hint,
+            realtime: true,
+            relocalizer: Some(Relocalizer::new(
+                self.db.clone(),
+                &self.config.reloc,
+                ds.camera(),
+            )?),
+            start,
+            ..OfflineOptions::default()
+        };
+        Ok(localize_dataset(
+            &ds,
+            renderer,
+            self.config,
+            &options,
+            |_| {},
+        )?)
+    }
+}
+
+fn trial(report: &OfflineReport, recovered_s: Option<f64>) -> Trial {
+    let integrity = report.integrity.unwrap_or_default();
+    Trial {
+        wrong: integrity.wrong_poses,
+        sent: report.estimate.len(),
+        recovered_s,
+    }
+}
+
+/// Cold starts: 3 s excerpts from random frames, no pose given.
+fn cold_starts(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<Trial>> {
+    let n = runner.dataset.len();
+    let length = 150.min(n);
+    (0..trials)
+        .map(|_| {
+            let first = rng.below(n - length + 1);
+            let order: Vec<usize> = (first..first + length).collect();
+            let report = runner.run(&order, StartMode::Cold, None)?;
+            Ok(trial(&report, report.first_pose_wall_s))
+        })
+        .collect()
+}
+
+/// Kidnaps: 1 s tracked from a trusted start, then a jump to a random
+/// frame more than 1 m away, 2 s after it.
+fn kidnaps(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<Trial>> {
+    let n = runner.dataset.len();
+    let (before, after) = (50.min(n / 3), 100.min(n / 2));
+    let position = |i: usize| runner.truth.poses[i].translation.vector;
+    let mut out = Vec::with_capacity(trials);
+    for _ in 0..trials {
+        let a = rng.below(n - before);
+        let mut b = rng.below(n - after);
+        for _ in 0..100 {
+            if (position(b) - position(a + before - 1)).norm() > 1.0 {
+                break;
+            }
+            b = rng.below(n - after);
+        }
+        let order: Vec<usize> = (a..a + before).chain(b..b + after).collect();
+        let report = runner.run(&order, StartMode::Trusted, Some(runner.truth.poses[a]))?;
+        // The first pose after the jump, in frames at 50 Hz.
+        let jump_s = before as f64 / 50.0;
+        let first_stamp = report.tracked.first().map_or(0.0, |t| t.0);
+        let recovered = report
+            .tracked
+            .iter()
+            .find(|(t, sent)| *sent && t - first_stamp >= jump_s)
+            .map(|(t, _)| t - first_stamp - jump_s);
+        out.push(trial(&report, recovered));
+    }
+    Ok(out)
+}
+
+/// Wrong hints: 3 s excerpts from random frames, the start pose given 1 to
+/// 3 m away from the truth in a random horizontal direction.
+fn wrong_hints(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<Trial>> {
+    let n = runner.dataset.len();
+    let length = 150.min(n);
+    (0..trials)
+        .map(|_| {
+            let first = rng.below(n - length + 1);
+            let order: Vec<usize> = (first..first + length).collect();
+            let truth = runner.truth.poses[first];
+            let angle = rng.range(0.0, std::f64::consts::TAU);
+            let offset_m = rng.range(1.0, 3.0);
+            let shift = Vector3::new(angle.cos(), angle.sin(), 0.0) * offset_m;
+            let hint = Pose::from_parts(
+                Translation3::from(truth.translation.vector + shift),
+                truth.rotation,
+            );
+            let report = runner.run(&order, StartMode::Hint, Some(hint))?;
+            Ok(trial(&report, report.first_pose_wall_s))
+        })
+        .collect()
+}
+
+/// Prints one family of trials: wrong poses, how many recovered within
+/// `within_s`, and the recovery time's median and p95 over those that did.
+fn print(what: &str, trials: &[Trial], within_s: f64) {
+    let wrong: usize = trials.iter().map(|t| t.wrong).sum();
+    let sent: usize = trials.iter().map(|t| t.sent).sum();
+    let mut times: Vec<f64> = trials.iter().filter_map(|t| t.recovered_s).collect();
+    let in_time = times.iter().filter(|&&s| s <= within_s).count();
+    times.sort_by(f64::total_cmp);
+    let (median, _) = median_p99(&times);
+    let p95 = times
+        .get(((times.len() as f64 * 0.95).ceil() as usize).saturating_sub(1))
+        .copied()
+        .unwrap_or(f64::NAN);
+    println!(
+        "  {what}: {} runs, wrong poses sent {wrong} of {sent}; first correct pose within {within_s} s in {in_time} of {} ({:.0} %), never in {}; time to it median {median:.2} s, p95 {p95:.2} s",
+        trials.len(),
+        trials.len(),
+        100.0 * in_time as f64 / trials.len().max(1) as f64,
+        trials.len() - times.len()
+    );
+}

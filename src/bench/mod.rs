@@ -1,0 +1,8 @@
+//! Benchmark runners behind `star bench`: each builds its own synthetic
+//! data from a seed, runs the flight code on it and prints the figures it
+//! measured (never pass/fail). `cli` only parses their arguments.
+//!
+//! - [`integrity`]: wrong poses sent under faults, cold-start time, kidnap
+//!   recovery, wrong hints.
+
+pub mod integrity;
