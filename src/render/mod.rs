@@ -8,6 +8,14 @@
 //! Renderers take the mesh once at construction and render an ideal pinhole
 //! view (distortion is removed from camera frames instead). Pixel centers are
 //! at integer coordinates, as everywhere in `star`.
+//!
+//! Poses arrive as `f64` nalgebra and are rounded to `f32` glam once per
+//! render: [`glam::Mat4`] in the wgpu `View` uniform
+//! ([`gpu::projection::ViewUniform`]), [`glam::Affine3A`] / [`glam::Vec3A`]
+//! for the CPU rasterizer's vertex transform and clip planes. The rest of
+//! the CPU pipeline is not glam: projection and interpolation are scalar
+//! `f64` and edge functions fixed-point integers (results must not move),
+//! and clipped vertices keep `[f32; 3]` beside their gray and uv.
 
 use crate::geometry::{PinholeCamera, Pose};
 use crate::imgproc::ImageF32;

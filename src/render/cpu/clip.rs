@@ -69,8 +69,8 @@ impl Polygon {
         for i in 0..self.len {
             let a = &self.verts[i];
             let b = &self.verts[(i + 1) % self.len];
-            let da = view.plane_value(plane, a.p);
-            let db = view.plane_value(plane, b.p);
+            let da = view.plane_value(plane, a.p.into());
+            let db = view.plane_value(plane, b.p.into());
             let a_in = da >= 0.0;
             if a_in && n < MAX_POLY {
                 out[n] = *a;

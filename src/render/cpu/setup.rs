@@ -101,7 +101,7 @@ impl Chunk {
                 self.emit([p(0), p(1), p(2)], texture, view);
             } else {
                 let c = |k: usize| ClipVertex {
-                    p: view.camera_point(mesh.positions[idx[k]]),
+                    p: view.camera_point(mesh.positions[idx[k]]).into(),
                     gray: mesh.gray[idx[k]],
                     uv: uv_at(idx[k]),
                 };
@@ -112,7 +112,7 @@ impl Chunk {
                 }
                 let mut proj = [Projected::default(); MAX_POLY];
                 for (slot, cvx) in proj.iter_mut().zip(&poly.verts[..poly.len]) {
-                    let (sx, sy, inv_z) = view.project(cvx.p);
+                    let (sx, sy, inv_z) = view.project(cvx.p.into());
                     *slot = Projected {
                         sx,
                         sy,

@@ -8,6 +8,12 @@
 //! optical frame: the near plane, four guard-band planes (clipped against, so
 //! that fixed-point coordinates stay bounded) and four view planes (used only
 //! to cull triangles that cannot cover a pixel center).
+//!
+//! The pose (`f64`, nalgebra) becomes an `f32` [`Affine3A`] once per render;
+//! vertices are transformed as [`Vec3A`] (SIMD lanes). Projection to pixels
+//! stays scalar `f64`, as the fixed-point snapping needs.
+
+use glam::{Affine3A, Mat4, Vec3A, Vec4};
 
 use crate::geometry::{PinholeCamera, Pose};
 
@@ -58,10 +64,8 @@ pub(super) struct CamVertex {
 /// The world-to-camera transform and projection of one render.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct View {
-    /// Rotation of `camera_from_world`, row-major.
-    rot: [[f32; 3]; 3],
-    /// Translation of `camera_from_world`.
-    trans: [f32; 3],
+    /// `camera_from_world`, rounded to `f32` once per render.
+    camera_from_world: Affine3A,
     fx: f64,
     fy: f64,
     cx: f64,
@@ -70,9 +74,9 @@ pub(super) struct View {
     pub width: usize,
     /// Image height in pixels.
     pub height: usize,
-    /// Clip planes `[a, b, c, d]`: near, guard left/right/top/bottom, view
-    /// left/right/top/bottom.
-    pub planes: [[f32; 4]; 9],
+    /// Clip planes `(a, b, c, d)` as `x y z w`: near, guard
+    /// left/right/top/bottom, view left/right/top/bottom.
+    pub planes: [Vec4; 9],
     /// The planes 1..9 as pixel bounds for points in front of the near
     /// plane: guard `u_min u_max v_min v_max`, then view likewise.
     bounds: [f64; 8],
@@ -81,15 +85,10 @@ pub(super) struct View {
 impl View {
     /// The view of `camera` (distortion ignored) at `world_from_camera`.
     pub fn new(world_from_camera: &Pose, camera: &PinholeCamera) -> Self {
-        let camera_from_world = world_from_camera.inverse();
-        let r = camera_from_world.rotation.to_rotation_matrix();
-        let m = r.matrix();
-        let t = camera_from_world.translation.vector;
-        let rot = [
-            [m[(0, 0)] as f32, m[(0, 1)] as f32, m[(0, 2)] as f32],
-            [m[(1, 0)] as f32, m[(1, 1)] as f32, m[(1, 2)] as f32],
-            [m[(2, 0)] as f32, m[(2, 1)] as f32, m[(2, 2)] as f32],
-        ];
+        let camera_from_world = world_from_camera.inverse().to_homogeneous();
+        let camera_from_world = Affine3A::from_mat4(Mat4::from_cols_array_2d(
+            &camera_from_world.cast::<f32>().into(),
+        ));
         let (fx, fy, cx, cy) = (camera.fx, camera.fy, camera.cx, camera.cy);
         let (w, h) = (camera.width as f64, camera.height as f64);
         let g = GUARD_PX;
@@ -97,19 +96,18 @@ impl View {
         // u <= hi  <=>  -fx x + (hi - cx) z >= 0; likewise for v.
         let side = |lo_u: f64, hi_u: f64, lo_v: f64, hi_v: f64| {
             [
-                [fx as f32, 0.0, (cx - lo_u) as f32, 0.0],
-                [-fx as f32, 0.0, (hi_u - cx) as f32, 0.0],
-                [0.0, fy as f32, (cy - lo_v) as f32, 0.0],
-                [0.0, -fy as f32, (hi_v - cy) as f32, 0.0],
+                Vec4::new(fx as f32, 0.0, (cx - lo_u) as f32, 0.0),
+                Vec4::new(-fx as f32, 0.0, (hi_u - cx) as f32, 0.0),
+                Vec4::new(0.0, fy as f32, (cy - lo_v) as f32, 0.0),
+                Vec4::new(0.0, -fy as f32, (hi_v - cy) as f32, 0.0),
             ]
         };
         let guard = side(-g, w - 1.0 + g, -g, h - 1.0 + g);
         // One pixel of margin beyond the outermost pixel centers.
         let view = side(-1.0, w, -1.0, h);
-        let near = [0.0, 0.0, 1.0, -NEAR_M];
+        let near = Vec4::new(0.0, 0.0, 1.0, -NEAR_M);
         Self {
-            rot,
-            trans: [t.x as f32, t.y as f32, t.z as f32],
+            camera_from_world,
             fx,
             fy,
             cx,
@@ -125,33 +123,29 @@ impl View {
 
     /// Signed distance-like value of `p` to plane `i` (negative: outside).
     #[inline]
-    pub fn plane_value(&self, i: usize, p: [f32; 3]) -> f32 {
+    pub fn plane_value(&self, i: usize, p: Vec3A) -> f32 {
         let q = self.planes[i];
-        q[0] * p[0] + q[1] * p[1] + q[2] * p[2] + q[3]
+        Vec3A::from_vec4(q).dot(p) + q.w
     }
 
     /// A world point in the camera frame (f32, bit-identical on every call).
     #[inline]
-    pub fn camera_point(&self, p_world: [f32; 3]) -> [f32; 3] {
-        let r = &self.rot;
-        [
-            r[0][0] * p_world[0] + r[0][1] * p_world[1] + r[0][2] * p_world[2] + self.trans[0],
-            r[1][0] * p_world[0] + r[1][1] * p_world[1] + r[1][2] * p_world[2] + self.trans[1],
-            r[2][0] * p_world[0] + r[2][1] * p_world[1] + r[2][2] * p_world[2] + self.trans[2],
-        ]
+    pub fn camera_point(&self, p_world: [f32; 3]) -> Vec3A {
+        self.camera_from_world
+            .transform_point3a(Vec3A::from_array(p_world))
     }
 
     /// Transforms a world point into the camera frame and classifies it.
     #[inline]
     pub fn vertex(&self, p_world: [f32; 3]) -> CamVertex {
         let p = self.camera_point(p_world);
-        if !(p[0].is_finite() && p[1].is_finite() && p[2].is_finite()) {
+        if !p.is_finite() {
             return CamVertex {
                 code: OUT_INVALID,
                 ..CamVertex::default()
             };
         }
-        if p[2] < NEAR_M {
+        if p.z < NEAR_M {
             // Behind the near plane: the plane tests, in homogeneous form,
             // are valid for any z (also behind the camera).
             let mut code = 0u32;
@@ -165,9 +159,9 @@ impl View {
         }
         // In front: the same tests on the projected pixel, which is needed
         // anyway (cheaper than eight plane evaluations).
-        let inv_z = 1.0 / f64::from(p[2]);
-        let u = self.fx * f64::from(p[0]) * inv_z + self.cx;
-        let v = self.fy * f64::from(p[1]) * inv_z + self.cy;
+        let inv_z = 1.0 / f64::from(p.z);
+        let u = self.fx * f64::from(p.x) * inv_z + self.cx;
+        let v = self.fy * f64::from(p.y) * inv_z + self.cy;
         let b = &self.bounds;
         let code = u32::from(u < b[0]) << 1
             | u32::from(u > b[1]) << 2
@@ -194,10 +188,10 @@ impl View {
     /// fixed-point screen coordinates and `1/z`. The single projection used
     /// for every vertex, so shared vertices snap identically.
     #[inline]
-    pub fn project(&self, p: [f32; 3]) -> (i32, i32, f32) {
-        let inv_z = 1.0 / f64::from(p[2]);
-        let u = self.fx * f64::from(p[0]) * inv_z + self.cx;
-        let v = self.fy * f64::from(p[1]) * inv_z + self.cy;
+    pub fn project(&self, p: Vec3A) -> (i32, i32, f32) {
+        let inv_z = 1.0 / f64::from(p.z);
+        let u = self.fx * f64::from(p.x) * inv_z + self.cx;
+        let v = self.fy * f64::from(p.y) * inv_z + self.cy;
         (to_fixed(u), to_fixed(v), inv_z as f32)
     }
 }

@@ -7,12 +7,14 @@
 //! `Depth32Float` z-buffer (`Greater` wins, cleared to 0).
 
 use super::frame::{COLOR_FORMAT, DEPTH_FORMAT};
+use super::projection::VIEW_UNIFORM_BYTES;
 use super::upload::VERTEX_LAYOUT;
 
 /// The WGSL source of the pipeline.
 const SHADER: &str = include_str!("../../../shaders/mesh.wgsl");
 
-/// Layout of group 0: the 64-byte `View` uniform read by the vertex shader.
+/// Layout of group 0: the 64-byte `View` uniform read by the vertex shader
+/// ([`super::projection::ViewUniform`]).
 pub fn view_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
         label: Some("star view"),
@@ -22,7 +24,7 @@ pub fn view_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
             ty: wgpu::BindingType::Buffer {
                 ty: wgpu::BufferBindingType::Uniform,
                 has_dynamic_offset: false,
-                min_binding_size: wgpu::BufferSize::new(64),
+                min_binding_size: wgpu::BufferSize::new(VIEW_UNIFORM_BYTES),
             },
             count: None,
         }],

@@ -14,7 +14,13 @@
 //!   0. Depth32Float keeps nearly constant relative precision this way.
 //! - `w_clip = z_camera`, so the shader takes the metric depth it writes to
 //!   the R32Float target straight from `clip.w`.
+//!
+//! The matrix is composed in `f64` (nalgebra, as the pose is) and converted
+//! once to the `f32` [`glam::Mat4`] of [`ViewUniform`], the bytes the vertex
+//! shader reads.
 
+use bytemuck::{Pod, Zeroable};
+use glam::Mat4;
 use nalgebra::Matrix4;
 
 use crate::geometry::{PinholeCamera, Pose};
@@ -37,20 +43,34 @@ pub fn clip_from_camera(camera: &PinholeCamera, near_m: f64) -> Matrix4<f64> {
     m
 }
 
-/// `clip_from_world` for a camera at `world_from_camera`, as the
-/// column-major `f32` array WGSL's `mat4x4<f32>` expects.
-pub fn clip_from_world_f32(
-    world_from_camera: &Pose,
-    camera: &PinholeCamera,
-    near_m: f64,
-) -> [f32; 16] {
+/// The `View` uniform of `shaders/mesh.wgsl` (group 0, binding 0), byte
+/// for byte: one `mat4x4<f32>`, column-major, 64 bytes.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct ViewUniform {
+    /// `clip_from_world`: world point `[x, y, z, 1]` to clip space.
+    pub clip_from_world: Mat4,
+}
+
+/// Size of [`ViewUniform`] in bytes, as the bind group layout declares it.
+pub const VIEW_UNIFORM_BYTES: u64 = std::mem::size_of::<ViewUniform>() as u64;
+const _: () = assert!(VIEW_UNIFORM_BYTES == 64, "WGSL `View` is one mat4x4<f32>");
+
+impl ViewUniform {
+    /// The uniform for a camera at `world_from_camera`.
+    pub fn new(world_from_camera: &Pose, camera: &PinholeCamera, near_m: f64) -> Self {
+        Self {
+            clip_from_world: clip_from_world(world_from_camera, camera, near_m),
+        }
+    }
+}
+
+/// `clip_from_world` for a camera at `world_from_camera`: composed in `f64`,
+/// then rounded once to `f32`.
+pub fn clip_from_world(world_from_camera: &Pose, camera: &PinholeCamera, near_m: f64) -> Mat4 {
     let camera_from_world = world_from_camera.inverse().to_homogeneous();
     let m = clip_from_camera(camera, near_m) * camera_from_world;
-    let mut out = [0.0f32; 16];
-    for (o, v) in out.iter_mut().zip(m.as_slice()) {
-        *o = *v as f32;
-    }
-    out
+    Mat4::from_cols_array_2d(&m.cast::<f32>().into())
 }
 
 #[cfg(test)]
@@ -127,8 +147,8 @@ mod tests {
         );
         let p_camera = Vector3::new(0.2, 0.1, 2.5);
         let p_world = world_from_camera * nalgebra::Point3::from(p_camera);
-        let m = clip_from_world_f32(&world_from_camera, &camera, NEAR_M);
-        let m = Matrix4::from_column_slice(&m.map(f64::from));
+        let m = clip_from_world(&world_from_camera, &camera, NEAR_M);
+        let m = Matrix4::from_column_slice(&m.to_cols_array().map(f64::from));
         let clip = m * p_world.to_homogeneous();
         assert!((clip.w - p_camera.z).abs() < 1e-5);
         let (x, _, _) = to_framebuffer(clip, &camera);

@@ -12,7 +12,7 @@ use std::time::Duration;
 use super::adapter::{self, AdapterClass, AdapterPreference};
 use super::frame::{FrameTargets, MapStatus};
 use super::pipeline;
-use super::projection::{clip_from_world_f32, NEAR_M};
+use super::projection::{ViewUniform, NEAR_M, VIEW_UNIFORM_BYTES};
 use super::upload::{self, GpuMesh, TextureFormat};
 use super::GpuError;
 use crate::geometry::{PinholeCamera, Pose};
@@ -181,7 +181,7 @@ impl GpuRenderer {
         let texture_layout = upload::texture_layout(&device);
         let view_uniform = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("star view uniform"),
-            size: 64,
+            size: VIEW_UNIFORM_BYTES,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -289,12 +289,9 @@ impl GpuRenderer {
         let frame = self.frame.insert(frame);
         let slot = frame.free_slot().ok_or(GpuError::Busy)?;
 
-        let clip_from_world = clip_from_world_f32(world_from_camera, camera, NEAR_M);
-        self.queue.write_buffer(
-            &self.view_uniform,
-            0,
-            bytemuck::cast_slice(&clip_from_world),
-        );
+        let view = ViewUniform::new(world_from_camera, camera, NEAR_M);
+        self.queue
+            .write_buffer(&self.view_uniform, 0, bytemuck::bytes_of(&view));
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
