@@ -3,6 +3,8 @@
 //! SIGINT/SIGTERM, reconnecting when the camera fails.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -11,6 +13,7 @@ use tracing::{info, warn};
 use crate::camera::{open_source, run_camera, RunnerSettings, SourceUri};
 use crate::config::Config;
 use crate::ipc::{create_node, load_iceoryx_config, FramePublisher};
+use crate::service::Service;
 
 /// Options of `star camera`.
 #[derive(Debug, clap::Args)]
@@ -62,8 +65,22 @@ pub fn run(args: &CameraArgs) -> Result<()> {
         load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
     let node = create_node("star-camera", &iox).context("iceoryx2 node")?;
     let mut publisher = FramePublisher::new(&node).context("frame publisher")?;
+    // systemd: READY=1 once the publisher is up (star-camera.service is
+    // Type=notify), and WATCHDOG=1 while the runner loop turns: it asks
+    // `stop` between frames and while it waits to reconnect a camera.
+    let shutdown = Arc::new(AtomicBool::new(false));
+    let service = Service::start(shutdown.clone()).context("service thread")?;
+    let watchdog = service.watchdog();
+    service.ready();
     info!(source = %uri, "camera process started");
-    let stop = || node.wait(Duration::ZERO).is_err();
+    let stop = || {
+        watchdog.feed();
+        let stopping = node.wait(Duration::ZERO).is_err();
+        if stopping {
+            shutdown.store(true, Ordering::Relaxed);
+        }
+        stopping
+    };
     let runner = RunnerSettings {
         max_frames: args.frames,
         ..RunnerSettings::default()
@@ -83,5 +100,6 @@ pub fn run(args: &CameraArgs) -> Result<()> {
         opens = summary.opens,
         "camera process stopped"
     );
+    service.stop();
     Ok(())
 }
