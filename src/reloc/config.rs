@@ -61,7 +61,7 @@ pub struct RelocConfig {
     pub min_correlation: f32,
     /// Acceptance gate: smallest correlation over the same levels after
     /// trimming the points that do not fit the intensity relation
-    /// ([`super::recover::correlations`]). Correct poses whose plain
+    /// ([`crate::track::correlations`]). Correct poses whose plain
     /// correlation an occluder drops to 0.5-0.67 kept 0.85 and more on the
     /// bench (two scenes, 400 queries); an accepted pose 8.5 cm off (an
     /// occluder filling the view) reached 0.80. A wrong pose on a
