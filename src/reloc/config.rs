@@ -8,6 +8,8 @@
 use crate::settings::SettingError;
 use serde::{Deserialize, Serialize};
 
+use super::search::MAX_TOP_K;
+
 /// `[reloc]`: database grid, search and acceptance gate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -293,13 +295,13 @@ impl RelocConfig {
             ),
             (
                 "top_k",
-                (1..=64).contains(&self.top_k),
-                format!("expected 1..=64, found {}", self.top_k),
+                (1..=MAX_TOP_K as u32).contains(&self.top_k),
+                format!("expected 1..={MAX_TOP_K}, found {}", self.top_k),
             ),
             (
                 "rank_candidates",
-                self.rank_candidates <= 64,
-                format!("expected 0..=64, found {}", self.rank_candidates),
+                self.rank_candidates <= MAX_TOP_K as u32,
+                format!("expected 0..={MAX_TOP_K}, found {}", self.rank_candidates),
             ),
             (
                 "search_radius_m",

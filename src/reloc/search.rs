@@ -75,7 +75,9 @@ impl Default for Candidate {
 /// The query descriptors at every shift of [`QUERY_SHIFTS_PX`].
 pub type Query = [Descriptor; QUERY_SHIFTS_PX.len()];
 
-/// Most candidates one search returns.
+/// Most candidates one search returns: the largest `top_k` and
+/// `rank_candidates` [`RelocConfig::validate`] accepts, and the capacity of
+/// the candidate lists.
 pub const MAX_TOP_K: usize = 64;
 
 /// [`Ranked::index`] of the candidate found from the landmarks (not a
@@ -101,8 +103,7 @@ pub struct Relocalizer {
     /// level the frame is aligned on is filled).
     coarse_keyframe: Box<Keyframe>,
     /// The last [`Self::search_ranked`]'s candidates.
-    candidates: [Candidate; MAX_TOP_K],
-    n_ranked: usize,
+    candidates: heapless::Vec<Candidate, MAX_TOP_K>,
     landmarks: LandmarkLocator,
 }
 
@@ -132,8 +133,7 @@ impl Relocalizer {
                     ..TrackerConfig::default()
                 },
             )),
-            candidates: [Candidate::default(); MAX_TOP_K],
-            n_ranked: 0,
+            candidates: heapless::Vec::new(),
         })
     }
 
@@ -230,21 +230,26 @@ impl Relocalizer {
         let m = (self.config.rank_candidates as usize).min(MAX_TOP_K);
         if m <= top_k || self.db.coarse_points.is_empty() || frame.is_empty() {
             let n = self.search(query, region).len();
+            self.candidates.clear();
             for i in 0..n {
                 let ranked = self.best[i];
-                self.candidates[i] = Candidate {
+                let candidate = Candidate {
                     ranked,
                     world_from_camera: self.db.entries[ranked.index as usize].world_from_camera,
                     yaw_rad: Some(self.shift_yaw_rad(ranked.shift)),
                     score: f32::NEG_INFINITY,
                 };
+                // Never full: a search returns at most MAX_TOP_K.
+                if self.candidates.push(candidate).is_err() {
+                    break;
+                }
             }
-            self.n_ranked = n;
-            return &self.candidates[..n];
+            return &self.candidates;
         }
         let n = self.index.top_k(query, region, m, &mut self.best);
         let level = frame_level(&self.camera, frame.len() - 1);
         let coarse = coarse_camera(&self.camera);
+        self.candidates.clear();
         for i in 0..n {
             let ranked = self.best[i];
             let world_from_entry = self.db.entries[ranked.index as usize].world_from_camera;
@@ -283,8 +288,12 @@ impl Relocalizer {
                     }
                 }
             }
-            self.candidates[i] = best;
+            // Never full: a search returns at most MAX_TOP_K.
+            if self.candidates.push(best).is_err() {
+                break;
+            }
         }
+        let n = self.candidates.len();
         // Insertion sort (no allocation), best first; ties keep the
         // Hamming order.
         for i in 1..n {
@@ -314,8 +323,8 @@ impl Relocalizer {
                 break;
             }
         }
-        self.n_ranked = n;
-        &self.candidates[..kept]
+        self.candidates.truncate(kept);
+        &self.candidates
     }
 
     /// Hamming distance of the `rank`-th candidate of the last search.
