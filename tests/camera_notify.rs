@@ -23,7 +23,14 @@ fn camera_sends_ready_and_watchdog() {
         .set_read_timeout(Some(Duration::from_millis(50)))
         .unwrap();
     let mut camera = Command::new(env!("CARGO_BIN_EXE_star"))
-        .args(["camera", "--source", "pattern:64x48", "--frames", "100", "--config"])
+        .args([
+            "camera",
+            "--source",
+            "pattern:64x48",
+            "--frames",
+            "100",
+            "--config",
+        ])
         .arg(&config)
         .env("NOTIFY_SOCKET", &socket_path)
         .env("WATCHDOG_USEC", "400000")
@@ -47,12 +54,17 @@ fn camera_sends_ready_and_watchdog() {
     }
     let status = camera.wait().expect("camera exits");
     assert!(status.success(), "star camera failed: {status}");
-    let ready = messages.iter().position(|m| m.lines().any(|l| l == "READY=1"));
+    let ready = messages
+        .iter()
+        .position(|m| m.lines().any(|l| l == "READY=1"));
     let ready = ready.unwrap_or_else(|| panic!("no READY=1 in {messages:?}"));
     let pings = messages[ready..]
         .iter()
         .filter(|m| m.lines().any(|l| l == "WATCHDOG=1"))
         .count();
     // 2 s of frames with a 0.4 s watchdog: pings every 0.2 s.
-    assert!(pings >= 3, "{pings} watchdog pings after READY=1: {messages:?}");
+    assert!(
+        pings >= 3,
+        "{pings} watchdog pings after READY=1: {messages:?}"
+    );
 }

@@ -33,8 +33,8 @@ use crate::geometry::look::camera_rotation;
 use crate::geometry::Pose;
 use crate::imgproc::{ImageF32, ImageU8};
 use crate::offline::median_p99;
-use crate::reloc::recover::{Candidate, Query, Ranked, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K};
 use crate::reloc::{build_database, try_candidate, Relocalizer, SearchRegion};
+use crate::reloc::{Candidate, Query, Ranked, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K};
 use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderedView, Renderer};
 use crate::rng::SplitMix64;
@@ -377,7 +377,7 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                         let a = aligner.align(&kf, &pyramid, &camera, Pose::identity());
                         let q = a.quality;
                         let corr = |level| {
-                            crate::reloc::recover::correlations(
+                            crate::track::correlations(
                                 &kf,
                                 &pyramid,
                                 &camera,
@@ -386,7 +386,7 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
                             )
                         };
                         let (c0, c1, c2) = (corr(0), corr(1), corr(2));
-                        let trimmed = |c: Option<crate::reloc::recover::Correlations>| {
+                        let trimmed = |c: Option<crate::track::Correlations>| {
                             c.map_or(f32::NAN, |c| c.trimmed)
                         };
                         let off = a.camera_from_keyframe.translation.vector.norm();

@@ -17,12 +17,12 @@
 //! fool the gate on consecutive frames.
 
 use crate::geometry::Pose;
-use crate::reloc::recover::start_yaws_rad;
-use crate::reloc::recover::{correlation, passes_gate, Candidate, MAX_TOP_K};
 use crate::reloc::RelocConfig;
+use crate::reloc::{passes_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict,
 };
+use crate::track::correlation::correlation;
 use crate::track::AlignQuality;
 
 use super::worker::RenderRequest;

@@ -8,6 +8,8 @@
 use crate::settings::SettingError;
 use serde::{Deserialize, Serialize};
 
+use super::search::MAX_TOP_K;
+
 /// `[reloc]`: database grid, search and acceptance gate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -61,7 +63,7 @@ pub struct RelocConfig {
     pub min_correlation: f32,
     /// Acceptance gate: smallest correlation over the same levels after
     /// trimming the points that do not fit the intensity relation
-    /// ([`super::recover::correlations`]). Correct poses whose plain
+    /// ([`crate::track::correlations`]). Correct poses whose plain
     /// correlation an occluder drops to 0.5-0.67 kept 0.85 and more on the
     /// bench (two scenes, 400 queries); an accepted pose 8.5 cm off (an
     /// occluder filling the view) reached 0.80. A wrong pose on a
@@ -293,13 +295,13 @@ impl RelocConfig {
             ),
             (
                 "top_k",
-                (1..=64).contains(&self.top_k),
-                format!("expected 1..=64, found {}", self.top_k),
+                (1..=MAX_TOP_K as u32).contains(&self.top_k),
+                format!("expected 1..={MAX_TOP_K}, found {}", self.top_k),
             ),
             (
                 "rank_candidates",
-                self.rank_candidates <= 64,
-                format!("expected 0..=64, found {}", self.rank_candidates),
+                self.rank_candidates <= MAX_TOP_K as u32,
+                format!("expected 0..={MAX_TOP_K}, found {}", self.rank_candidates),
             ),
             (
                 "search_radius_m",

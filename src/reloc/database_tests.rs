@@ -8,7 +8,8 @@ use super::coarse::CoarsePoint;
 use super::database::{RelocDatabase, RelocDbError, RelocEntry};
 use super::descriptor::Descriptor;
 use super::landmarks::{Landmark, LANDMARK_LEN};
-use super::recover::{Ranked, SearchIndex, SearchRegion, MAX_TOP_K};
+use super::region::SearchRegion;
+use super::search::{Ranked, SearchIndex, MAX_TOP_K};
 use crate::geometry::{PinholeCamera, Pose};
 
 fn camera() -> PinholeCamera {

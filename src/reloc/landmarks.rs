@@ -31,7 +31,7 @@ use super::config::RelocConfig;
 use super::descriptor::Descriptor;
 use super::features::{best_two_batch, FeatureExtractor, FeatureParams};
 use super::pnp::{PnpParams, RansacPnp};
-use super::recover::SearchRegion;
+use super::region::SearchRegion;
 
 /// Bytes per landmark in the database file: x, y, z (f32) and the
 /// descriptor (4 x u64), little-endian.

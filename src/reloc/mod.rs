@@ -12,9 +12,13 @@
 //! - [`features`]: FAST corners and 256-bit upright BRIEF descriptors on an
 //!   image pyramid, and brute-force Hamming matching.
 //! - [`pnp`]: P3P (Lambda Twist) in RANSAC, refined on the inliers.
-//! - [`recover`]: the online side: radius-bounded Hamming search and the
-//!   strict acceptance gate; the STAR loop ([`crate::localizer`]) renders
-//!   and aligns the candidates.
+//! - The online side; the STAR loop ([`crate::localizer`]) renders and
+//!   aligns the candidates:
+//!   - [`region`]: where to search (near the last position, or everywhere).
+//!   - [`search`]: radius-bounded Hamming search and the ranking of the
+//!     candidates by coarse alignment.
+//!   - [`verify`]: the strict acceptance gate a rendered candidate passes
+//!     (its correlation test is [`crate::track::correlation`]).
 //! - [`config`]: the `[reloc]` section.
 
 pub mod coarse;
@@ -25,7 +29,9 @@ pub mod features;
 pub mod grid;
 pub mod landmarks;
 pub mod pnp;
-pub mod recover;
+pub mod region;
+pub mod search;
+pub mod verify;
 
 #[cfg(test)]
 mod database_tests;
@@ -34,4 +40,8 @@ pub use config::RelocConfig;
 pub use database::{map_fingerprint, RelocDatabase, RelocDbError, RelocEntry};
 pub use descriptor::{Descriptor, Thumbnailer, THUMB_H, THUMB_W};
 pub use grid::{build_database, build_database_in, BuildError};
-pub use recover::{try_candidate, verify_candidate, Relocalizer, SearchRegion, Verdict, Verified};
+pub use region::SearchRegion;
+pub use search::{
+    Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K,
+};
+pub use verify::{passes_gate, start_yaws_rad, try_candidate, verify_candidate, Verdict, Verified};

@@ -9,9 +9,12 @@
 //!   and an affine or median-offset illumination model; quality and
 //!   covariance.
 //! - [`normal_eq`]: fixed-size normal equations.
+//! - [`correlation`]: normalized cross-correlation of keyframe points with
+//!   an aligned frame (the lost test and relocalization's gate).
 
 pub mod align;
 pub mod config;
+pub mod correlation;
 pub mod keyframe;
 pub mod normal_eq;
 pub mod pyramid;
@@ -21,6 +24,7 @@ mod tests;
 
 pub use align::{AlignQuality, Aligner, Alignment, MAX_LEVELS};
 pub use config::{IlluminationModel, TrackerConfig};
+pub use correlation::{correlations, min_correlations, Correlations};
 pub use keyframe::{KeyPoint, Keyframe, KeyframeLevel};
 pub use pyramid::Pyramid;
 

@@ -1,0 +1,247 @@
+//! Normalized cross-correlation between a keyframe's points and a frame
+//! aligned to it: the figure that tells a right pose from a wrong one on a
+//! look-alike surface. The tracker's lost test and relocalization's
+//! acceptance gate both use it.
+//!
+//! Takes a prepared [`Keyframe`], the frame's [`Pyramid`], the camera and
+//! the aligned `camera_from_keyframe` pose; gives the zero-mean normalized
+//! cross-correlation at one pyramid level ([`correlation`]), that figure
+//! with its version trimmed of the points an occluder covers
+//! ([`correlations`]), and the smallest of both over levels 0, 1 and 2
+//! ([`min_correlations`]). Allocates nothing.
+
+use nalgebra::Vector3;
+
+use crate::geometry::{PinholeCamera, Pose};
+
+use super::{Keyframe, KeyframeLevel, Pyramid};
+
+/// The smallest [`correlations`] over pyramid levels 0, 1 and 2 (each
+/// figure on its own); `None` when level 0 or 1 cannot be evaluated.
+pub fn min_correlations(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+) -> Option<Correlations> {
+    let mut out: Option<Correlations> = None;
+    for level in 0..3 {
+        match correlations(keyframe, frame, camera, camera_from_keyframe, level) {
+            Some(c) => {
+                out = Some(out.map_or(c, |o| Correlations {
+                    all: o.all.min(c.all),
+                    trimmed: o.trimmed.min(c.trimmed),
+                    kept: o.kept.min(c.kept),
+                }));
+            }
+            None if level < 2 => return None,
+            None => {}
+        }
+    }
+    out
+}
+
+/// Zero-mean normalized cross-correlation between the keyframe points of
+/// pyramid level `level` and the frame intensities where they project at
+/// `camera_from_keyframe`; `None` with fewer than 50 visible points. A wrong
+/// pose on a look-alike surface can fit an affine photometric model with
+/// small residuals; it does not correlate.
+pub fn correlation(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+    level: usize,
+) -> Option<f32> {
+    let (kl, cam) = level_of(keyframe, frame, camera, level)?;
+    let fit = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None)?;
+    Some(fit.ncc)
+}
+
+/// The keyframe's points of `level` and the camera scaled to it; `None`
+/// when the keyframe or the frame lacks the level.
+fn level_of<'k>(
+    keyframe: &'k Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    level: usize,
+) -> Option<(&'k KeyframeLevel, PinholeCamera)> {
+    let kl = keyframe.levels.get(level)?;
+    (level < frame.len()).then(|| (kl, camera.scaled_to_level(level as u32)))
+}
+
+/// What [`correlations`] measured.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Correlations {
+    /// Over every visible point ([`correlation`]).
+    pub all: f32,
+    /// Over the points that fit the affine intensity relation (trimmed
+    /// four times at 2.5 standard deviations of the refitted relation; an
+    /// object over a third of the view needs three or four): what is left when an
+    /// object that is not in the map covers part of the view. A wrong pose
+    /// on a low-contrast look-alike fits every point loosely and stays low.
+    pub trimmed: f32,
+    /// Fraction of the visible points the trimming kept.
+    pub kept: f32,
+}
+
+/// [`correlation`] together with its trimmed version.
+pub fn correlations(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+    level: usize,
+) -> Option<Correlations> {
+    let (kl, cam) = level_of(keyframe, frame, camera, level)?;
+    let all = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None)?;
+    let mut trimmed = all;
+    for _ in 0..4 {
+        let limit = (trimmed.slope, trimmed.offset, 2.5 * trimmed.sigma);
+        match ncc_pass(kl, frame, &cam, level, camera_from_keyframe, Some(limit)) {
+            Some(t) => trimmed = t,
+            None => break,
+        }
+    }
+    Some(Correlations {
+        all: all.ncc,
+        trimmed: trimmed.ncc,
+        kept: trimmed.n as f32 / all.n.max(1) as f32,
+    })
+}
+
+/// One correlation pass and the affine fit `frame = slope * keyframe + offset`.
+#[derive(Debug, Clone, Copy)]
+struct NccFit {
+    n: usize,
+    ncc: f32,
+    slope: f64,
+    offset: f64,
+    /// Standard deviation of the fit's residual, gray levels.
+    sigma: f64,
+}
+
+/// Correlation over the visible points of `kl`, only those within
+/// `limit.2` of the fit `(slope, offset) = (limit.0, limit.1)` when given;
+/// `None` with fewer than 50 points or no variance.
+fn ncc_pass(
+    kl: &KeyframeLevel,
+    frame: &Pyramid,
+    cam: &PinholeCamera,
+    level: usize,
+    camera_from_keyframe: &Pose,
+    limit: Option<(f64, f64, f64)>,
+) -> Option<NccFit> {
+    let image = frame.level(level);
+    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0f64, 0f64, 0f64, 0f64, 0f64);
+    for kp in &kl.points {
+        let p = Vector3::new(
+            kp.p_keyframe[0] as f64,
+            kp.p_keyframe[1] as f64,
+            kp.p_keyframe[2] as f64,
+        );
+        let Some(uv) = cam.project(&(camera_from_keyframe * nalgebra::Point3::from(p)).coords)
+        else {
+            continue;
+        };
+        let Some(v) = image.bilinear(uv.x as f32, uv.y as f32) else {
+            continue;
+        };
+        let (a, b) = (kp.gray as f64, v as f64);
+        if let Some((slope, offset, max)) = limit {
+            if (b - (slope * a + offset)).abs() > max {
+                continue;
+            }
+        }
+        n += 1;
+        sa += a;
+        sb += b;
+        saa += a * a;
+        sbb += b * b;
+        sab += a * b;
+    }
+    if n < 50 {
+        return None;
+    }
+    let nf = n as f64;
+    let cov = sab - sa * sb / nf;
+    let va = saa - sa * sa / nf;
+    let vb = sbb - sb * sb / nf;
+    if !(va > 0.0 && vb > 0.0) {
+        return None;
+    }
+    let slope = cov / va;
+    Some(NccFit {
+        n,
+        ncc: (cov / (va * vb).sqrt()) as f32,
+        slope,
+        offset: (sb - slope * sa) / nf,
+        sigma: ((vb - slope * cov) / nf).max(1e-6).sqrt(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imgproc::ImageF32;
+    use crate::render::RenderedView;
+    use crate::track::TrackerConfig;
+
+    fn texture(x: usize, y: usize, phase: f32) -> f32 {
+        128.0 + 50.0 * ((x as f32 * 0.31 + phase).sin() + (y as f32 * 0.23 - phase).cos())
+    }
+
+    /// A keyframe of a textured fronto-parallel plane, and a frame of the
+    /// same view with `edit` applied to its pixels.
+    fn setup(edit: impl Fn(usize, usize, f32) -> f32) -> (Keyframe, Pyramid, PinholeCamera) {
+        let camera = PinholeCamera::new(160, 128, 120.0, 120.0, 79.5, 63.5);
+        let config = TrackerConfig {
+            pyramid_levels: 3,
+            ..TrackerConfig::default()
+        };
+        let mut view = RenderedView::for_camera(&camera);
+        let mut frame = ImageF32::new(160, 128, 0.0);
+        for y in 0..128 {
+            for x in 0..160 {
+                let v = texture(x, y, 0.0);
+                view.gray.row_mut(y)[x] = v;
+                frame.row_mut(y)[x] = edit(x, y, v);
+            }
+        }
+        view.depth_m = ImageF32::new(160, 128, 2.0);
+        let mut keyframe = Keyframe::new(&camera, &config);
+        keyframe.prepare(&view, Pose::identity(), 1, &config);
+        let mut pyramid = Pyramid::new(160, 128, 3);
+        pyramid.fill_from_f32(&frame);
+        (keyframe, pyramid, camera)
+    }
+
+    #[test]
+    fn trimming_sees_through_an_occluder_but_not_a_wrong_view() {
+        // A gain change and an object with its own texture over the left
+        // third.
+        let (kf, frame, camera) = setup(|x, y, v| {
+            if x < 53 {
+                texture(y, x, 2.9)
+            } else {
+                0.8 * v + 10.0
+            }
+        });
+        let c = correlations(&kf, &frame, &camera, &Pose::identity(), 0).expect("occluded");
+        assert!(c.all < 0.8, "{c:?}");
+        assert!(c.trimmed > 0.95, "{c:?}");
+        assert!((0.5..0.8).contains(&c.kept), "{c:?}");
+        assert_eq!(
+            correlation(&kf, &frame, &camera, &Pose::identity(), 0),
+            Some(c.all)
+        );
+        // Another texture altogether: trimming does not make it correlate.
+        let (kf, frame, camera) = setup(|x, y, _| texture(x, y, 1.7));
+        let c = correlations(&kf, &frame, &camera, &Pose::identity(), 0).expect("other");
+        assert!(c.trimmed < 0.6, "{c:?}");
+        // The same view: both near 1, nothing trimmed away to speak of.
+        let (kf, frame, camera) = setup(|_, _, v| v);
+        let c = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("same");
+        assert!(c.all > 0.99 && c.trimmed > 0.99 && c.kept > 0.95, "{c:?}");
+    }
+}
