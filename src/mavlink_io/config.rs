@@ -132,10 +132,12 @@ pub struct MavlinkConfig {
     /// Send our own TIMESYNC requests and stamp `usec` in the autopilot's
     /// clock. Off: `usec` is star's CLOCK_MONOTONIC from the first pose on.
     pub timesync: bool,
-    /// How long a new link waits for the first TIMESYNC answer before poses
-    /// go out, ms. Poses in this time are dropped (counted), not queued. No
-    /// answer by then: the stream's `usec` is star's CLOCK_MONOTONIC from its
-    /// first pose on (never switched later), logged at warn.
+    /// How long a new link waits for TIMESYNC answers before poses go out,
+    /// ms (poses go out sooner, after four answers, about 100 ms). Poses in
+    /// this time are dropped (counted), not queued. One answer or more by
+    /// then: the autopilot's clock. None: the stream's `usec` is star's
+    /// CLOCK_MONOTONIC from its first pose on (never switched later), logged
+    /// at warn.
     pub timesync_wait_ms: u32,
     /// The map (world) frame in local NED: `ned_from_world`.
     pub ned_from_world: TransformConfig,

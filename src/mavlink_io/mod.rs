@@ -18,8 +18,10 @@
 //! link that comes back gets the newest pose and never a burst of stale ones.
 //!
 //! Timestamps (`stamp.rs`): one stream (one link connection), one clock.
-//! No pose goes out before the first TIMESYNC answer; poses meanwhile are
-//! dropped and counted (`poses_dropped_clock`). `usec` is then the capture
+//! No pose goes out before the clock is settled: four TIMESYNC answers
+//! (asked for every 25 ms, about 100 ms), or at least one by
+//! `timesync_wait_ms`; poses meanwhile are dropped and counted
+//! (`poses_dropped_clock`). `usec` is then the capture
 //! time (CLOCK_MONOTONIC) plus a slew-limited TIMESYNC offset for the whole
 //! stream; if the autopilot has not answered within `timesync_wait_ms`, it is
 //! the bare capture time from the stream's first pose on, also after answers

@@ -17,7 +17,7 @@ use super::frames::FrameConverter;
 use super::link::Link;
 use super::messages::{self, LinkState};
 use super::reset::ResetCounter;
-use super::stamp::{Stamp, StreamClock};
+use super::stamp::{Stamp, StreamClock, SETTLE_PERIOD_MS};
 use super::stats::bump;
 use super::{PoseMessage, PoseSample, Shared};
 use crate::clock::monotonic_now_ns;
@@ -26,6 +26,8 @@ use crate::clock::monotonic_now_ns;
 const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);
 /// Period of our TIMESYNC requests.
 const TIMESYNC_PERIOD: Duration = Duration::from_millis(500);
+/// Period of our TIMESYNC requests until the stream's clock is settled.
+const SETTLE_PERIOD: Duration = Duration::from_millis(SETTLE_PERIOD_MS);
 /// Longest wait between checks of the shutdown flag.
 const POLL: Duration = Duration::from_millis(50);
 /// First and longest reconnect delay.
@@ -167,7 +169,18 @@ impl Sender {
                 }
             }
             if self.shared.config.timesync && now >= self.next_timesync {
-                self.next_timesync = now + TIMESYNC_PERIOD;
+                let settling = self
+                    .shared
+                    .clock
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .settling();
+                self.next_timesync = now
+                    + if settling {
+                        SETTLE_PERIOD
+                    } else {
+                        TIMESYNC_PERIOD
+                    };
                 self.send_timesync_request();
             }
         }

@@ -8,8 +8,13 @@
 //! One stream, one clock. A stream starts when the link opens
 //! ([`PoseClock::start_stream`]). Its first pose decides the clock of the
 //! whole stream:
-//! - TIMESYNC has answered: the autopilot's clock, `capture + offset`;
-//! - no answer yet, and less than `timesync_wait_ms` since the stream
+//! - TIMESYNC has answered [`SETTLE_SAMPLES`] times (the sender asks every
+//!   [`SETTLE_PERIOD_MS`] ms until then, so this takes about 100 ms), or has
+//!   answered at all by `timesync_wait_ms`: the autopilot's clock,
+//!   `capture + offset`. Several answers because the first one may be slow:
+//!   against SITL, a first round trip of 40 ms put the first offset 20 ms
+//!   off, and correcting that slowly cost EKF3 a dozen samples;
+//! - not settled yet, and less than `timesync_wait_ms` since the stream
 //!   started: the pose is held (the caller drops and counts it; nothing is
 //!   queued);
 //! - no answer within `timesync_wait_ms` (or `timesync = false`): star's own
@@ -21,9 +26,16 @@
 //!   in the autopilot's clock made ArduPilot date 200 samples 500 ms old).
 //!
 //! In the autopilot's clock, the offset in `usec` is an *applied* offset,
-//! not the raw estimate: it starts at the estimate and then moves only when
-//! it leaves the estimate's uncertainty interval (`offset +- rtt / 2`, where
-//! the true offset lies), toward that interval, by at most [`SLEW_DIVISOR`]
+//! not the raw estimate. It starts at the low edge of the estimate's
+//! uncertainty interval (`offset +- rtt / 2`, where the true offset lies):
+//! ArduPilot stamps `tc1` when the request arrives but answers from its main
+//! loop, so the way back is the long one and the true offset sits near the
+//! low edge (measured against SITL: the first sample's centre was 3 ms high);
+//! and wherever in the interval it sits, later, tighter samples then correct
+//! upward, which lengthens intervals between `usec` values (EKF3 drops
+//! samples under 20 ms apart, never longer ones). After that the applied
+//! offset moves only when it leaves the current estimate's interval,
+//! toward that interval, by at most [`SLEW_DIVISOR`]
 //! parts of the capture interval per pose (1 %: a 2 ms step of the estimate
 //! is absorbed over 200 ms of poses, each interval shortened by at most
 //! 0.2 ms at 50 Hz). So a new lowest-RTT sample that moves the estimate by a
@@ -45,6 +57,10 @@ use super::timesync::OffsetEstimate;
 /// The applied offset moves by at most `1 / SLEW_DIVISOR` of the capture
 /// interval between two poses.
 pub const SLEW_DIVISOR: i64 = 100;
+/// TIMESYNC samples that settle the clock before the first pose.
+pub const SETTLE_SAMPLES: usize = 4;
+/// Period of our TIMESYNC requests while the clock is not settled, ms.
+pub const SETTLE_PERIOD_MS: u64 = 25;
 
 /// Which clock the current stream's `usec` is in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -114,6 +130,12 @@ impl PoseClock {
         self.last = None;
     }
 
+    /// Whether the stream's clock is still open (no pose sent yet): the
+    /// sender then asks for TIMESYNC every [`SETTLE_PERIOD_MS`] ms.
+    pub fn settling(&self) -> bool {
+        self.clock == StreamClock::Waiting
+    }
+
     /// The clock of the current stream.
     pub fn clock(&self) -> StreamClock {
         self.clock
@@ -147,15 +169,17 @@ impl PoseClock {
         estimate: Option<OffsetEstimate>,
     ) -> Stamp {
         if self.clock == StreamClock::Waiting {
-            if let Some(e) = estimate {
+            let waited = now_ns.saturating_sub(self.stream_start_ns) >= self.wait_ns;
+            if let Some(e) = estimate.filter(|e| waited || e.samples >= SETTLE_SAMPLES) {
                 self.clock = StreamClock::Autopilot;
-                self.applied_ns = e.offset_ns;
+                self.applied_ns = e.offset_ns.saturating_sub(e.uncertainty_ns.max(0));
                 tracing::info!(
                     offset_ns = e.offset_ns,
                     uncertainty_ns = e.uncertainty_ns,
+                    samples = e.samples,
                     "first pose of the stream: usec in the autopilot's clock (TIMESYNC)"
                 );
-            } else if now_ns.saturating_sub(self.stream_start_ns) >= self.wait_ns {
+            } else if waited {
                 self.clock = StreamClock::Monotonic;
                 tracing::warn!(
                     waited_ms = self.wait_ns / 1_000_000,
@@ -201,7 +225,7 @@ impl PoseClock {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mavlink_io::timesync::{TimesyncEstimator, TimesyncEvent};
+    use crate::mavlink_io::timesync::{TimesyncEstimator, TimesyncEvent, WINDOW};
 
     const MS: u64 = 1_000_000;
     /// 50 Hz.
@@ -212,6 +236,7 @@ mod tests {
         Some(OffsetEstimate {
             offset_ns,
             uncertainty_ns,
+            samples: SETTLE_SAMPLES,
         })
     }
 
@@ -245,12 +270,47 @@ mod tests {
         let offset = -9_000_000_000i64;
         let t = t0 + 400 * MS;
         let first = usec(clock.stamp(t, t + MS, est(offset, 500_000)));
-        assert_eq!(first as i64, (t as i64 + offset) / 1_000);
+        // At the low edge of the estimate's interval.
+        let applied = offset - 500_000;
+        assert_eq!(first as i64, (t as i64 + applied) / 1_000);
         assert_eq!(clock.clock(), StreamClock::Autopilot);
-        assert_eq!(clock.applied_offset_ns(), Some(offset));
-        assert_eq!(clock.public_ns(t, None), t as i64 + offset);
+        assert_eq!(clock.applied_offset_ns(), Some(applied));
+        assert_eq!(clock.public_ns(t, None), t as i64 + applied);
         let second = usec(clock.stamp(t + INTERVAL, t + INTERVAL + MS, est(offset, 500_000)));
         assert_eq!(second - first, INTERVAL / 1_000);
+    }
+
+    #[test]
+    fn first_answers_settle_the_clock_before_the_first_pose() {
+        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
+        let t0 = 10_000 * MS;
+        clock.start_stream(t0);
+        let few = |samples| {
+            Some(OffsetEstimate {
+                offset_ns: 1_000_000_000,
+                uncertainty_ns: 2_000_000,
+                samples,
+            })
+        };
+        // One to three answers: still held (a first answer may be slow).
+        for samples in 1..SETTLE_SAMPLES {
+            let t = t0 + samples as u64 * 25 * MS;
+            assert_eq!(clock.stamp(t, t, few(samples)), Stamp::Hold);
+            assert!(clock.settling());
+        }
+        let t = t0 + 100 * MS;
+        assert!(matches!(
+            clock.stamp(t, t, few(SETTLE_SAMPLES)),
+            Stamp::Usec(_)
+        ));
+        assert!(!clock.settling());
+        assert_eq!(clock.applied_offset_ns(), Some(998_000_000));
+        // A slow autopilot that answered once by the end of the wait gets
+        // its clock all the same.
+        clock.start_stream(t0);
+        let t = t0 + WAIT;
+        assert_eq!(usec(clock.stamp(t, t, few(1))), (t + 998_000_000) / 1_000);
+        assert_eq!(clock.clock(), StreamClock::Autopilot);
     }
 
     #[test]
@@ -265,6 +325,7 @@ mod tests {
             let e = (t >= t0 + 2_500 * MS).then_some(OffsetEstimate {
                 offset_ns: 5_000_000_000,
                 uncertainty_ns: 100_000,
+                samples: WINDOW,
             });
             match clock.stamp(t, t + MS, e) {
                 Stamp::Hold => {
@@ -339,16 +400,17 @@ mod tests {
         for k in 0..500u64 {
             let t = 1_000 * MS + k * INTERVAL;
             // The estimate wanders by +-2 ms, each with a 2.5 ms half round
-            // trip that contains the first one.
+            // trip that contains where the first (tight) one put the clock.
             let wander = [0, 2_000_000, -2_000_000, 1_000_000][(k / 25) as usize % 4];
-            usecs.push(usec(clock.stamp(t, t, est(wander, 2_500_000))));
+            let half_rtt = if k == 0 { 100_000 } else { 2_500_000 };
+            usecs.push(usec(clock.stamp(t, t, est(wander, half_rtt))));
         }
         assert!(
             gaps(&usecs).iter().all(|&g| g == 20_000),
             "{:?}",
             gaps(&usecs)
         );
-        assert_eq!(clock.applied_offset_ns(), Some(0));
+        assert_eq!(clock.applied_offset_ns(), Some(-100_000));
     }
 
     #[test]
@@ -375,6 +437,13 @@ mod tests {
         let offset = 4_000_000_000i64;
         let t0 = 20_000 * MS;
         clock.start_stream(t0);
+        // The settling exchanges, honest, 25 ms apart.
+        for k in 0..SETTLE_SAMPLES as i64 {
+            let ts1 = t0 as i64 - 100_000_000 + k * 25_000_000;
+            ts.request_sent(ts1);
+            let ev = ts.reply_received(ts1 + 1_000_000 + offset, ts1, ts1 + 2_000_000);
+            assert!(matches!(ev, TimesyncEvent::Sample(_)));
+        }
         let mut usecs = Vec::new();
         let mut captures = Vec::new();
         for k in 0..1_000u64 {
@@ -388,10 +457,7 @@ mod tests {
                     2 => -(1 << 62),
                     _ => 1,
                 };
-                let ev = ts.reply_received(tc1, ts1, ts1 + 2_000_000);
-                if k == 0 {
-                    assert!(matches!(ev, TimesyncEvent::Sample(_)));
-                }
+                ts.reply_received(tc1, ts1, ts1 + 2_000_000);
             }
             if let Stamp::Usec(u) = clock.stamp(t, t + MS, ts.estimate()) {
                 usecs.push(u);
@@ -410,8 +476,8 @@ mod tests {
         }
         assert_eq!(
             usecs[999] as i64,
-            (captures[999] as i64 + offset) / 1_000,
-            "still in the autopilot's clock"
+            (captures[999] as i64 + offset - 1_000_000) / 1_000,
+            "still in the autopilot's clock (low edge of the 2 ms round trip)"
         );
     }
 

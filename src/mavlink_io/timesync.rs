@@ -78,6 +78,8 @@ pub struct OffsetEstimate {
     pub offset_ns: i64,
     /// Half the round trip of the sample the estimate comes from, ns.
     pub uncertainty_ns: i64,
+    /// Samples in the window the estimate was picked from (1..=[`WINDOW`]).
+    pub samples: usize,
 }
 
 /// What a received TIMESYNC means.
@@ -218,6 +220,7 @@ impl TimesyncEstimator {
         self.best().map(|s| OffsetEstimate {
             offset_ns: s.offset_ns,
             uncertainty_ns: s.rtt_ns / 2,
+            samples: self.window.iter().flatten().count(),
         })
     }
 }
@@ -413,7 +416,8 @@ mod tests {
             est.estimate(),
             Some(OffsetEstimate {
                 offset_ns: 7_000_000 + 1_000_000,
-                uncertainty_ns: 2_000_000
+                uncertainty_ns: 2_000_000,
+                samples: 1,
             })
         );
         est.reset();
