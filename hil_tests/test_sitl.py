@@ -33,13 +33,12 @@ import os
 import pathlib
 import socket
 import subprocess
-import tempfile
 import threading
 import time
 
 import pytest
 
-from conftest import REPO, Rig, wait_for_log, write_subset
+from conftest import REPO, Rig, write_subset
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
@@ -220,11 +219,12 @@ class Tap:
 
 
 class Sitl:
-    """ArduCopter SITL in a temporary directory."""
+    """ArduCopter SITL in its own working directory (eeprom.bin, logs/)."""
 
-    def __init__(self, instance):
+    def __init__(self, instance, workdir):
         self.instance = instance
-        self.dir = pathlib.Path(tempfile.mkdtemp(prefix="star-sitl-"))
+        self.dir = workdir
+        self.dir.mkdir(parents=True, exist_ok=True)
         self.log = open(self.dir / "sitl.out", "w")
         self.proc = subprocess.Popen(
             [str(ARDUCOPTER), "--model", "quad", "--speedup", "1", f"-I{instance}", "--wipe",
@@ -283,7 +283,7 @@ def still(dataset, tmp_path_factory):
 
 def one_start(star_bin, still, tmp, message="vision_position_estimate"):
     """One SITL boot and one `star run`; returns the figures of this start."""
-    sitl = Sitl(free_instance())
+    sitl = Sitl(free_instance(), tmp / "sitl")
     gcs = tap = None
     rig = Rig(star_bin, tmp, still)
     try:
@@ -346,14 +346,18 @@ def one_start(star_bin, still, tmp, message="vision_position_estimate"):
     if visp:
         # How old EKF3 dated each sample (its time at logging minus the
         # corrected sample time), and samples under 20 ms apart in corrected
-        # time (EKF3 drops those).
+        # time (EKF3 drops those); of the latter, how many had star's usec
+        # under 20 ms apart too (the rest come from ArduPilot's own jitter
+        # correction converging on the transport lag).
         lags = [t_us / 1000 - c_ms for t_us, _, c_ms, _ in visp]
-        gaps = [b[2] - a[2] for a, b in zip(visp, visp[1:])]
+        pairs = list(zip(visp, visp[1:]))
+        under = [(a, b) for a, b in pairs if b[2] - a[2] < 20]
         figures.update({
             "visp": len(visp),
             "visp_max_lag_ms": max(lags),
             "visp_median_lag_ms": sorted(lags)[len(lags) // 2],
-            "visp_under_20ms": sum(1 for g in gaps if g < 20),
+            "visp_under_20ms": len(under),
+            "visp_under_20ms_by_usec": sum(1 for a, b in under if b[1] - a[1] < 20_000),
         })
     return figures
 
@@ -361,22 +365,35 @@ def one_start(star_bin, still, tmp, message="vision_position_estimate"):
 def report(figures):
     keys = ["fused_after_s", "position_err_m", "height_err_m", "yaw_err_deg", "min_usec_gap_ms", "usec_under_20ms",
             "poses",
-            "visp", "visp_max_lag_ms", "visp_median_lag_ms", "visp_under_20ms", "own_clock"]
+            "visp", "visp_max_lag_ms", "visp_median_lag_ms", "visp_under_20ms", "visp_under_20ms_by_usec",
+            "own_clock"]
     return "  ".join(f"{k}={figures[k]:.3f}" if isinstance(figures.get(k), float) else f"{k}={figures.get(k)}"
                      for k in keys)
 
 
-def check(figures):
-    assert not figures["own_clock"], "SITL answers TIMESYNC: the stream must be in its clock"
-    assert figures["usec_increasing"]
-    assert figures["fused_after_s"] <= FUSE_WITHIN_S, f"fused {figures['fused_after_s']:.2f} s after the first pose"
-    assert not figures["fallbacks"], figures["fallbacks"]
-    assert figures["position_err_m"] <= POSITION_TOL_M, f"EKF {figures['position_err_m'] * 100:.2f} cm from star"
-    assert figures["height_err_m"] <= POSITION_TOL_M, f"EKF height {figures['height_err_m'] * 100:.2f} cm off"
-    assert figures["yaw_err_deg"] <= YAW_TOL_DEG, f"EKF yaw {figures['yaw_err_deg']:.2f} deg from star"
+def problems(figures):
+    """What is wrong with a start, as messages (empty: a good start)."""
+    if "error" in figures:
+        return [figures["error"]]
+    found = []
+    if figures["own_clock"]:
+        found.append("star fell back to its own clock although SITL answers TIMESYNC")
+    if not figures["usec_increasing"]:
+        found.append(f"usec not increasing (smallest step {figures['min_usec_gap_ms']:.1f} ms)")
+    if figures["fused_after_s"] > FUSE_WITHIN_S:
+        found.append(f"fused {figures['fused_after_s']:.2f} s after the first pose")
+    if figures["fallbacks"]:
+        found.append(f"fallback: {figures['fallbacks']}")
+    if not figures["position_err_m"] <= POSITION_TOL_M:
+        found.append(f"EKF position {figures['position_err_m'] * 100:.2f} cm from star")
+    if not figures["height_err_m"] <= POSITION_TOL_M:
+        found.append(f"EKF height {figures['height_err_m'] * 100:.2f} cm from star after fusing")
+    if not figures["yaw_err_deg"] <= YAW_TOL_DEG:
+        found.append(f"EKF yaw {figures['yaw_err_deg']:.2f} deg from star")
     # Issue 20's first defect made EKF3 date samples 500 ms old.
-    if "visp_max_lag_ms" in figures:
-        assert figures["visp_max_lag_ms"] <= MAX_LAG_MS, f"EKF3 dated a sample {figures['visp_max_lag_ms']:.0f} ms old"
+    if figures.get("visp_max_lag_ms", 0) > MAX_LAG_MS:
+        found.append(f"EKF3 dated a sample {figures['visp_max_lag_ms']:.0f} ms old")
+    return found
 
 
 def test_vision_position_estimate_fused_from_the_first_second(star_bin, still, tmp_path):
@@ -389,15 +406,18 @@ def test_vision_position_estimate_fused_from_the_first_second(star_bin, still, t
         except AssertionError as e:
             figures = {"error": str(e)}
         print(f"\nstart {k + 1}/{STARTS}: " + (report(figures) if "error" not in figures else figures["error"]))
+        for p in problems(figures):
+            print(f"  problem: {p}")
         results.append(figures)
-    fused = sum(1 for f in results if "error" not in f and f["fused_after_s"] <= FUSE_WITHIN_S and not f["fallbacks"])
-    print(f"\nSITL: {fused} of {STARTS} starts fused within {FUSE_WITHIN_S} s of star's first pose, without fallback")
-    for f in results:
-        assert "error" not in f, f["error"]
-        check(f)
+    good = sum(1 for f in results if not problems(f))
+    print(f"\nSITL: {good} of {STARTS} starts fused within {FUSE_WITHIN_S} s of star's first pose and stayed on "
+          f"star's pose (within {POSITION_TOL_M * 100:.0f} cm, {YAW_TOL_DEG} deg), samples dated at most "
+          f"{MAX_LAG_MS:.0f} ms old")
+    bad = {k + 1: problems(f) for k, f in enumerate(results) if problems(f)}
+    assert not bad, f"{len(bad)} of {STARTS} starts failed: {bad}"
 
 
 def test_odometry_fused(star_bin, still, tmp_path):
     figures = one_start(star_bin, still, tmp_path, message="odometry")
     print("\nODOMETRY: " + report(figures))
-    check(figures)
+    assert not problems(figures), problems(figures)

@@ -127,7 +127,8 @@ pub(crate) struct Shared {
     /// Generation that a thread found broken (0 = none).
     pub broken_generation: AtomicU64,
     pub timesync: Mutex<TimesyncEstimator>,
-    /// The pose clock; locked after `timesync`, never the other way round.
+    /// The pose clock; never locked while `timesync` is held (nor the
+    /// other way round).
     pub clock: Mutex<PoseClock>,
     pub counters: Counters,
 }

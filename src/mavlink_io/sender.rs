@@ -169,12 +169,13 @@ impl Sender {
                 }
             }
             if self.shared.config.timesync && now >= self.next_timesync {
+                let estimate = self.shared.estimate();
                 let settling = self
                     .shared
                     .clock
                     .lock()
                     .unwrap_or_else(PoisonError::into_inner)
-                    .settling();
+                    .settling(monotonic_now_ns(), estimate);
                 self.next_timesync = now
                     + if settling {
                         SETTLE_PERIOD

@@ -130,10 +130,14 @@ impl PoseClock {
         self.last = None;
     }
 
-    /// Whether the stream's clock is still open (no pose sent yet): the
-    /// sender then asks for TIMESYNC every [`SETTLE_PERIOD_MS`] ms.
-    pub fn settling(&self) -> bool {
+    /// Whether the stream's clock still needs TIMESYNC answers before its
+    /// first pose: no pose sent yet, fewer than [`SETTLE_SAMPLES`] answers,
+    /// and the wait not over. The sender then asks every
+    /// [`SETTLE_PERIOD_MS`] ms instead of every 500 ms.
+    pub fn settling(&self, now_ns: u64, estimate: Option<OffsetEstimate>) -> bool {
         self.clock == StreamClock::Waiting
+            && now_ns.saturating_sub(self.stream_start_ns) < self.wait_ns
+            && estimate.is_none_or(|e| e.samples < SETTLE_SAMPLES)
     }
 
     /// The clock of the current stream.
@@ -296,14 +300,18 @@ mod tests {
         for samples in 1..SETTLE_SAMPLES {
             let t = t0 + samples as u64 * 25 * MS;
             assert_eq!(clock.stamp(t, t, few(samples)), Stamp::Hold);
-            assert!(clock.settling());
+            assert!(clock.settling(t, few(samples)));
         }
+        // Enough answers: no more fast requests, even before a pose comes.
+        assert!(!clock.settling(t0 + 90 * MS, few(SETTLE_SAMPLES)));
+        // Nor after the wait.
+        assert!(!clock.settling(t0 + WAIT, None));
         let t = t0 + 100 * MS;
         assert!(matches!(
             clock.stamp(t, t, few(SETTLE_SAMPLES)),
             Stamp::Usec(_)
         ));
-        assert!(!clock.settling());
+        assert!(!clock.settling(t, None), "a pose went out: settled");
         assert_eq!(clock.applied_offset_ns(), Some(998_000_000));
         // A slow autopilot that answered once by the end of the wait gets
         // its clock all the same.
