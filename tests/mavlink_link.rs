@@ -202,3 +202,183 @@ fn stale_lost_and_invalid_samples_are_not_sent_and_timesync_is_answered() {
     shutdown.store(true, Ordering::Relaxed);
     assert!(link.shutdown());
 }
+
+/// A UDP autopilot stand-in on its own thread: answers the link's TIMESYNC
+/// requests as `answer(since_start, request_index, ts1)` says (`None`: stay
+/// silent) and records each VISION_POSITION_ESTIMATE as (arrival on
+/// CLOCK_MONOTONIC, usec).
+struct Peer {
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<Vec<(u64, u64)>>>,
+}
+
+type Answer = fn(Duration, usize, i64) -> Option<i64>;
+
+impl Peer {
+    fn start(peer: UdpSocket, answer: Answer) -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let thread = std::thread::spawn(move || {
+            peer.set_read_timeout(Some(Duration::from_millis(20)))
+                .unwrap();
+            let start = Instant::now();
+            let mut poses = Vec::new();
+            let mut requests = 0;
+            let mut buf = [0u8; 512];
+            let header = MavHeader {
+                system_id: 1,
+                component_id: 1,
+                sequence: 0,
+            };
+            while !stop2.load(Ordering::Relaxed) {
+                let Ok((n, from)) = peer.recv_from(&mut buf) else {
+                    continue;
+                };
+                let arrival = monotonic_now_ns();
+                let mut reader = MavlinkReader::new(&buf[..n]);
+                let Ok((_, msg)) = reader.read_message::<MavMessage>(MavlinkVersion::V2) else {
+                    continue;
+                };
+                match msg {
+                    MavMessage::VISION_POSITION_ESTIMATE(d) => poses.push((arrival, d.usec)),
+                    MavMessage::TIMESYNC(d) if d.tc1 == 0 => {
+                        let k = requests;
+                        requests += 1;
+                        if let Some(tc1) = answer(start.elapsed(), k, d.ts1) {
+                            let mut frame = mavlink::MAVLinkV2MessageRaw::new();
+                            let reply = MavMessage::TIMESYNC(TIMESYNC_DATA {
+                                tc1,
+                                ts1: d.ts1,
+                                target_system: 1,
+                                target_component: 197,
+                            });
+                            frame.serialize_message(header, &reply);
+                            peer.send_to(frame.raw_bytes(), from).unwrap();
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            poses
+        });
+        Self {
+            stop,
+            thread: Some(thread),
+        }
+    }
+
+    fn finish(mut self) -> Vec<(u64, u64)> {
+        self.stop.store(true, Ordering::Relaxed);
+        self.thread.take().unwrap().join().unwrap()
+    }
+}
+
+/// The stand-in's clock runs this far ahead of ours.
+const PEER_OFFSET_NS: i64 = 5_000_000_000;
+
+/// Publishes for `duration` at 200 Hz, then stops the link; returns its stats.
+fn run_link(config: &MavlinkConfig, duration: Duration) -> star::mavlink_io::LinkStats {
+    let link = Arc::new(MavlinkLink::spawn(config, Arc::new(AtomicBool::new(false))).unwrap());
+    let stop = Arc::new(AtomicBool::new(false));
+    let pub_thread = publisher(link.clone(), stop.clone());
+    std::thread::sleep(duration);
+    stop.store(true, Ordering::Relaxed);
+    pub_thread.join().unwrap();
+    let stats = link.stats();
+    let link = Arc::try_unwrap(link).ok().expect("publisher finished");
+    assert!(link.shutdown());
+    stats
+}
+
+/// Latency of each pose in the given clock: arrival + `offset` - usec, ms.
+fn latencies_ms(poses: &[(u64, u64)], offset_ns: i64) -> Vec<f64> {
+    poses
+        .iter()
+        .map(|&(arrival, usec)| (arrival as i64 + offset_ns - usec as i64 * 1000) as f64 * 1e-6)
+        .collect()
+}
+
+fn check_spacing(poses: &[(u64, u64)], min_us: u64) {
+    for w in poses.windows(2) {
+        assert!(
+            w[1].1 >= w[0].1 + min_us,
+            "usec {} then {}: under {min_us} us apart",
+            w[0].1,
+            w[1].1
+        );
+    }
+}
+
+#[test]
+fn first_pose_waits_for_timesync_and_is_in_the_autopilot_clock() {
+    let (peer, config) = udp_peer();
+    // Silent for the first 300 ms, then answers in its clock.
+    let peer = Peer::start(peer, |since, _, _| {
+        (since > Duration::from_millis(300)).then(|| monotonic_now_ns() as i64 + PEER_OFFSET_NS)
+    });
+    let stats = run_link(&config, Duration::from_millis(1500));
+    let poses = peer.finish();
+    assert!(poses.len() > 20, "{} poses: {stats:?}", poses.len());
+    assert!(stats.poses_dropped_clock > 0, "{stats:?}");
+    assert!(!stats.monotonic_clock, "{stats:?}");
+    assert!(stats.timesync_offset_ns.is_some(), "{stats:?}");
+    // Every pose, the first included, is in the stand-in's clock: captured
+    // shortly before it arrived there (in CLOCK_MONOTONIC it would look 5 s
+    // in the future).
+    for (k, lat) in latencies_ms(&poses, PEER_OFFSET_NS).into_iter().enumerate() {
+        assert!((-5.0..150.0).contains(&lat), "pose {k}: latency {lat} ms");
+    }
+    check_spacing(&poses, 10_000);
+}
+
+#[test]
+fn silent_autopilot_gets_our_clock_from_the_first_pose_and_no_switch() {
+    let (peer, mut config) = udp_peer();
+    config.timesync_wait_ms = 300;
+    // Silent for 800 ms (past the wait), then answers in its clock.
+    let peer = Peer::start(peer, |since, _, _| {
+        (since > Duration::from_millis(800)).then(|| monotonic_now_ns() as i64 + PEER_OFFSET_NS)
+    });
+    let start = monotonic_now_ns();
+    let stats = run_link(&config, Duration::from_millis(2000));
+    let poses = peer.finish();
+    assert!(poses.len() > 20, "{} poses: {stats:?}", poses.len());
+    let first_ms = (poses[0].0 - start) as f64 * 1e-6;
+    assert!(first_ms >= 290.0, "first pose {first_ms} ms after start");
+    assert!(stats.poses_dropped_clock > 0, "{stats:?}");
+    assert!(
+        stats.timesync_samples > 0,
+        "answers came and were used for the estimate: {stats:?}"
+    );
+    assert!(stats.monotonic_clock, "{stats:?}");
+    assert_eq!(stats.timesync_offset_ns, None, "{stats:?}");
+    // All in CLOCK_MONOTONIC, also after the answers came.
+    for (k, lat) in latencies_ms(&poses, 0).into_iter().enumerate() {
+        assert!((-5.0..150.0).contains(&lat), "pose {k}: latency {lat} ms");
+    }
+    check_spacing(&poses, 10_000);
+}
+
+#[test]
+fn hostile_timesync_replies_do_not_move_usec() {
+    let (peer, mut config) = udp_peer();
+    config.timesync_wait_ms = 1000;
+    // Every other reply is hostile: tc1 = 2^62, -2^62 or 1.
+    let peer = Peer::start(peer, |_, k, _| {
+        Some(match k % 6 {
+            1 => 1 << 62,
+            3 => -(1 << 62),
+            5 => 1,
+            _ => monotonic_now_ns() as i64 + PEER_OFFSET_NS,
+        })
+    });
+    let stats = run_link(&config, Duration::from_millis(3000));
+    let poses = peer.finish();
+    assert!(poses.len() > 50, "{} poses: {stats:?}", poses.len());
+    assert!(stats.timesync_rejected >= 2, "{stats:?}");
+    assert_eq!(stats.timesync_resyncs, 0, "{stats:?}");
+    for (k, lat) in latencies_ms(&poses, PEER_OFFSET_NS).into_iter().enumerate() {
+        assert!((-5.0..150.0).contains(&lat), "pose {k}: latency {lat} ms");
+    }
+    check_spacing(&poses, 10_000);
+}

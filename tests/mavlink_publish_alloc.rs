@@ -56,7 +56,8 @@ fn publish_does_not_allocate() {
         let taken = s.vision_position_estimate_sent
             + s.poses_dropped_rate
             + s.poses_dropped_link
-            + s.poses_dropped_lost;
+            + s.poses_dropped_lost
+            + s.poses_dropped_clock;
         if taken > 0 {
             break;
         }

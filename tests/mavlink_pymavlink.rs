@@ -427,7 +427,10 @@ fn odometry_to_pymavlink() {
         }
         assert_eq!(d["quality"], 80);
         assert_eq!(d["estimator_type"], 2, "MAV_ESTIMATOR_TYPE_VISION");
-        assert_eq!(d["frame_id"], 1, "MAV_FRAME_LOCAL_NED");
+        assert_eq!(
+            d["frame_id"], 20,
+            "MAV_FRAME_LOCAL_FRD (what ArduPilot requires)"
+        );
         assert_eq!(d["child_frame_id"], 12, "MAV_FRAME_BODY_FRD");
         assert_eq!(d["vx"], "NaN", "velocity unknown");
         let cov = d["pose_covariance"].as_array().unwrap();

@@ -20,6 +20,10 @@ use crate::settings::{first_failure, SettingError};
 /// (MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY).
 pub const COMPONENT_ID_VISUAL_INERTIAL_ODOMETRY: u8 = 197;
 
+/// Longest `timesync_wait_ms` accepted (a minute without poses is a
+/// misconfiguration, not a wait).
+pub const MAX_TIMESYNC_WAIT_MS: u32 = 60_000;
+
 /// Which message carries the pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -27,8 +31,10 @@ pub enum PoseMessage {
     /// VISION_POSITION_ESTIMATE (102): position and Euler angles, covariance.
     #[default]
     VisionPositionEstimate,
-    /// ODOMETRY (331): position and quaternion, covariance, quality,
-    /// `estimator_type` VISION. Velocities are sent as NaN (unknown).
+    /// ODOMETRY (331): position and quaternion in MAV_FRAME_LOCAL_FRD (the
+    /// frame ArduPilot requires; PX4 accepts it too) with child frame
+    /// MAV_FRAME_BODY_FRD, covariance, quality, `estimator_type` VISION.
+    /// Velocities are sent as NaN (unknown).
     Odometry,
 }
 
@@ -52,8 +58,16 @@ pub struct MavlinkConfig {
     /// Poses older than this (now - capture time) when they reach the link
     /// are dropped, so a returning link gets no stale pose.
     pub max_pose_age_ms: u32,
-    /// Send our own TIMESYNC requests and apply the estimated offset to `usec`.
+    /// Send our own TIMESYNC requests and stamp `usec` in the autopilot's
+    /// clock. Off: `usec` is star's CLOCK_MONOTONIC from the first pose on.
     pub timesync: bool,
+    /// How long a new link waits for TIMESYNC answers before poses go out,
+    /// ms (poses go out sooner, after four answers, about 100 ms). Poses in
+    /// this time are dropped (counted), not queued. One answer or more by
+    /// then: the autopilot's clock. None: the stream's `usec` is star's
+    /// CLOCK_MONOTONIC from its first pose on (never switched later), logged
+    /// at warn.
+    pub timesync_wait_ms: u32,
     /// The map (world) frame in local NED: `ned_from_world`.
     pub ned_from_world: TransformConfig,
     /// The camera mounting on the body (FRD): `body_from_camera`.
@@ -71,6 +85,7 @@ impl Default for MavlinkConfig {
             component_id: COMPONENT_ID_VISUAL_INERTIAL_ODOMETRY,
             max_pose_age_ms: 100,
             timesync: true,
+            timesync_wait_ms: 1500,
             // A z-up map with x east, y north: NED x = world y, NED y = world x,
             // NED z = -world z.
             ned_from_world: TransformConfig::from_rpy_deg([0.0; 3], [180.0, 0.0, 90.0]),
@@ -106,6 +121,14 @@ impl MavlinkConfig {
                 "max_pose_age_ms",
                 self.max_pose_age_ms != 0,
                 "expected > 0, found 0".into(),
+            ),
+            (
+                "timesync_wait_ms",
+                self.timesync_wait_ms <= MAX_TIMESYNC_WAIT_MS,
+                format!(
+                    "expected 0..={MAX_TIMESYNC_WAIT_MS}, found {}",
+                    self.timesync_wait_ms
+                ),
             ),
         ])?;
         self.ned_from_world
@@ -185,6 +208,18 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(c.validate().unwrap_err().key, "rate_hz");
+        let c = MavlinkConfig {
+            timesync_wait_ms: MAX_TIMESYNC_WAIT_MS + 1,
+            ..Default::default()
+        };
+        let e = c.validate().unwrap_err();
+        assert_eq!(e.key, "timesync_wait_ms");
+        assert!(e.reason.contains("60001"), "{e}");
+        let c = MavlinkConfig {
+            timesync_wait_ms: 0,
+            ..Default::default()
+        };
+        c.validate().expect("0 = do not wait");
         let c = MavlinkConfig {
             connection: "udp:1.2.3.4".into(),
             ..Default::default()

@@ -46,8 +46,16 @@ pub fn vision_position_estimate(
     })
 }
 
-/// ODOMETRY: pose in MAV_FRAME_LOCAL_NED, velocities unknown (NaN) in
-/// MAV_FRAME_BODY_FRD, `estimator_type` VISION, `quality` 0..=100 percent.
+/// ODOMETRY: pose in MAV_FRAME_LOCAL_FRD (`frame_id` 20), velocities
+/// unknown (NaN) in MAV_FRAME_BODY_FRD (`child_frame_id` 12),
+/// `estimator_type` VISION, `quality` 0..=100 percent.
+///
+/// ArduPilot takes ODOMETRY only with exactly these two frames (it ignores
+/// MAV_FRAME_LOCAL_NED); PX4 accepts LOCAL_NED and LOCAL_FRD alike (LOCAL_FRD
+/// as a pose frame whose heading is not necessarily north). The values are
+/// the same as in NED: our local FRD frame is the NED frame that
+/// `ned_from_world` defines (x forward = north, y right = east, z down), so
+/// the position and the quaternion are those of [`NedPose`] unchanged.
 pub fn odometry(
     time_usec: u64,
     pose: &NedPose,
@@ -73,7 +81,7 @@ pub fn odometry(
         yawspeed: f32::NAN,
         pose_covariance: upper_triangle(covariance),
         velocity_covariance,
-        frame_id: MavFrame::MAV_FRAME_LOCAL_NED,
+        frame_id: MavFrame::MAV_FRAME_LOCAL_FRD,
         child_frame_id: MavFrame::MAV_FRAME_BODY_FRD,
         reset_counter,
         estimator_type: MavEstimatorType::MAV_ESTIMATOR_TYPE_VISION,
@@ -159,7 +167,9 @@ mod tests {
             d.estimator_type,
             MavEstimatorType::MAV_ESTIMATOR_TYPE_VISION
         );
-        assert_eq!(d.frame_id, MavFrame::MAV_FRAME_LOCAL_NED);
+        assert_eq!(d.frame_id, MavFrame::MAV_FRAME_LOCAL_FRD);
+        assert_eq!(d.frame_id as u8, 20, "what ArduPilot requires");
+        assert_eq!(d.child_frame_id as u8, 12);
         assert_eq!(d.child_frame_id, MavFrame::MAV_FRAME_BODY_FRD);
         assert_eq!(d.quality, 100, "clamped");
         assert_eq!(d.q, [1.0, 0.0, 0.0, 0.0]);

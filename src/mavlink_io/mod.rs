@@ -7,7 +7,8 @@
 //! feeds the offset estimator). Takes [`PoseSample`]s from the tracker through
 //! a one-slot mailbox ([`MavlinkHandle::publish`] never blocks on the link and
 //! never allocates); gives out VISION_POSITION_ESTIMATE or ODOMETRY in local
-//! NED / body FRD, and [`LinkStats`].
+//! NED / body FRD (ODOMETRY: `frame_id` MAV_FRAME_LOCAL_FRD, which is our
+//! NED frame, see `messages.rs`), and [`LinkStats`].
 //!
 //! Sending rules: nothing is sent while tracking is lost; poses are capped at
 //! `rate_hz` on capture time by a token bucket of depth two (a camera at the
@@ -15,8 +16,18 @@
 //! half an interval); samples
 //! older than `max_pose_age_ms` when the link takes them are dropped, so a
 //! link that comes back gets the newest pose and never a burst of stale ones.
-//! `usec` is the capture time (CLOCK_MONOTONIC) plus the TIMESYNC offset once
-//! the autopilot has answered.
+//!
+//! Timestamps (`stamp.rs`): one stream (one link connection), one clock.
+//! No pose goes out before the clock is settled: four TIMESYNC answers
+//! (asked for every 25 ms, about 100 ms), or at least one by
+//! `timesync_wait_ms`; poses meanwhile are dropped and counted
+//! (`poses_dropped_clock`). `usec` is then the capture
+//! time (CLOCK_MONOTONIC) plus a slew-limited TIMESYNC offset for the whole
+//! stream; if the autopilot has not answered within `timesync_wait_ms`, it is
+//! the bare capture time from the stream's first pose on, also after answers
+//! arrive (logged at warn). `usec` is strictly increasing, at least half the
+//! rate cap's interval apart, and an offset change moves consecutive values
+//! by at most 1 % of their capture interval.
 //!
 //! ```no_run
 //! # use std::sync::{Arc, atomic::AtomicBool};
@@ -37,6 +48,7 @@ pub mod messages;
 mod receiver;
 pub mod reset;
 mod sender;
+pub mod stamp;
 mod stats;
 pub mod timesync;
 
@@ -54,8 +66,9 @@ pub use stats::LinkStats;
 
 use crate::geometry::Pose;
 use sender::Mailbox;
+use stamp::PoseClock;
 use stats::Counters;
-use timesync::TimesyncEstimator;
+use timesync::{OffsetEstimate, TimesyncEstimator};
 
 /// How long [`MavlinkHandle::shutdown`] waits for the threads.
 pub const SHUTDOWN_TIMEOUT: Duration = Duration::from_millis(900);
@@ -114,6 +127,9 @@ pub(crate) struct Shared {
     /// Generation that a thread found broken (0 = none).
     pub broken_generation: AtomicU64,
     pub timesync: Mutex<TimesyncEstimator>,
+    /// The pose clock; never locked while `timesync` is held (nor the
+    /// other way round).
+    pub clock: Mutex<PoseClock>,
     pub counters: Counters,
 }
 
@@ -136,14 +152,24 @@ impl Shared {
         }
     }
 
-    pub fn offset_ns(&self) -> Option<i64> {
+    /// The TIMESYNC estimate (none while TIMESYNC is off).
+    pub fn estimate(&self) -> Option<OffsetEstimate> {
         if !self.config.timesync {
             return None;
         }
         self.timesync
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
-            .offset_ns()
+            .estimate()
+    }
+
+    /// Our public time for `monotonic_ns`: the clock `usec` is in.
+    pub fn public_ns(&self, monotonic_ns: u64) -> i64 {
+        let estimate = self.estimate();
+        self.clock
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .public_ns(monotonic_ns, estimate)
     }
 }
 
@@ -180,6 +206,11 @@ impl MavlinkLink {
             link: Mutex::new(None),
             broken_generation: AtomicU64::new(0),
             timesync: Mutex::new(TimesyncEstimator::new()),
+            clock: Mutex::new(PoseClock::new(
+                config.timesync,
+                u64::from(config.timesync_wait_ms) * 1_000_000,
+                config.min_interval_ns(),
+            )),
             counters: Counters::default(),
         });
         let (done_tx, done_rx) = mpsc::channel();

@@ -1,6 +1,7 @@
 //! The `mavlink-rx` thread: reads the link, answers the autopilot's TIMESYNC
-//! requests at once (so its round trip stays short), feeds replies to our
-//! requests into the offset estimator, and counts autopilot HEARTBEATs.
+//! requests at once (so its round trip stays short) in the clock `usec` is
+//! in, feeds replies to our requests into the offset estimator, and counts
+//! autopilot HEARTBEATs.
 //!
 //! Takes the link that `mavlink-tx` opened; reports a failing link back to it
 //! (`Shared::mark_broken`) and waits for the next one.
@@ -15,7 +16,7 @@ use mavlink::MavHeader;
 use super::link::Link;
 use super::messages;
 use super::stats::bump;
-use super::timesync::{to_public_ns, TimesyncEvent};
+use super::timesync::{TimesyncEvent, RESYNC_AFTER};
 use super::Shared;
 use crate::clock::monotonic_now_ns;
 
@@ -63,7 +64,7 @@ fn handle(
             if !for_us {
                 return;
             }
-            let tc1 = to_public_ns(now_ns, shared.offset_ns());
+            let tc1 = shared.public_ns(now_ns);
             let target_system = u8::try_from(header.system_id).unwrap_or(0);
             let reply = messages::timesync(tc1, d.ts1, target_system, header.component_id);
             match link.send(&ours, &reply) {
@@ -81,21 +82,49 @@ fn handle(
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
                 .reply_received(d.tc1, d.ts1, now_ns as i64);
-            if let TimesyncEvent::Sample(sample) = event {
-                bump(&shared.counters.timesync_samples);
-                let first = shared.counters.timesync_samples.load(Ordering::Relaxed) == 1;
-                if first {
-                    tracing::info!(
-                        offset_ns = sample.offset_ns,
-                        rtt_ns = sample.rtt_ns,
-                        "TIMESYNC: first offset"
-                    );
-                } else {
-                    tracing::trace!(
-                        offset_ns = sample.offset_ns,
-                        rtt_ns = sample.rtt_ns,
-                        "TIMESYNC sample"
-                    );
+            let counters = &shared.counters;
+            match event {
+                TimesyncEvent::Sample(sample) => {
+                    bump(&counters.timesync_samples);
+                    let first = counters.timesync_samples.load(Ordering::Relaxed) == 1;
+                    if first {
+                        tracing::info!(
+                            offset_ns = sample.offset_ns,
+                            rtt_ns = sample.rtt_ns,
+                            "TIMESYNC: first offset"
+                        );
+                    } else {
+                        tracing::trace!(
+                            offset_ns = sample.offset_ns,
+                            rtt_ns = sample.rtt_ns,
+                            "TIMESYNC sample"
+                        );
+                    }
+                }
+                TimesyncEvent::Outlier(sample) => {
+                    bump(&counters.timesync_rejected);
+                    // Warn on the 1st, 2nd, 4th, 8th ... so a flood of bad
+                    // replies cannot flood the log.
+                    let n = counters.timesync_rejected.load(Ordering::Relaxed);
+                    if n.is_power_of_two() {
+                        tracing::warn!(
+                            offset_ns = sample.offset_ns,
+                            rtt_ns = sample.rtt_ns,
+                            estimate_ns = ?shared.estimate().map(|e| e.offset_ns),
+                            rejected = n,
+                            "TIMESYNC reply outside the plausibility bound of the estimate: \
+                             ignored unless {RESYNC_AFTER} agreeing ones come in a row"
+                        );
+                    }
+                }
+                TimesyncEvent::Rejected => {
+                    bump(&counters.timesync_rejected);
+                    tracing::debug!(tc1 = d.tc1, ts1 = d.ts1, "TIMESYNC reply not used");
+                }
+                TimesyncEvent::Resync { .. } => {
+                    // The estimator logged it; the pose clock slews toward it.
+                    bump(&counters.timesync_samples);
+                    bump(&counters.timesync_resyncs);
                 }
             }
         }

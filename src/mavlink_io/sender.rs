@@ -1,8 +1,10 @@
 //! The `mavlink-tx` thread and the one-slot mailbox it reads.
 //!
 //! Takes the newest [`PoseSample`] from the mailbox; owns (re)connecting with
-//! exponential backoff, the rate cap, the staleness check, frame conversion,
-//! HEARTBEAT at 1 Hz and our TIMESYNC requests; gives out messages on the link.
+//! exponential backoff (each new connection starts a new stream: TIMESYNC
+//! estimate and pose clock start afresh), the rate cap, the staleness check,
+//! frame conversion, stamping through the pose clock (`stamp.rs`), HEARTBEAT
+//! at 1 Hz and our TIMESYNC requests; gives out messages on the link.
 
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
@@ -15,8 +17,8 @@ use super::frames::FrameConverter;
 use super::link::Link;
 use super::messages::{self, LinkState};
 use super::reset::ResetCounter;
+use super::stamp::{Stamp, StreamClock, SETTLE_PERIOD_MS};
 use super::stats::bump;
-use super::timesync::to_public_ns;
 use super::{PoseMessage, PoseSample, Shared};
 use crate::clock::monotonic_now_ns;
 
@@ -24,6 +26,8 @@ use crate::clock::monotonic_now_ns;
 const HEARTBEAT_PERIOD: Duration = Duration::from_secs(1);
 /// Period of our TIMESYNC requests.
 const TIMESYNC_PERIOD: Duration = Duration::from_millis(500);
+/// Period of our TIMESYNC requests until the stream's clock is settled.
+const SETTLE_PERIOD: Duration = Duration::from_millis(SETTLE_PERIOD_MS);
 /// Longest wait between checks of the shutdown flag.
 const POLL: Duration = Duration::from_millis(50);
 /// First and longest reconnect delay.
@@ -165,7 +169,19 @@ impl Sender {
                 }
             }
             if self.shared.config.timesync && now >= self.next_timesync {
-                self.next_timesync = now + TIMESYNC_PERIOD;
+                let estimate = self.shared.estimate();
+                let settling = self
+                    .shared
+                    .clock
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .settling(monotonic_now_ns(), estimate);
+                self.next_timesync = now
+                    + if settling {
+                        SETTLE_PERIOD
+                    } else {
+                        TIMESYNC_PERIOD
+                    };
                 self.send_timesync_request();
             }
         }
@@ -207,6 +223,7 @@ impl Sender {
                 counters.link_up.store(true, Ordering::Relaxed);
                 bump(&counters.connects);
                 self.backoff = MIN_BACKOFF;
+                self.start_stream();
                 let now = Instant::now();
                 self.next_heartbeat = now;
                 self.next_timesync = now;
@@ -248,6 +265,38 @@ impl Sender {
                 false
             }
         }
+    }
+
+    /// A new connection: the autopilot behind it may have restarted, so the
+    /// TIMESYNC estimate and the pose clock start afresh.
+    fn start_stream(&mut self) {
+        self.shared
+            .timesync
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .reset();
+        self.shared
+            .clock
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .start_stream(monotonic_now_ns());
+        let counters = &self.shared.counters;
+        counters.set_offset(None);
+        counters.monotonic_clock.store(false, Ordering::Relaxed);
+    }
+
+    /// The pose clock's stamp for a sample; keeps the stats in step.
+    fn stamp(&mut self, capture_ns: u64) -> Stamp {
+        let shared = &self.shared;
+        let estimate = shared.estimate();
+        let mut clock = shared.clock.lock().unwrap_or_else(PoisonError::into_inner);
+        let stamp = clock.stamp(capture_ns, monotonic_now_ns(), estimate);
+        let counters = &shared.counters;
+        counters.set_offset(clock.applied_offset_ns());
+        counters
+            .monotonic_clock
+            .store(clock.clock() == StreamClock::Monotonic, Ordering::Relaxed);
+        stamp
     }
 
     fn send_timesync_request(&mut self) {
@@ -302,14 +351,18 @@ impl Sender {
             bump(&counters.poses_dropped_invalid);
             return;
         }
+        let usec = match self.stamp(sample.capture_ns) {
+            Stamp::Usec(usec) => usec,
+            Stamp::Hold => {
+                bump(&counters.poses_dropped_clock);
+                return;
+            }
+        };
         let twist_covariance = Matrix6::from_fn(|r, c| sample.covariance_6x6[r][c]);
         let covariance = self.converter.pose_covariance(&pose, &twist_covariance);
         let reset_counter =
             self.reset
                 .next(sample.reset_counter, sample.capture_ns, &pose.ned_from_body);
-        let offset_ns = shared.offset_ns();
-        counters.set_offset(offset_ns);
-        let usec = (to_public_ns(sample.capture_ns, offset_ns).max(0) / 1000) as u64;
         let (message, counter) = match shared.config.message {
             PoseMessage::VisionPositionEstimate => (
                 messages::vision_position_estimate(usec, &pose, &covariance, reset_counter),

@@ -24,6 +24,11 @@ pub struct LinkStats {
     pub timesync_replies_sent: u64,
     /// Replies to our requests that were used for the offset.
     pub timesync_samples: u64,
+    /// TIMESYNC replies not used: not ours, too slow, an implausible time,
+    /// or outside the plausibility bound of the estimate.
+    pub timesync_rejected: u64,
+    /// Confirmed jumps of the TIMESYNC estimate (autopilot restarts).
+    pub timesync_resyncs: u64,
     /// HEARTBEATs received from an autopilot.
     pub autopilot_heartbeats: u64,
     /// Samples not sent because tracking was lost.
@@ -36,9 +41,16 @@ pub struct LinkStats {
     pub poses_dropped_link: u64,
     /// Samples not sent because the pose was not finite.
     pub poses_dropped_invalid: u64,
+    /// Samples not sent because the stream's clock was not settled yet
+    /// (waiting for the first TIMESYNC answer, up to `timesync_wait_ms`).
+    pub poses_dropped_clock: u64,
+    /// Whether the current stream's `usec` is star's own CLOCK_MONOTONIC
+    /// (TIMESYNC off, or no answer within `timesync_wait_ms`).
+    pub monotonic_clock: bool,
     /// The reset counter last sent.
     pub reset_counter: u8,
-    /// The TIMESYNC offset in use (`autopilot - monotonic`, ns), if any.
+    /// The offset applied to `usec` (`autopilot - monotonic`, ns), while the
+    /// stream is in the autopilot's clock.
     pub timesync_offset_ns: Option<i64>,
 }
 
@@ -54,12 +66,16 @@ pub(crate) struct Counters {
     pub timesync_requests_sent: AtomicU64,
     pub timesync_replies_sent: AtomicU64,
     pub timesync_samples: AtomicU64,
+    pub timesync_rejected: AtomicU64,
+    pub timesync_resyncs: AtomicU64,
     pub autopilot_heartbeats: AtomicU64,
     pub poses_dropped_lost: AtomicU64,
     pub poses_dropped_stale: AtomicU64,
     pub poses_dropped_rate: AtomicU64,
     pub poses_dropped_link: AtomicU64,
     pub poses_dropped_invalid: AtomicU64,
+    pub poses_dropped_clock: AtomicU64,
+    pub monotonic_clock: AtomicBool,
     pub reset_counter: AtomicU8,
     pub has_offset: AtomicBool,
     pub offset_ns: AtomicI64,
@@ -89,12 +105,16 @@ impl Counters {
             timesync_requests_sent: self.timesync_requests_sent.load(Relaxed),
             timesync_replies_sent: self.timesync_replies_sent.load(Relaxed),
             timesync_samples: self.timesync_samples.load(Relaxed),
+            timesync_rejected: self.timesync_rejected.load(Relaxed),
+            timesync_resyncs: self.timesync_resyncs.load(Relaxed),
             autopilot_heartbeats: self.autopilot_heartbeats.load(Relaxed),
             poses_dropped_lost: self.poses_dropped_lost.load(Relaxed),
             poses_dropped_stale: self.poses_dropped_stale.load(Relaxed),
             poses_dropped_rate: self.poses_dropped_rate.load(Relaxed),
             poses_dropped_link: self.poses_dropped_link.load(Relaxed),
             poses_dropped_invalid: self.poses_dropped_invalid.load(Relaxed),
+            poses_dropped_clock: self.poses_dropped_clock.load(Relaxed),
+            monotonic_clock: self.monotonic_clock.load(Relaxed),
             reset_counter: self.reset_counter.load(Relaxed),
             timesync_offset_ns: self
                 .has_offset

@@ -3,36 +3,49 @@
 //!
 //! Takes our requests as we send them and the replies as they arrive (with
 //! their arrival time); gives out the offset `autopilot_ns - monotonic_ns`
-//! that is added to capture times before they go into `usec`.
+//! and its uncertainty ([`OffsetEstimate`]). What goes into `usec` is decided
+//! by the pose clock (`stamp.rs`), which settles on one clock per stream and
+//! slews this estimate into it.
 //!
 //! Protocol (nanoseconds both ways): a request has `tc1 = 0` and
 //! `ts1 = requester's time`; the reply has `tc1 = responder's time` and the
 //! request's `ts1`. For one of our requests answered at our time `now`,
-//! `rtt = now - ts1` and `offset = tc1 - (ts1 + now) / 2`.
+//! `rtt = now - ts1` and `offset = tc1 - (ts1 + now) / 2`. Whatever the
+//! split of the round trip between the two directions, the true offset lies
+//! within `offset +- rtt / 2`: that half round trip is the sample's
+//! uncertainty.
 //!
 //! Robust filter: the estimate is the offset of the lowest-RTT sample among
 //! the last [`WINDOW`] accepted ones (queueing delay only ever adds to the
-//! RTT, so the fastest exchange is the most symmetric). Replies that do not
-//! match one of our last requests, or with an RTT above [`MAX_RTT_NS`], are
-//! rejected. If [`RESYNC_AFTER`] samples in a row disagree with the estimate
-//! by more than their RTT plus 10 ms (the autopilot rebooted), the window is
-//! cleared and refilled from the new samples.
+//! RTT, so the fastest exchange is the most symmetric). Rejected outright:
+//! replies that do not match one of our last requests, with an RTT above
+//! [`MAX_RTT_NS`], or with an implausible autopilot time (`tc1 <= 0` or
+//! `tc1 >= 2^62` ns, 146 years).
 //!
-//! Our "public" clock is `monotonic + offset`: poses are stamped with it and
-//! requests from the autopilot are answered with it, so an autopilot that
-//! runs its own TIMESYNC (PX4) measures an offset of about zero and does not
-//! correct twice.
+//! Plausibility bound: once there is an estimate, a sample that disagrees
+//! with it by more than both RTTs plus [`AGREEMENT_SLACK_NS`] does not move
+//! it. Only [`RESYNC_AFTER`] such samples in a row that also agree with each
+//! other (the autopilot rebooted, or its clock was set) replace the window,
+//! and that jump is logged at warn. Lone outliers, and hostile or corrupt
+//! replies that do not agree with each other, are counted and ignored.
+//!
+//! Our "public" clock (what requests from the autopilot are answered with)
+//! is the pose clock's: poses and answers use the same clock, so an
+//! autopilot that runs its own TIMESYNC (PX4) converts `usec` consistently.
 
 /// Number of samples the lowest-RTT filter looks at.
 pub const WINDOW: usize = 16;
 /// Replies slower than this round trip are not used, ns.
 pub const MAX_RTT_NS: i64 = 100_000_000;
-/// Consecutive disagreeing samples that trigger a resync.
+/// Consecutive, mutually agreeing samples that move the estimate past the
+/// plausibility bound (a resync).
 pub const RESYNC_AFTER: usize = 3;
+/// Autopilot times at or above this are implausible (2^62 ns, 146 years).
+pub const MAX_AUTOPILOT_NS: i64 = 1 << 62;
+/// Slack added to the RTTs when checking agreement, ns.
+pub const AGREEMENT_SLACK_NS: i64 = 10_000_000;
 /// Our outstanding requests that a reply may match.
 const PENDING: usize = 8;
-/// Slack added to the RTT when checking agreement, ns.
-const AGREEMENT_SLACK_NS: i64 = 10_000_000;
 
 /// One accepted exchange.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -43,13 +56,49 @@ pub struct TimesyncSample {
     pub rtt_ns: i64,
 }
 
+impl TimesyncSample {
+    /// Whether two samples can describe the same clock offset.
+    fn agrees_with(&self, other: &TimesyncSample) -> bool {
+        let tolerance = self
+            .rtt_ns
+            .saturating_add(other.rtt_ns)
+            .saturating_add(AGREEMENT_SLACK_NS);
+        self.offset_ns
+            .saturating_sub(other.offset_ns)
+            .saturating_abs()
+            <= tolerance
+    }
+}
+
+/// The current estimate: the true offset lies within
+/// `offset_ns +- uncertainty_ns` (up to clock drift since the sample).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OffsetEstimate {
+    /// `autopilot - monotonic`, ns.
+    pub offset_ns: i64,
+    /// Half the round trip of the sample the estimate comes from, ns.
+    pub uncertainty_ns: i64,
+    /// Samples in the window the estimate was picked from (1..=[`WINDOW`]).
+    pub samples: usize,
+}
+
 /// What a received TIMESYNC means.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TimesyncEvent {
     /// A reply to one of our requests, used as a sample.
     Sample(TimesyncSample),
-    /// A reply that was not used (not ours, or too slow).
+    /// A reply that was not used (not ours, too slow, implausible time).
     Rejected,
+    /// A reply of ours that disagrees with the estimate beyond the
+    /// plausibility bound; kept aside, not used (yet).
+    Outlier(TimesyncSample),
+    /// [`RESYNC_AFTER`] agreeing outliers in a row replaced the estimate.
+    Resync {
+        /// The estimate before, ns.
+        old_offset_ns: i64,
+        /// The estimate now, ns.
+        new_offset_ns: i64,
+    },
 }
 
 /// The offset estimator. Fixed-size, allocation-free.
@@ -69,6 +118,11 @@ impl TimesyncEstimator {
         Self::default()
     }
 
+    /// Forgets everything (a new link: the autopilot may have restarted).
+    pub fn reset(&mut self) {
+        *self = Self::default();
+    }
+
     /// Records that we sent a request with `ts1 = now_ns` (our monotonic time).
     pub fn request_sent(&mut self, now_ns: i64) {
         self.pending[self.next_pending] = Some(now_ns);
@@ -81,49 +135,61 @@ impl TimesyncEstimator {
             return TimesyncEvent::Rejected;
         };
         *slot = None;
-        let rtt_ns = now_ns - ts1;
-        if !(0..=MAX_RTT_NS).contains(&rtt_ns) {
+        let rtt_ns = now_ns.saturating_sub(ts1);
+        if !(0..=MAX_RTT_NS).contains(&rtt_ns) || !(1..MAX_AUTOPILOT_NS).contains(&tc1) {
             return TimesyncEvent::Rejected;
         }
         let sample = TimesyncSample {
             offset_ns: tc1.saturating_sub(ts1).saturating_sub(rtt_ns / 2),
             rtt_ns,
         };
-        self.add(sample);
-        TimesyncEvent::Sample(sample)
+        self.add(sample)
     }
 
-    fn add(&mut self, sample: TimesyncSample) {
-        if let Some(best) = self.best() {
-            let tolerance = sample.rtt_ns + best.rtt_ns + AGREEMENT_SLACK_NS;
-            if sample
-                .offset_ns
-                .saturating_sub(best.offset_ns)
-                .saturating_abs()
-                > tolerance
-            {
-                self.disagreeing[self.disagreeing_count] = Some(sample);
-                self.disagreeing_count += 1;
-                if self.disagreeing_count == RESYNC_AFTER {
-                    tracing::warn!(
-                        old_offset_ns = best.offset_ns,
-                        new_offset_ns = sample.offset_ns,
-                        "TIMESYNC offset jumped (autopilot restarted?): resyncing"
-                    );
-                    self.window = [None; WINDOW];
-                    self.next_sample = 0;
-                    let fresh = std::mem::replace(&mut self.disagreeing, [None; RESYNC_AFTER]);
-                    self.disagreeing_count = 0;
-                    for s in fresh.into_iter().flatten() {
-                        self.push(s);
-                    }
-                }
-                return;
-            }
+    fn add(&mut self, sample: TimesyncSample) -> TimesyncEvent {
+        let Some(best) = self.best() else {
+            self.push(sample);
+            return TimesyncEvent::Sample(sample);
+        };
+        if sample.agrees_with(&best) {
+            self.disagreeing = [None; RESYNC_AFTER];
+            self.disagreeing_count = 0;
+            self.push(sample);
+            return TimesyncEvent::Sample(sample);
         }
-        self.disagreeing = [None; RESYNC_AFTER];
+        // Outside the plausibility bound: it counts toward a resync only if
+        // it agrees with the outliers before it.
+        let consistent = self.disagreeing[..self.disagreeing_count]
+            .iter()
+            .flatten()
+            .all(|s| s.agrees_with(&sample));
+        if !consistent {
+            self.disagreeing = [None; RESYNC_AFTER];
+            self.disagreeing_count = 0;
+        }
+        self.disagreeing[self.disagreeing_count] = Some(sample);
+        self.disagreeing_count += 1;
+        if self.disagreeing_count < RESYNC_AFTER {
+            return TimesyncEvent::Outlier(sample);
+        }
+        self.window = [None; WINDOW];
+        self.next_sample = 0;
+        let fresh = std::mem::replace(&mut self.disagreeing, [None; RESYNC_AFTER]);
         self.disagreeing_count = 0;
-        self.push(sample);
+        for s in fresh.into_iter().flatten() {
+            self.push(s);
+        }
+        let new_offset_ns = self.best().map_or(sample.offset_ns, |s| s.offset_ns);
+        tracing::warn!(
+            old_offset_ns = best.offset_ns,
+            new_offset_ns,
+            jump_ms = new_offset_ns.saturating_sub(best.offset_ns) as f64 * 1e-6,
+            "TIMESYNC offset jumped ({RESYNC_AFTER} agreeing replies; autopilot restarted?): estimate replaced"
+        );
+        TimesyncEvent::Resync {
+            old_offset_ns: best.offset_ns,
+            new_offset_ns,
+        }
     }
 
     fn push(&mut self, sample: TimesyncSample) {
@@ -148,11 +214,22 @@ impl TimesyncEstimator {
     pub fn rtt_ns(&self) -> Option<i64> {
         self.best().map(|s| s.rtt_ns)
     }
+
+    /// The estimate with its uncertainty, once a reply came.
+    pub fn estimate(&self) -> Option<OffsetEstimate> {
+        self.best().map(|s| OffsetEstimate {
+            offset_ns: s.offset_ns,
+            uncertainty_ns: s.rtt_ns / 2,
+            samples: self.window.iter().flatten().count(),
+        })
+    }
 }
 
-/// Our public time for a monotonic time: `monotonic + offset` (no offset yet: unchanged).
+/// `monotonic + offset`, saturating (no offset: unchanged).
 pub fn to_public_ns(monotonic_ns: u64, offset_ns: Option<i64>) -> i64 {
-    (monotonic_ns as i64).saturating_add(offset_ns.unwrap_or(0))
+    i64::try_from(monotonic_ns)
+        .unwrap_or(i64::MAX)
+        .saturating_add(offset_ns.unwrap_or(0))
 }
 
 #[cfg(test)]
@@ -242,7 +319,7 @@ mod tests {
             2_000_000,
             2_000_000,
         );
-        // ...three in a row replace the estimate.
+        // ...three agreeing ones in a row replace the estimate.
         for k in 12..15 {
             exchange(
                 &mut est,
@@ -256,19 +333,95 @@ mod tests {
     }
 
     #[test]
-    fn absurd_replies_do_not_overflow() {
+    fn absurd_replies_are_rejected_without_overflow() {
         let mut est = TimesyncEstimator::new();
-        est.request_sent(1_000);
+        for (k, tc1) in [i64::MIN, -(1 << 62), 0, 1 << 62, i64::MAX]
+            .into_iter()
+            .enumerate()
+        {
+            let ts1 = 1_000 + k as i64 * 10_000;
+            est.request_sent(ts1);
+            assert_eq!(
+                est.reply_received(tc1, ts1, ts1 + 1_000),
+                TimesyncEvent::Rejected,
+                "tc1 = {tc1}"
+            );
+        }
+        assert_eq!(est.offset_ns(), None);
+        // A reply that arrives "before" its request (a corrupt ts1 that
+        // happens to match) is not a sample either.
+        est.request_sent(i64::MAX);
+        assert_eq!(
+            est.reply_received(5, i64::MAX, i64::MIN),
+            TimesyncEvent::Rejected
+        );
+    }
+
+    #[test]
+    fn hostile_replies_do_not_move_the_estimate() {
+        let mut est = TimesyncEstimator::new();
+        let offset = 2_000_000_000i64;
+        for k in 0..5 {
+            exchange(&mut est, k * 500_000_000, offset, 1_000_000, 1_000_000);
+        }
+        let before = est.estimate();
+        // Replies to our requests whose tc1 is absurd: 2^62 and -2^62 are
+        // rejected outright; tc1 = 1 (an autopilot "just booted") disagrees
+        // and, since each such reply implies a different offset, never
+        // resyncs however often it comes.
+        for k in 5..50i64 {
+            let ts1 = k * 500_000_000;
+            let tc1 = match k % 3 {
+                0 => 1 << 62,
+                1 => -(1 << 62),
+                _ => 1,
+            };
+            est.request_sent(ts1);
+            let ev = est.reply_received(tc1, ts1, ts1 + 2_000_000);
+            assert!(
+                matches!(ev, TimesyncEvent::Rejected | TimesyncEvent::Outlier(_)),
+                "{ev:?}"
+            );
+            assert_eq!(est.estimate(), before);
+        }
+        // Outliers in a row that disagree with each other do not resync.
+        for k in 50..60i64 {
+            let jump = if k % 2 == 0 {
+                3_000_000_000
+            } else {
+                -3_000_000_000
+            };
+            let ev = exchange(
+                &mut est,
+                k * 500_000_000,
+                offset + jump,
+                1_000_000,
+                1_000_000,
+            );
+            assert!(matches!(ev, TimesyncEvent::Outlier(_)), "{ev:?}");
+        }
+        assert_eq!(est.estimate(), before);
+        // Normal replies keep being used.
         assert!(matches!(
-            est.reply_received(i64::MIN, 1_000, 2_000),
+            exchange(&mut est, 70_000_000_000, offset, 1_000_000, 1_000_000),
             TimesyncEvent::Sample(_)
         ));
-        est.request_sent(3_000);
-        assert!(matches!(
-            est.reply_received(i64::MAX, 3_000, 4_000),
-            TimesyncEvent::Sample(_)
-        ));
-        assert!(est.offset_ns().is_some());
+    }
+
+    #[test]
+    fn estimate_carries_half_the_round_trip() {
+        let mut est = TimesyncEstimator::new();
+        exchange(&mut est, 1_000, 7_000_000, 3_000_000, 1_000_000);
+        assert_eq!(
+            est.estimate(),
+            Some(OffsetEstimate {
+                offset_ns: 7_000_000 + 1_000_000,
+                uncertainty_ns: 2_000_000,
+                samples: 1,
+            })
+        );
+        est.reset();
+        assert_eq!(est.estimate(), None);
     }
 
     #[test]
