@@ -2,7 +2,9 @@
 //! data from a seed, runs the flight code on it and prints the figures it
 //! measured (never pass/fail). `cli` only parses their arguments.
 //!
+//! - [`reloc`]: relocalization success, wrong accepts and timings.
 //! - [`integrity`]: wrong poses sent under faults, cold-start time, kidnap
 //!   recovery, wrong hints.
 
 pub mod integrity;
+pub mod reloc;

@@ -12,7 +12,7 @@
 //! - `star bench integrity`: wrong poses sent, cold starts, kidnaps and
 //!   wrong hints ([`crate::bench::integrity`]).
 //! - `star bench reloc`: relocalization success rate and timings on the
-//!   synthetic realistic scene ([`super::bench_reloc`]).
+//!   synthetic realistic scene ([`crate::bench::reloc`]).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -138,7 +138,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             config,
             queries,
             seed,
-        } => super::bench_reloc::run(config.as_deref(), *queries, *seed),
+        } => crate::bench::reloc::run(config.as_deref(), *queries, *seed),
     }
 }
 

@@ -9,7 +9,6 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench;
-mod bench_reloc;
 mod camera;
 mod check_config;
 mod doctor;

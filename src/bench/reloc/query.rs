@@ -1,0 +1,76 @@
+//! Drawing a query: a random free pose at the database's heights and
+//! pitch, rendered from the truth mesh (occluders, no map holes) through
+//! the lens distortion and the realistic sensor model.
+
+use anyhow::Result;
+use nalgebra::{Translation3, Vector3};
+
+use crate::geometry::look::camera_rotation;
+use crate::geometry::Pose;
+use crate::render::Renderer;
+use crate::rng::SplitMix64;
+
+use super::setup::Bench;
+
+/// A drawn query; its frame is in [`Bench::frame`] and [`Bench::pyramid`].
+pub(super) struct QueryFrame {
+    /// Where the camera truly was.
+    pub(super) truth: Pose,
+    /// Its position, m.
+    pub(super) position_m: Vector3<f64>,
+}
+
+impl Bench {
+    /// Draws the next query (`index` numbers it for the sensor model), or
+    /// `None` when the draw is not free or sees too little of the map.
+    pub(super) fn draw_query(
+        &mut self,
+        rng: &mut SplitMix64,
+        index: usize,
+    ) -> Result<Option<QueryFrame>> {
+        let (z_lo, z_hi) = self.z_range_m;
+        let scene = &self.scene;
+        let p = Vector3::new(
+            rng.range(scene.free_min_m[0], scene.free_max_m[0]),
+            rng.range(scene.free_min_m[1], scene.free_max_m[1]),
+            rng.range(z_lo, z_hi),
+        );
+        if !scene.is_free([p.x, p.y, p.z], 0.4) {
+            return Ok(None);
+        }
+        let yaw = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
+        let pitch = (self.pitch_mid_deg + rng.range(-5.0, 5.0)).to_radians();
+        // STAR_BENCH_ROLL_DEG=R: queries rolled uniformly within +-R deg
+        // (the database views have none; no draw without it, so the default
+        // queries stay the same).
+        let roll = self
+            .max_roll_deg
+            .map_or(0.0, |r| rng.range(-r, r).to_radians());
+        let truth = Pose::from_parts(Translation3::from(p), camera_rotation(yaw, pitch, roll));
+        self.truth_r
+            .render(&truth, &self.render_camera, &mut self.qview)?;
+        let hits = self
+            .qview
+            .depth_m
+            .data()
+            .iter()
+            .filter(|&&d| d > 0.0)
+            .count();
+        if hits < self.qview.depth_m.data().len() * 6 / 10 {
+            return Ok(None);
+        }
+        self.warp.warp_gray(&self.qview.gray, &mut self.warped);
+        self.sensor.apply(
+            &self.warped,
+            index as u64,
+            rng.range(0.0, 60.0),
+            &mut self.frame,
+        );
+        self.pyramid
+            .fill_from_u8(self.frame.data(), self.frame.width());
+        Ok(Some(QueryFrame {
+            truth,
+            position_m: p,
+        }))
+    }
+}

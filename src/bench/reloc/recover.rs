@@ -1,0 +1,228 @@
+//! One query through the service's recovery order in one search region:
+//! the landmark pose first, then (when it is missing or refused) the
+//! database views by descriptor, each rendered and verified through the
+//! gate, timed as the service would spend it.
+
+use std::time::Instant;
+
+use crate::geometry::{PinholeCamera, Pose};
+use crate::reloc::{
+    try_candidate, Candidate, Query, RelocConfig, SearchRegion, Verified, LANDMARK_CANDIDATE,
+};
+use crate::track::{Aligner, Keyframe, Pyramid};
+
+use super::query::QueryFrame;
+use super::setup::Bench;
+use super::tally::Tally;
+
+/// What one search gave.
+pub(super) struct Outcome {
+    /// The frame's descriptor.
+    pub(super) descriptor: Query,
+    /// The landmark pose (when found) and the descriptor's candidates.
+    pub(super) candidates: Vec<Candidate>,
+    /// The accepted candidate.
+    pub(super) verdict: Option<Verified>,
+    /// A candidate within 0.5 m / 20 deg of the truth was among them.
+    pub(super) near_truth: bool,
+    /// Recovery time, ms.
+    pub(super) ms: f64,
+}
+
+impl Bench {
+    /// Runs the query in the frame buffers through `region`; `None` when the
+    /// frame has too little contrast to describe.
+    pub(super) fn recover(
+        &mut self,
+        query: &QueryFrame,
+        region: SearchRegion,
+        tally: &mut Tally,
+    ) -> Option<Outcome> {
+        let t_query = Instant::now();
+        let descriptor = self.reloc.describe(
+            self.frame.data(),
+            self.frame.width(),
+            self.frame.height(),
+            self.frame.width(),
+        )?;
+        // As the service: the landmark pose first, then (when it is
+        // missing or refused) the database views by descriptor.
+        let t_landmarks = Instant::now();
+        let landmark = self.reloc.landmark_candidate(
+            self.frame.data(),
+            self.frame.width(),
+            self.frame.height(),
+            self.frame.width(),
+            region,
+        );
+        tally
+            .landmark_ms
+            .push(t_landmarks.elapsed().as_secs_f64() * 1e3);
+        let mut candidates: Vec<Candidate> = Vec::new();
+        if let Some((c, found)) = landmark {
+            let e = query.truth.inverse() * c.world_from_camera;
+            let right =
+                e.translation.vector.norm() <= 0.1 && e.rotation.angle().to_degrees() <= 3.0;
+            tally.located += 1;
+            tally.located_right += usize::from(right);
+            tally
+                .located_inliers
+                .push((found.inliers, found.matches, right));
+            candidates.push(c);
+        }
+        let mut verdict = None;
+        let mut untimed_ms = 0.0;
+        let mut tried = 0;
+        for pass in 0..2 {
+            if pass == 1 {
+                // The descriptor search runs for the retrieval figures
+                // even when the landmark pose was accepted; it counts in
+                // the recovery time only when it was needed.
+                let t_rank = Instant::now();
+                let ranked =
+                    self.reloc
+                        .search_ranked(&descriptor, region, &mut self.aligner, &self.pyramid);
+                candidates.extend_from_slice(ranked);
+                let rank_ms = t_rank.elapsed().as_secs_f64() * 1e3;
+                tally.rank_ms.push(rank_ms);
+                if verdict.is_some() {
+                    untimed_ms += rank_ms;
+                    break;
+                }
+            }
+            while tried < candidates.len() {
+                let c = candidates[tried];
+                tried += 1;
+                let r = &c.ranked;
+                let (candidate_r, pinhole, kview, tracker) = (
+                    &mut self.candidate_r,
+                    &self.pinhole,
+                    &mut self.kview,
+                    &self.tracker,
+                );
+                let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
+                    let t_render = Instant::now();
+                    candidate_r
+                        .render(world_from_keyframe, pinhole, kview)
+                        .ok()?;
+                    tally.renders += 1;
+                    let t_prepare = Instant::now();
+                    kf.prepare(kview, *world_from_keyframe, u64::from(r.index), tracker);
+                    tally.prepare_ms += t_prepare.elapsed().as_secs_f64() * 1e3;
+                    tally.render_ms += t_render.elapsed().as_secs_f64() * 1e3;
+                    Some(())
+                };
+                verdict = attempt(
+                    &mut self.aligner,
+                    &self.pyramid,
+                    &self.camera,
+                    &self.config.reloc,
+                    (&c.world_from_camera, c.yaw_rad),
+                    (&mut self.spare, &mut self.returned),
+                    &mut render,
+                );
+                if verdict.is_some() {
+                    tally.from_landmarks += usize::from(r.index == LANDMARK_CANDIDATE);
+                    break;
+                }
+            }
+        }
+        let ms = t_query.elapsed().as_secs_f64() * 1e3 - untimed_ms;
+        tally.recovery_ms.push(ms);
+        if let Some(first) = candidates.first() {
+            tally
+                .retrieved_m
+                .push((first.world_from_camera.translation.vector - query.position_m).norm());
+        }
+        if let Some(first) = candidates
+            .iter()
+            .find(|c| c.ranked.index != LANDMARK_CANDIDATE)
+        {
+            tally
+                .descriptor_m
+                .push((first.world_from_camera.translation.vector - query.position_m).norm());
+        }
+        // Retrieval alone: is a candidate near the truth among the
+        // landmark pose and the top k?
+        let is_near = |world_from_camera: &Pose| {
+            let e = query.truth.inverse() * world_from_camera;
+            e.translation.vector.norm() <= 0.5 && e.rotation.angle().to_degrees() <= 20.0
+        };
+        let near_truth = candidates.iter().any(|c| is_near(&c.world_from_camera));
+        tally.retrieved_near += usize::from(near_truth);
+        Some(Outcome {
+            descriptor,
+            candidates,
+            verdict,
+            near_truth,
+            ms,
+        })
+    }
+
+    /// Where the nearest good keyframe sits in the full ranking: what a
+    /// re-ranking stage over the top N could recover (`usize::MAX`: none
+    /// near).
+    pub(super) fn near_rank(&self, query: &QueryFrame, outcome: &Outcome) -> usize {
+        let is_near = |world_from_camera: &Pose| {
+            let e = query.truth.inverse() * world_from_camera;
+            e.translation.vector.norm() <= 0.5 && e.rotation.angle().to_degrees() <= 20.0
+        };
+        let distance = |e: &crate::reloc::RelocEntry| {
+            outcome
+                .descriptor
+                .iter()
+                .map(|q| q.hamming(&e.descriptor))
+                .min()
+                .unwrap_or(u32::MAX)
+        };
+        let entries = &self.db.entries;
+        let near_best = entries
+            .iter()
+            .filter(|e| is_near(&e.world_from_camera))
+            .map(distance)
+            .min();
+        near_best.map_or(usize::MAX, |best| {
+            entries.iter().filter(|e| distance(e) < best).count()
+        })
+    }
+}
+
+/// One candidate through [`try_candidate`] from `world_from_candidate`
+/// (with the yaw the search matched at), keyframes drawn from `spare` and
+/// filled by `render`; every keyframe is back in `spare` afterwards
+/// (`returned` holds the recycled ones meanwhile).
+#[allow(clippy::vec_box)] // `try_candidate` hands keyframes over boxed
+pub(super) fn attempt(
+    aligner: &mut Aligner,
+    pyramid: &Pyramid,
+    camera: &PinholeCamera,
+    rc: &RelocConfig,
+    (world_from_candidate, shift_yaw_rad): (&Pose, Option<f64>),
+    (spare, returned): (&mut Vec<Box<Keyframe>>, &mut Vec<Box<Keyframe>>),
+    render: &mut dyn FnMut(&Pose, &mut Keyframe) -> Option<()>,
+) -> Option<Verified> {
+    let mut draw = |world_from_keyframe: &Pose| {
+        let mut kf = spare.pop()?;
+        if render(world_from_keyframe, &mut kf).is_some() {
+            Some(kf)
+        } else {
+            spare.push(kf);
+            None
+        }
+    };
+    let found = try_candidate(
+        aligner,
+        pyramid,
+        camera,
+        rc,
+        world_from_candidate,
+        shift_yaw_rad,
+        &mut draw,
+        &mut |kf: Box<Keyframe>| returned.push(kf),
+    );
+    spare.append(returned);
+    found.map(|(v, kf)| {
+        spare.push(kf);
+        v
+    })
+}

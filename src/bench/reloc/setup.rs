@@ -1,0 +1,178 @@
+//! The bench's fixed parts: the realistic scene of a seed, its database
+//! (CPU renderer), the candidate renderer the service would use, and the
+//! buffers the queries and candidates reuse.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+
+use crate::config::Config;
+use crate::geometry::PinholeCamera;
+use crate::imgproc::{ImageF32, ImageU8};
+use crate::reloc::{build_database, RelocDatabase, Relocalizer};
+use crate::render::cpu::CpuRenderer;
+use crate::render::{RenderedView, Renderer};
+use crate::synth::corrupt::{DistortionWarp, SensorModel};
+use crate::synth::preset::Preset;
+use crate::synth::sequence::preset_scene;
+use crate::synth::Scene;
+use crate::track::{Aligner, Keyframe, Pyramid, TrackerConfig};
+
+/// Everything the queries run against.
+pub(super) struct Bench {
+    pub(super) config: Config,
+    pub(super) scene: Scene,
+    pub(super) camera: PinholeCamera,
+    pub(super) db: RelocDatabase,
+    pub(super) reloc: Relocalizer,
+    /// Renders the candidates: the configured `[render] renderer`.
+    pub(super) candidate_r: Box<dyn Renderer>,
+    /// Renders the queries from the truth mesh.
+    pub(super) truth_r: CpuRenderer,
+    pub(super) warp: DistortionWarp,
+    pub(super) render_camera: PinholeCamera,
+    pub(super) sensor: SensorModel,
+    pub(super) qview: RenderedView,
+    pub(super) warped: ImageF32,
+    pub(super) frame: ImageU8,
+    pub(super) pinhole: PinholeCamera,
+    /// As the STAR loop builds keyframes: one pyramid level more than tracking.
+    pub(super) tracker: TrackerConfig,
+    pub(super) kview: RenderedView,
+    /// Keyframes for a candidate and each of its re-renders (recycled ones
+    /// come back only after the candidate is done); boxed, as
+    /// `try_candidate` hands them over.
+    #[allow(clippy::vec_box)]
+    pub(super) spare: Vec<Box<Keyframe>>,
+    #[allow(clippy::vec_box)]
+    pub(super) returned: Vec<Box<Keyframe>>,
+    pub(super) aligner: Aligner,
+    pub(super) pyramid: Pyramid,
+    /// Query heights, the database's.
+    pub(super) z_range_m: (f64, f64),
+    /// Query pitch: the middle of the database's pitches.
+    pub(super) pitch_mid_deg: f64,
+    /// `STAR_BENCH_ROLL_DEG`.
+    pub(super) max_roll_deg: Option<f64>,
+}
+
+impl Bench {
+    /// Builds the scene of `seed`, its database and the renderers, and
+    /// prints what was built.
+    pub(super) fn new(config_path: Option<&std::path::Path>, seed: u64) -> Result<Self> {
+        let config = match config_path {
+            Some(p) => Config::load(p)?,
+            None => Config::default(),
+        };
+        let rc = &config.reloc;
+        let preset = Preset::by_name("realistic").context("preset `realistic`")?;
+        let scene = preset_scene(&preset, seed);
+        let camera = preset.camera;
+        let map = Arc::new(scene.map.clone());
+        let mut map_r = CpuRenderer::new(map.clone())?;
+        // Candidates are rendered as the service renders them: by the
+        // `[render] renderer` of the configuration (auto: a hardware adapter,
+        // else lavapipe, else the CPU rasterizer).
+        let kind = config.render.renderer;
+        let candidate_r = crate::render::select::make_renderer(kind, map.clone())
+            .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+
+        let t0 = Instant::now();
+        let bar = indicatif::ProgressBar::new(0);
+        let db = build_database(&map, &camera, &mut map_r, rc, &mut |done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        })?;
+        bar.finish_and_clear();
+        let build_s = t0.elapsed().as_secs_f64();
+        println!(
+            "reloc bench: realistic scene seed {seed}, map {} triangles, camera {}x{}",
+            map.triangle_count(),
+            camera.width,
+            camera.height
+        );
+        println!(
+            "  candidates rendered by {} (`[render] renderer = {kind:?}`)",
+            candidate_r.name()
+        );
+        println!(
+            "  database: {} keyframes (grid {} m, heights {:?} m, {} yaws, pitches {:?} deg) and {} landmarks, built in {build_s:.1} s with the CPU renderer",
+            db.entries.len(),
+            rc.grid_spacing_m,
+            rc.heights_m,
+            rc.yaw_steps,
+            rc.pitches_deg,
+            db.landmarks.len()
+        );
+
+        // Queries: truth mesh, distortion, sensor model.
+        let truth_r = CpuRenderer::new(Arc::new(scene.truth.clone()))?;
+        let warp = DistortionWarp::new(&camera)?;
+        let render_camera = *warp.render_camera();
+        let sensor = SensorModel::new(preset.photometric, &camera, seed);
+        let pinhole = camera.pinhole();
+        let tracker = crate::track::build_config(&config.tracker);
+        let renders_per_candidate = 1 + rc.refine_renders as usize;
+        let spare: Vec<Box<Keyframe>> = (0..renders_per_candidate)
+            .map(|_| Box::new(Keyframe::new(&pinhole, &tracker)))
+            .collect();
+        let reloc = Relocalizer::new(db.clone(), rc, &camera)?;
+        let z_range_m = rc
+            .heights_m
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &h| {
+                (a.min(h), b.max(h))
+            });
+        let pitch_mid_deg = rc.pitches_deg.iter().sum::<f64>() / rc.pitches_deg.len() as f64;
+        let max_roll_deg = std::env::var("STAR_BENCH_ROLL_DEG")
+            .ok()
+            .map(|v| {
+                v.parse::<f64>()
+                    .ok()
+                    .filter(|r| r.is_finite() && *r >= 0.0 && *r < 90.0)
+                    .with_context(|| format!("STAR_BENCH_ROLL_DEG={v}: expected degrees in 0..90"))
+            })
+            .transpose()?;
+        Ok(Self {
+            qview: RenderedView::for_camera(&render_camera),
+            kview: RenderedView::for_camera(&pinhole),
+            warped: ImageF32::new(0, 0, 0.0),
+            frame: ImageU8::new(0, 0, 0),
+            returned: Vec::with_capacity(renders_per_candidate),
+            aligner: Aligner::new(&tracker),
+            pyramid: Pyramid::new(
+                camera.width as usize,
+                camera.height as usize,
+                tracker.pyramid_levels as usize,
+            ),
+            config: config.clone(),
+            scene,
+            camera,
+            db,
+            reloc,
+            candidate_r,
+            truth_r,
+            warp,
+            render_camera,
+            sensor,
+            pinhole,
+            tracker,
+            spare,
+            z_range_m,
+            pitch_mid_deg,
+            max_roll_deg,
+        })
+    }
+
+    /// Prints how the queries were drawn.
+    pub(super) fn print_queries(&self, done: usize) {
+        let (z_lo, z_hi) = self.z_range_m;
+        println!(
+            "  queries: {done} random free poses (clearance 0.4 m, z {z_lo}..{z_hi} m, yaw any, pitch {}+-5 deg, roll +-{} deg, >= 60 % of the view on the map), truth mesh + distortion + realistic sensor model; top_k {}",
+            self.pitch_mid_deg,
+            self.max_roll_deg.unwrap_or(0.0),
+            self.config.reloc.top_k
+        );
+    }
+}
