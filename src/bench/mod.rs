@@ -2,9 +2,11 @@
 //! data from a seed, runs the flight code on it and prints the figures it
 //! measured (never pass/fail). `cli` only parses their arguments.
 //!
+//! - [`pairs`]: tracker pairs and their alignment time and error.
 //! - [`reloc`]: relocalization success, wrong accepts and timings.
 //! - [`integrity`]: wrong poses sent under faults, cold-start time, kidnap
 //!   recovery, wrong hints.
 
 pub mod integrity;
+pub mod pairs;
 pub mod reloc;

@@ -123,11 +123,6 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
     Ok(())
 }
 
-/// Median and 99th percentile of samples (0 when empty).
-pub fn median_p99_ms(samples: &[f64]) -> (f64, f64) {
-    median_p99(samples)
-}
-
 /// Prints the end-of-run summary.
 pub fn print_summary(report: &OfflineReport, output: &Path) {
     let (median_ms, p99_ms) = median_p99(&report.track_ms);
