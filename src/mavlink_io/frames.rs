@@ -14,7 +14,7 @@
 //!   perturbs `world_from_camera` on the left, in the world frame:
 //!   `world_from_camera_true = exp(xi) * world_from_camera`. A tracker with a
 //!   right (camera-frame) perturbation converts with
-//!   [`covariance_camera_to_world`].
+//!   [`twist_covariance_world_from_camera`].
 //! - Output: the covariance of MAVLink's pose states, in the order
 //!   `x, y, z, roll, pitch, yaw`:
 //!   - rows/columns 0..3 (position block, m^2): the body origin's position in
@@ -149,7 +149,7 @@ fn euler_rates_from_angular_velocity(pitch_rad: f64, yaw_rad: f64) -> Matrix3<f6
 /// Converts the covariance of a right (camera-frame) twist,
 /// `world_from_camera * exp(xi_camera)`, into the left world-frame twist
 /// covariance that [`FrameConverter::pose_covariance`] takes.
-pub fn covariance_camera_to_world(
+pub fn twist_covariance_world_from_camera(
     world_from_camera: &Pose,
     covariance_camera: &Matrix6<f64>,
 ) -> Matrix6<f64> {

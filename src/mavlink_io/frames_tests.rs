@@ -179,7 +179,7 @@ fn yaw_uncertainty_about_the_camera_moves_the_body_through_the_lever_arm() {
     let pose = conv.ned_pose(&world_from_camera);
     let mut camera_cov = Matrix6::zeros();
     camera_cov[(4, 4)] = 4e-4;
-    let world_cov = covariance_camera_to_world(&world_from_camera, &camera_cov);
+    let world_cov = twist_covariance_world_from_camera(&world_from_camera, &camera_cov);
     let out = conv.pose_covariance(&pose, &world_cov);
     // The body origin is 0.10 m behind the camera: a yaw d turns it by
     // d * (0, -0.10, 0) in NED (east), so var(east) = 0.01 * 4e-4,
@@ -215,7 +215,7 @@ fn pitch_uncertainty_of_a_downward_camera_heading_east() {
     camera_cov[(3, 3)] = 1e-4;
     let out = conv.pose_covariance(
         &pose,
-        &covariance_camera_to_world(&world_from_camera, &camera_cov),
+        &twist_covariance_world_from_camera(&world_from_camera, &camera_cov),
     );
     assert!((out[(4, 4)] - 1e-4).abs() < 1e-15, "{out}");
     assert!(

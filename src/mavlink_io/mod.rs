@@ -84,7 +84,7 @@ pub struct PoseSample {
     /// `world_from_camera` on the left, in the WORLD frame:
     /// `true = exp(xi) * world_from_camera`; row-major `[row][col]`.
     /// A camera-frame (right) covariance converts with
-    /// [`frames::covariance_camera_to_world`]. Non-finite entries send
+    /// [`frames::twist_covariance_world_from_camera`]. Non-finite entries send
     /// "unknown" (NaN in the first element).
     pub covariance_6x6: [[f64; 6]; 6],
     /// The tracker's reset counter: change it on relocalization or any jump.

@@ -46,13 +46,15 @@ pub struct RelocConfig {
     pub max_speed_m_s: f64,
     /// Frames whose thumbnail standard deviation is below this (gray levels)
     /// are not searched (black, saturated or covered frames).
-    pub min_contrast: f32,
+    #[serde(alias = "min_contrast")]
+    pub min_contrast_gray: f32,
     /// Acceptance gate: smallest inlier ratio of the candidate alignment.
     pub min_inlier_ratio: f32,
     /// Acceptance gate: smallest fraction of candidate points visible.
     pub min_visible_ratio: f32,
     /// Acceptance gate: largest inlier residual RMS, gray levels.
-    pub max_residual: f32,
+    #[serde(alias = "max_residual")]
+    pub max_residual_gray: f32,
     /// Acceptance gate: smallest normalized cross-correlation between the
     /// candidate's points and the frame at the aligned pose, the lowest of
     /// pyramid levels 0, 1 and 2 (detail and layout). Correct poses
@@ -109,7 +111,8 @@ pub struct RelocConfig {
     /// Features per view and per lost frame.
     pub landmark_features: u32,
     /// Largest Hamming distance (of 256 bits) of a feature-to-landmark match.
-    pub landmark_max_hamming: u32,
+    #[serde(alias = "landmark_max_hamming")]
+    pub landmark_max_hamming_bits: u32,
     /// Fewest PnP inliers for a landmark pose to become a candidate.
     pub landmark_min_inliers: u32,
 }
@@ -129,10 +132,10 @@ impl Default for RelocConfig {
             rank_candidates: 32,
             search_radius_m: 0.5,
             max_speed_m_s: 2.0,
-            min_contrast: 4.0,
+            min_contrast_gray: 4.0,
             min_inlier_ratio: 0.7,
             min_visible_ratio: 0.5,
-            max_residual: 12.0,
+            max_residual_gray: 12.0,
             min_correlation: 0.5,
             min_trimmed_correlation: 0.85,
             min_gain: 0.5,
@@ -148,7 +151,7 @@ impl Default for RelocConfig {
             landmark_heights_m: vec![1.4],
             landmark_yaw_steps: 8,
             landmark_features: 300,
-            landmark_max_hamming: 50,
+            landmark_max_hamming_bits: 50,
             landmark_min_inliers: 15,
         }
     }
@@ -220,9 +223,9 @@ impl RelocConfig {
                 format!("expected 16..=5000, found {}", self.landmark_features),
             ),
             (
-                "landmark_max_hamming",
-                self.landmark_max_hamming <= 256,
-                format!("expected 0..=256, found {}", self.landmark_max_hamming),
+                "landmark_max_hamming_bits",
+                self.landmark_max_hamming_bits <= 256,
+                format!("expected 0..=256, found {}", self.landmark_max_hamming_bits),
             ),
             (
                 "landmark_min_inliers",
@@ -314,9 +317,9 @@ impl RelocConfig {
                 format!("expected >= 0, found {}", self.max_speed_m_s),
             ),
             (
-                "min_contrast",
-                self.min_contrast.is_finite() && self.min_contrast >= 0.0,
-                format!("expected >= 0, found {}", self.min_contrast),
+                "min_contrast_gray",
+                self.min_contrast_gray.is_finite() && self.min_contrast_gray >= 0.0,
+                format!("expected >= 0, found {}", self.min_contrast_gray),
             ),
             (
                 "min_inlier_ratio",
@@ -329,9 +332,9 @@ impl RelocConfig {
                 format!("expected 0..=1, found {}", self.min_visible_ratio),
             ),
             (
-                "max_residual",
-                self.max_residual.is_finite() && self.max_residual > 0.0,
-                format!("expected > 0, found {}", self.max_residual),
+                "max_residual_gray",
+                self.max_residual_gray.is_finite() && self.max_residual_gray > 0.0,
+                format!("expected > 0, found {}", self.max_residual_gray),
             ),
             (
                 "resume_window_s",

@@ -193,7 +193,7 @@ pub fn build_database_in(
                     Some(view.depth_m.data()),
                     w,
                     h,
-                    config.min_contrast,
+                    config.min_contrast_gray,
                 ) {
                     let coarse_start = (coarse_points.len() + position_points.len()) as u32;
                     let coarse_len = coarse.extract(&view, &mut position_points) as u32;

@@ -258,7 +258,7 @@ impl LandmarkLocator {
             camera,
             &feature_params(config),
             params,
-            config.landmark_max_hamming,
+            config.landmark_max_hamming_bits,
             landmarks.iter().map(|l| l.descriptor).collect(),
             landmarks.iter().map(|l| l.world_m).collect(),
         )

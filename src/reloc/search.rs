@@ -161,8 +161,13 @@ impl Relocalizer {
         height: usize,
         stride: usize,
     ) -> Option<Query> {
-        self.thumbnailer
-            .describe_u8(pixels, width, height, stride, self.config.min_contrast)?;
+        self.thumbnailer.describe_u8(
+            pixels,
+            width,
+            height,
+            stride,
+            self.config.min_contrast_gray,
+        )?;
         let t = &self.thumbnailer;
         Some(QUERY_SHIFTS_PX.map(|dx| t.shifted(dx)))
     }

@@ -37,7 +37,7 @@ pub struct Verified {
 pub fn passes_gate(q: &AlignQuality, config: &RelocConfig) -> bool {
     q.inlier_ratio >= config.min_inlier_ratio
         && q.visible_ratio >= config.min_visible_ratio
-        && q.residual_rms <= config.max_residual
+        && q.residual_rms <= config.max_residual_gray
         && q.residual_rms.is_finite()
 }
 

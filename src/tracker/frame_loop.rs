@@ -31,7 +31,7 @@ use crate::ipc::{
     FrameSubscriber, FrameView, PoseMsg, PosePublisher, TrackingState, NO_DATASET_STAMP,
 };
 use crate::localizer::{FrameOutput, Localizer, TrackState};
-use crate::mavlink_io::frames::{covariance_camera_to_world, upper_triangle};
+use crate::mavlink_io::frames::{twist_covariance_world_from_camera, upper_triangle};
 use crate::mavlink_io::{LinkStats, MavlinkHandle, PoseSample};
 use crate::service::{Service, ServiceState, StatusBoard, Watchdog};
 
@@ -329,7 +329,7 @@ impl Tracker {
             .world_from_camera
             .or(state.world_from_camera_last)
             .unwrap_or(self.world_from_camera_start);
-        let covariance_world = covariance_camera_to_world(&pose, &out.covariance);
+        let covariance_world = twist_covariance_world_from_camera(&pose, &out.covariance);
         if tracking {
             state.tracked += 1;
             state.world_from_camera_last = Some(pose);
