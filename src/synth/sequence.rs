@@ -10,14 +10,28 @@
 //! (ideal depth of the image mesh at the frame time, 16-bit), `rgb.txt`,
 //! `depth.txt`, `groundtruth.txt`, `camera.toml` and `synth.toml` (the
 //! exact preset and seed). Same preset, seed and count: same bytes.
+//!
+//! With a scanned preset ([`Preset::scanned`]) the map is instead rebuilt
+//! by [`super::scanned::build_scanned_map`] (a scanning run fused by
+//! Open3D, stored in the scanner's frame), `star.toml` declares its
+//! placement (`[map.world_from_mesh]`), `scan_groundtruth.txt` holds the
+//! scanning walk, and each flight sub-frame is shaded by a moving light
+//! before blur, distortion and the sensor model, with an auto-exposure
+//! gain applied before the sensor model.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use nalgebra::Vector3;
 
-use super::corrupt::{subframe_offsets_s, DistortionError, DistortionWarp, SensorModel};
+use super::corrupt::{
+    derive_seed, subframe_offsets_s, DistortionError, DistortionWarp, SensorModel,
+};
 use super::preset::{ImageSource, Preset};
+use super::scanned::exposure::ExposureSchedule;
+use super::scanned::fusion::FusionStats;
+use super::scanned::lighting::{depth_normals, shade};
+use super::scanned::{build_scanned_map, star_toml_text, ScanTools, ScannedError};
 use super::scene::{build_scene, Scene, SceneParams};
 use super::trajectory::{RoomBox, SynthTrajectory, TrajectoryError};
 use crate::dataset::{CameraFile, DatasetError, DatasetWriter, Trajectory};
@@ -69,6 +83,9 @@ pub enum SequenceError {
     /// Writing the dataset failed.
     #[error("writing the dataset")]
     Dataset(#[from] DatasetError),
+    /// Building the scanned map failed.
+    #[error("building the scanned map")]
+    Scanned(#[from] ScannedError),
     /// Writing `synth.toml` failed.
     #[error("writing {path}")]
     Io {
@@ -93,6 +110,23 @@ pub struct SequenceSummary {
     pub map_triangles: usize,
     /// Total renders (sub-frames included).
     pub renders: usize,
+    /// What the scanned variant built; `None` for a closed-world preset.
+    pub scanned: Option<ScannedSummary>,
+}
+
+/// What the scanned variant built.
+#[derive(Debug, Clone)]
+pub struct ScannedSummary {
+    /// `star.toml`: the config that places the map in the world.
+    pub config_path: PathBuf,
+    /// Scan frames fused.
+    pub scan_frames: usize,
+    /// Vertices of the fused map.
+    pub map_vertices: usize,
+    /// Time rendering the scanning run, seconds.
+    pub scan_render_s: f64,
+    /// The fusion's statistics (time, peak memory, tiles).
+    pub fusion: FusionStats,
 }
 
 /// The scene of `preset` for `seed`.
@@ -160,10 +194,29 @@ pub fn scene_with_trajectory(
 }
 
 /// Writes the sequence into `out`; `progress` is called after each frame
-/// with the number of frames done.
+/// with the number of frames done. A scanned preset finds Python through
+/// [`ScanTools::from_env`].
 pub fn write_sequence(
     out: &Path,
     options: &SequenceOptions,
+    progress: &mut dyn FnMut(usize),
+) -> Result<SequenceSummary, SequenceError> {
+    write_sequence_with(
+        out,
+        options,
+        &ScanTools::from_env(),
+        &mut |_, _| {},
+        progress,
+    )
+}
+
+/// [`write_sequence`] with the scanned variant's tools given, and
+/// `scan_progress(done, total)` called per scan frame rendered.
+pub fn write_sequence_with(
+    out: &Path,
+    options: &SequenceOptions,
+    tools: &ScanTools,
+    scan_progress: &mut dyn FnMut(usize, usize),
     progress: &mut dyn FnMut(usize),
 ) -> Result<SequenceSummary, SequenceError> {
     let preset = &options.preset;
@@ -182,9 +235,68 @@ pub fn write_sequence(
             depth_scale: preset.depth_scale,
         },
     )?;
-    let map_path = crate::map::write_obj(&scene.map, &writer.map_dir(), "map")?;
+    let (map_path, map_triangles, scanned) = match &preset.scanned {
+        None => (
+            crate::map::write_obj(&scene.map, &writer.map_dir(), "map")?,
+            scene.map.triangle_count(),
+            None,
+        ),
+        Some(spec) => {
+            let work_dir = out.join("scan_work");
+            let map = build_scanned_map(
+                &scene,
+                spec,
+                options.seed,
+                &writer.map_dir(),
+                &work_dir,
+                tools,
+                scan_progress,
+            )?;
+            // The scan's raw frames are large and only the fusion needs them
+            // (STAR_SYNTH_KEEP_SCAN=1 keeps them, to rerun the fusion script).
+            if std::env::var_os("STAR_SYNTH_KEEP_SCAN").is_none() {
+                std::fs::remove_dir_all(&work_dir).map_err(|source| SequenceError::Io {
+                    path: work_dir.clone(),
+                    source,
+                })?;
+            }
+            let scan_gt = out.join("scan_groundtruth.txt");
+            let mut walk = Trajectory::default();
+            for i in 0..map.scan_frames {
+                let t_s = map.scan_path.duration_s() * i as f64 / map.scan_frames as f64;
+                walk.push(START_STAMP_S + t_s, map.scan_path.pose_at(t_s));
+            }
+            walk.write(&scan_gt)?;
+            let abs_obj =
+                std::fs::canonicalize(&map.obj_path).map_err(|source| SequenceError::Io {
+                    path: map.obj_path.clone(),
+                    source,
+                })?;
+            let config_path = out.join("star.toml");
+            std::fs::write(
+                &config_path,
+                star_toml_text(&abs_obj, &map.world_from_mesh_declared),
+            )
+            .map_err(|source| SequenceError::Io {
+                path: config_path.clone(),
+                source,
+            })?;
+            let summary = ScannedSummary {
+                config_path,
+                scan_frames: map.scan_frames,
+                map_vertices: map.mesh.positions.len(),
+                scan_render_s: map.scan_render_s,
+                fusion: map.fusion.clone(),
+            };
+            (
+                map.obj_path.clone(),
+                map.mesh.triangle_count(),
+                Some((summary, map)),
+            )
+        }
+    };
     let synth_toml = out.join("synth.toml");
-    let text = format!(
+    let mut text = format!(
         "# The exact parameters this dataset was synthesized with.\nseed = {}\n\
          # Seed of the room layout (the seed, or one derived from it when furniture blocked the trajectory).\n\
          scene_seed = {scene_seed}\nframes = {}\n\n{}",
@@ -192,6 +304,27 @@ pub fn write_sequence(
         options.frames,
         preset.to_toml()
     );
+    if let Some((_, map)) = &scanned {
+        let pose_text = |p: &crate::geometry::Pose| {
+            let t = p.translation.vector;
+            let q = p.rotation.quaternion();
+            format!("{} {} {} {} {} {} {}", t.x, t.y, t.z, q.i, q.j, q.k, q.w)
+        };
+        let light = map.scan_light.position_m;
+        text.push_str(&format!(
+            "\n# What the scanned variant drew (poses \"tx ty tz qx qy qz qw\"):\n\
+             # the map's declared placement (star.toml, the first scan camera): {}\n\
+             # the map's true placement (with the registration error):         {}\n\
+             # scan light at {:?} m; {} scan frames fused ({} tiles, {:.1} s, peak {:.0} MB)\n",
+            pose_text(&map.world_from_mesh_declared),
+            pose_text(&map.world_from_mesh_true),
+            [light.x, light.y, light.z],
+            map.scan_frames,
+            map.fusion.tiles,
+            map.fusion.total_s,
+            map.fusion.max_rss_mb,
+        ));
+    }
     std::fs::write(&synth_toml, text).map_err(|source| SequenceError::Io {
         path: synth_toml.clone(),
         source,
@@ -201,7 +334,15 @@ pub fn write_sequence(
         ImageSource::Map => scene.map.clone(),
         ImageSource::Truth => scene.truth.clone(),
     };
-    let map_triangles = scene.map.triangle_count();
+    // The flight's light and auto-exposure (scanned variant only).
+    let flight = preset.scanned.as_ref().map(|spec| {
+        let phase_rad = std::f64::consts::TAU * (derive_seed(options.seed, 0xf11) >> 11) as f64
+            / (1u64 << 53) as f64;
+        let exposure =
+            ExposureSchedule::new(&spec.exposure, derive_seed(options.seed, 0xe40), duration_s);
+        (spec.flight_light, phase_rad, exposure)
+    });
+    let mut normals = Vec::new();
     let mut renderer = CpuRenderer::new(Arc::new(image_mesh))?;
     let warp = DistortionWarp::new(&preset.camera)?;
     let render_camera = *warp.render_camera();
@@ -241,13 +382,30 @@ pub fn write_sequence(
         accum.fill(0.0);
         let weight = 1.0 / offsets_s.len() as f32;
         for &dt in &offsets_s {
-            renderer.render(&trajectory.pose_at(t_s + dt), &render_camera, &mut view)?;
+            let pose = trajectory.pose_at(t_s + dt);
+            renderer.render(&pose, &render_camera, &mut view)?;
             renders += 1;
+            if let Some((light, phase_rad, _)) = &flight {
+                depth_normals(&view.depth_m, &render_camera, &mut normals);
+                let light = light.at(scene.room_size_m, *phase_rad, t_s + dt);
+                shade(
+                    &mut view.gray,
+                    &view.depth_m,
+                    &normals,
+                    &render_camera,
+                    &pose,
+                    &light,
+                );
+            }
             for (a, &g) in accum.data_mut().iter_mut().zip(view.gray.data()) {
                 *a += weight * g;
             }
         }
         warp.warp_gray(&accum, &mut warped);
+        if let Some((_, _, exposure)) = &flight {
+            let gain = exposure.gain_at(t_s) as f32;
+            warped.data_mut().iter_mut().for_each(|g| *g *= gain);
+        }
         sensor.apply(&warped, i as u64, t_s, &mut frame);
         rgb.push(writer.write_rgb(stamp_s, &frame)?);
 
@@ -268,6 +426,7 @@ pub fn write_sequence(
         frames: options.frames,
         map_triangles,
         renders,
+        scanned: scanned.map(|(summary, _)| summary),
     })
 }
 
