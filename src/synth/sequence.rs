@@ -166,9 +166,10 @@ pub fn preset_trajectory(
 pub const MAX_SCENE_ATTEMPTS: u64 = 16;
 
 /// The scene and trajectory of `preset` for `seed`. When furniture blocks
-/// every loop the trajectory generator tries, the furniture layout is drawn
-/// again from seeds derived from `seed` (deterministically), up to
-/// [`MAX_SCENE_ATTEMPTS`] layouts. Returns the scene seed actually used.
+/// every loop the trajectory generator tries (or, for a scanned preset,
+/// every scanning walk), the furniture layout is drawn again from seeds
+/// derived from `seed` (deterministically), up to [`MAX_SCENE_ATTEMPTS`]
+/// layouts. Returns the scene seed actually used.
 pub fn scene_with_trajectory(
     preset: &Preset,
     seed: u64,
@@ -182,8 +183,22 @@ pub fn scene_with_trajectory(
             super::corrupt::derive_seed(seed, 0x5ce0_0000 + attempt)
         };
         let scene = preset_scene(preset, scene_seed);
+        let scan_blocked = preset
+            .scanned
+            .as_ref()
+            .and_then(|spec| super::scanned::scan_path_for(&scene, spec, seed).err());
         match preset_trajectory(preset, &scene, seed, duration_s) {
-            Ok(trajectory) => return Ok((scene, trajectory, scene_seed)),
+            Ok(trajectory) if scan_blocked.is_none() => return Ok((scene, trajectory, scene_seed)),
+            // The scanning walk is blocked but the flight is not: the
+            // flight's error is all the caller can be told after the last
+            // layout.
+            Ok(trajectory) if attempt + 1 >= MAX_SCENE_ATTEMPTS => {
+                tracing::warn!(seed, scene_seed, error = ?scan_blocked, "no layout fits the scanning walk");
+                return Ok((scene, trajectory, scene_seed));
+            }
+            Ok(_) => {
+                tracing::debug!(seed, scene_seed, error = ?scan_blocked, "layout blocks the scanning walk; drawing another")
+            }
             Err(e) if attempt + 1 >= MAX_SCENE_ATTEMPTS => return Err(e),
             Err(e) => {
                 tracing::debug!(seed, scene_seed, error = %e, "layout blocks the trajectory; drawing another")
@@ -315,14 +330,12 @@ pub fn write_sequence_with(
             "\n# What the scanned variant drew (poses \"tx ty tz qx qy qz qw\"):\n\
              # the map's declared placement (star.toml, the first scan camera): {}\n\
              # the map's true placement (with the registration error):         {}\n\
-             # scan light at {:?} m; {} scan frames fused ({} tiles, {:.1} s, peak {:.0} MB)\n",
+             # scan light at {:?} m; {} scan frames fused into {} tiles\n",
             pose_text(&map.world_from_mesh_declared),
             pose_text(&map.world_from_mesh_true),
             [light.x, light.y, light.z],
             map.scan_frames,
             map.fusion.tiles,
-            map.fusion.total_s,
-            map.fusion.max_rss_mb,
         ));
     }
     std::fs::write(&synth_toml, text).map_err(|source| SequenceError::Io {
@@ -492,6 +505,24 @@ mod tests {
                     let p = trajectory.position_at(i as f64 * 0.1);
                     assert!(scene.is_free([p.x, p.y, p.z], 0.25), "{name} seed {seed}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn scanned_layouts_fit_the_scanning_walk() {
+        let preset = Preset::by_name("scanned").expect("preset");
+        let spec = preset.scanned.clone().expect("scanned");
+        for seed in 1..=12 {
+            let (scene, _, _) = scene_with_trajectory(&preset, seed, 10.0).expect("placed");
+            let walk = crate::synth::scanned::scan_path_for(&scene, &spec, seed)
+                .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+            for i in 0..400 {
+                let p = walk.position_at(walk.duration_s() * i as f64 / 400.0);
+                assert!(
+                    !scene.furniture.iter().any(|b| b.contains([p.x, p.y, p.z], 0.25)),
+                    "seed {seed}"
+                );
             }
         }
     }

@@ -97,6 +97,29 @@ pub struct FusionStats {
     pub max_rss_mb: f64,
 }
 
+/// Checks that `python` runs and imports open3d; returns its version.
+pub fn check_python(python: &Path) -> Result<String, ScannedError> {
+    let output = Command::new(python)
+        .args(["-c", "import open3d; print(open3d.__version__)"])
+        .output()
+        .map_err(|e| ScannedError::Python {
+            python: python.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+    if !output.status.success() {
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        return Err(ScannedError::Python {
+            python: python.to_path_buf(),
+            reason: stderr
+                .lines()
+                .last()
+                .unwrap_or("import open3d failed")
+                .to_string(),
+        });
+    }
+    Ok(String::from_utf8_lossy(&output.stdout).trim().to_string())
+}
+
 /// Runs the fusion with `python` in `work_dir`; returns the fused mesh
 /// (mesh frame, gray from the fused colors) and the statistics.
 pub fn run_fusion(

@@ -48,7 +48,7 @@ use serde::Serialize;
 
 use self::depth_sensor::{DepthSensorSpec, Gaussian};
 use self::exposure::ExposureSpec;
-use self::fusion::{run_fusion, FusionJob, FusionStats};
+use self::fusion::{check_python, run_fusion, FusionJob, FusionStats};
 use self::lighting::{depth_normals, shade, LightSpec, MovingLightSpec, PointLight};
 use self::scan_path::{LapLook, ScanLap, ScanPath, ScanPathError, ScanPathSpec};
 use super::corrupt::derive_seed;
@@ -254,6 +254,26 @@ pub struct ScannedMap {
     pub fusion: FusionStats,
 }
 
+/// The scanning walk of `scene` for `seed`. It avoids the room's walls and
+/// the furniture; the occluders (objects absent from the map) were not
+/// there at scan time.
+pub fn scan_path_for(
+    scene: &Scene,
+    spec: &ScannedSpec,
+    seed: u64,
+) -> Result<ScanPath, ScanPathError> {
+    let is_free = |p: [f64; 3], margin_m: f64| {
+        (0..3).all(|k| p[k] >= margin_m && p[k] <= scene.room_size_m[k] - margin_m)
+            && !scene.furniture.iter().any(|b| b.contains(p, margin_m))
+    };
+    ScanPath::generate(
+        &spec.scan_path,
+        scene.room_size_m,
+        derive_seed(seed, 0x5ca),
+        &is_free,
+    )
+}
+
 /// A seeded registration error of translation `meters` and rotation
 /// `degrees` in random directions.
 pub fn registration_error(meters: f64, degrees: f64, seed: u64) -> Pose {
@@ -312,12 +332,10 @@ pub fn build_scanned_map(
         let path = path.to_path_buf();
         move |source| ScannedError::Io { path, source }
     };
-    let path = ScanPath::generate(
-        &spec.scan_path,
-        scene.room_size_m,
-        derive_seed(seed, 0x5ca),
-        &|p, c| scene.is_free(p, c),
-    )?;
+    // Fail before the scan is rendered when the fusion cannot run.
+    let open3d = check_python(&tools.python)?;
+    tracing::info!(python = %tools.python.display(), open3d, "TSDF fusion through Open3D");
+    let path = scan_path_for(scene, spec, seed)?;
     let frames = ((path.duration_s() * spec.scan_rate_hz).round() as usize).max(1);
     let world_from_mesh_declared = path.pose_at(0.0);
     let world_from_mesh_true = world_from_mesh_declared

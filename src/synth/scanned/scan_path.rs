@@ -11,8 +11,8 @@
 //! is behind and under it, so the ceiling, the top of the walls in places
 //! and the backs of the furniture stay unscanned: the map has holes where
 //! the scan did not look. Positions are checked free of furniture and
-//! occluders; a blocked lap is redrawn (other phases, then closer to or
-//! farther from the walls). The laps follow each other (the walker steps
+//! occluders; a blocked lap is redrawn closer to or farther from the x
+//! and y walls (up to 0.75 m each way). The laps follow each other (the walker steps
 //! from one to the next between two frames).
 
 use nalgebra::{Translation3, Vector3};
@@ -130,9 +130,20 @@ pub struct ScanPath {
     laps: Vec<Lap>,
 }
 
-const ATTEMPTS: u64 = 12;
-/// Changes of the wall distance tried in turn, meters.
-const WALL_DISTANCE_SHIFTS_M: [f64; 6] = [0.0, 0.25, -0.25, 0.5, -0.5, 0.75];
+/// Changes of the wall distance tried, meters, per axis: every pair, the
+/// smallest total change first.
+const WALL_DISTANCE_SHIFTS_M: [f64; 7] = [0.0, 0.25, -0.25, 0.5, -0.5, 0.75, -0.75];
+
+/// The `(x, y)` wall-distance changes in the order they are tried.
+fn shift_pairs() -> Vec<(f64, f64)> {
+    let mut pairs: Vec<(f64, f64)> = WALL_DISTANCE_SHIFTS_M
+        .iter()
+        .flat_map(|&x| WALL_DISTANCE_SHIFTS_M.iter().map(move |&y| (x, y)))
+        .collect();
+    // Stable: ties keep the list's order.
+    pairs.sort_by(|a, b| (a.0.abs() + a.1.abs()).total_cmp(&(b.0.abs() + b.1.abs())));
+    pairs
+}
 
 impl ScanPath {
     /// Draws a walk in a room spanning `0..room_size_m` that is free
@@ -170,17 +181,14 @@ impl ScanPath {
         is_free: &dyn Fn([f64; 3], f64) -> bool,
     ) -> Result<Lap, ScanPathError> {
         let mut blocked_at_m = [f64::NAN; 3];
-        for attempt in 0..ATTEMPTS {
-            let mut rng = Gaussian::new(super::super::corrupt::derive_seed(seed, attempt));
-            // A closed lap passes every angle, so new phases rarely help:
-            // every 2 attempts the walk moves closer to or farther from the
-            // walls instead.
-            let shift =
-                WALL_DISTANCE_SHIFTS_M[(attempt / 2) as usize % WALL_DISTANCE_SHIFTS_M.len()];
-            let d = (lap.wall_distance_m + shift).max(spec.clearance_m + spec.position_wobble_m);
+        // A closed lap passes every angle, so new phases rarely help: each
+        // attempt moves the walk closer to or farther from the x and y walls.
+        for (attempt, (sx, sy)) in shift_pairs().into_iter().enumerate() {
+            let mut rng = Gaussian::new(super::super::corrupt::derive_seed(seed, attempt as u64));
+            let least = spec.clearance_m + spec.position_wobble_m;
             let radii_m = (
-                (0.5 * room_size_m[0] - d).max(0.1),
-                (0.5 * room_size_m[1] - d).max(0.1),
+                (0.5 * room_size_m[0] - (lap.wall_distance_m + sx).max(least)).max(0.1),
+                (0.5 * room_size_m[1] - (lap.wall_distance_m + sy).max(least)).max(0.1),
             );
             let mean_r = ((radii_m.0 * radii_m.0 + radii_m.1 * radii_m.1) / 2.0).sqrt();
             let deg = |x: f64| x.to_radians();
