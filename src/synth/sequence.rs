@@ -520,7 +520,10 @@ mod tests {
             for i in 0..400 {
                 let p = walk.position_at(walk.duration_s() * i as f64 / 400.0);
                 assert!(
-                    !scene.furniture.iter().any(|b| b.contains([p.x, p.y, p.z], 0.25)),
+                    !scene
+                        .furniture
+                        .iter()
+                        .any(|b| b.contains([p.x, p.y, p.z], 0.25)),
                     "seed {seed}"
                 );
             }
