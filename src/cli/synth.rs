@@ -1,7 +1,9 @@
 //! `star synth --preset NAME OUT`: write a synthetic TUM-layout dataset
 //! (images, depth, ground truth, calibration, map mesh) from a named preset
 //! and a seed, with a progress bar; `--list-presets` prints every preset's
-//! exact parameters.
+//! exact parameters. `--scanned` (or `--preset scanned`) rebuilds the map
+//! from a scanning run by TSDF fusion (Open3D, through Python) and writes
+//! `OUT/star.toml`, the config that places that map in the world.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -9,7 +11,8 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 
 use crate::synth::preset::{Preset, PRESET_NAMES};
-use crate::synth::sequence::{write_sequence, SequenceOptions};
+use crate::synth::scanned::ScanTools;
+use crate::synth::sequence::{write_sequence_with, SequenceOptions};
 
 /// Arguments of `star synth`.
 #[derive(Debug, clap::Args)]
@@ -32,6 +35,20 @@ pub struct SynthArgs {
     /// Print every preset's exact parameters and exit.
     #[arg(long)]
     pub list_presets: bool,
+    /// The scanned variant of the preset: the map is rebuilt by TSDF fusion
+    /// of a noisy scanning run (in the scanner's frame, placed by
+    /// OUT/star.toml), the flight gets a moving light and auto-exposure
+    /// steps. `--preset scanned` is `realistic` with this.
+    #[arg(long)]
+    pub scanned: bool,
+    /// TSDF voxel edge of the scanned map, meters (default: the preset's,
+    /// 0.01); a coarser voxel is faster (for tests).
+    #[arg(long)]
+    pub scan_voxel_m: Option<f64>,
+    /// Python with open3d for the fusion (default: $STAR_PYTHON, else
+    /// $STAR_VENV/bin/python, else ./.venv/bin/python, else python3).
+    #[arg(long)]
+    pub python: Option<PathBuf>,
 }
 
 /// Runs `star synth`.
@@ -57,6 +74,26 @@ pub fn run(args: &SynthArgs) -> Result<()> {
             PRESET_NAMES.join(", ")
         );
     };
+    let mut preset = if args.scanned {
+        preset.scanned()
+    } else {
+        preset
+    };
+    if let Some(voxel_m) = args.scan_voxel_m {
+        let Some(spec) = preset.scanned.as_mut() else {
+            bail!("--scan-voxel-m applies to a scanned preset (--preset scanned or --scanned)");
+        };
+        if !(0.002..=0.1).contains(&voxel_m) {
+            bail!("--scan-voxel-m {voxel_m}: expected 0.002..=0.1 m");
+        }
+        spec.voxel_m = voxel_m;
+    }
+    let tools = match &args.python {
+        Some(python) => ScanTools {
+            python: python.clone(),
+        },
+        None => ScanTools::from_env(),
+    };
     let options = SequenceOptions {
         preset,
         seed: args.seed,
@@ -73,14 +110,42 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     );
     bar.set_message(args.preset.clone());
     let start = Instant::now();
-    let summary =
-        write_sequence(out, &options, &mut |n| bar.set_position(n as u64)).with_context(|| {
-            format!(
-                "synthesizing preset `{}` into {}",
-                args.preset,
-                out.display()
-            )
-        })?;
+    if options.preset.scanned.is_some() {
+        bar.set_message(format!("{}: scanning run", args.preset));
+    }
+    let scan_bar = bar.clone();
+    let scan_name = args.preset.clone();
+    let mut scan_started = false;
+    let summary = write_sequence_with(
+        out,
+        &options,
+        &tools,
+        &mut |done, total| {
+            if !scan_started {
+                scan_bar.set_length(total as u64);
+                scan_started = true;
+            }
+            scan_bar.set_position(done as u64);
+            if done == total {
+                scan_bar.set_message(format!(
+                    "{scan_name}: TSDF fusion (Open3D), then flight frames"
+                ));
+                scan_bar.set_position(0);
+                scan_bar.set_length(options.frames as u64);
+            }
+        },
+        &mut |n| {
+            bar.set_message(args.preset.clone());
+            bar.set_position(n as u64)
+        },
+    )
+    .with_context(|| {
+        format!(
+            "synthesizing preset `{}` into {}",
+            args.preset,
+            out.display()
+        )
+    })?;
     bar.finish_and_clear();
     println!(
         "wrote {} frames of preset `{}` (seed {}) to {} in {:.1} s: {} renders, map {} ({} triangles)",
@@ -93,5 +158,30 @@ pub fn run(args: &SynthArgs) -> Result<()> {
         summary.map_path.display(),
         summary.map_triangles
     );
+    if let Some(scanned) = &summary.scanned {
+        let f = &scanned.fusion;
+        println!(
+            "scanned map: {} scan frames rendered in {:.1} s, fused by Open3D {} into {} vertices / {} triangles: {} tiles of {} m ({} voxels a side), {} integrations, {:.1} s (integrate {:.1} s, extract {:.1} s), peak memory {:.0} MB",
+            scanned.scan_frames,
+            scanned.scan_render_s,
+            f.open3d,
+            scanned.map_vertices,
+            summary.map_triangles,
+            f.tiles,
+            f.tile_m,
+            f.tile_voxels,
+            f.integrations,
+            f.total_s,
+            f.integrate_s,
+            f.extract_s,
+            f.max_rss_mb
+        );
+        println!(
+            "the map is in the scanner's frame; {} places it in the world: star localize {} --config {}",
+            scanned.config_path.display(),
+            summary.root.display(),
+            scanned.config_path.display()
+        );
+    }
     Ok(())
 }

@@ -10,11 +10,15 @@
 //! - [`corrupt`]: sensor corruptions (gain/bias drift, vignetting, noise,
 //!   lens distortion, motion blur).
 //! - [`preset`]: the named, fully specified sequence presets.
+//! - [`scanned`]: the scanned variant: a map rebuilt by TSDF fusion of a
+//!   noisy scanning run (through Open3D), a moving light and auto-exposure
+//!   steps in flight.
 //! - [`sequence`]: scene + trajectory + renderer + corruptions -> a TUM
 //!   dataset folder (`star synth`).
 
 pub mod corrupt;
 pub mod preset;
+pub mod scanned;
 pub mod scene;
 pub mod sequence;
 pub mod texture;

@@ -10,7 +10,14 @@
 //!   removed, gain drift +-30 %, bias drift +-10 levels, vignetting 30 %,
 //!   noise sigma 3, lens distortion, 5 ms exposure motion blur;
 //! - `aggressive`: the aggressive trajectory (about 1.5 m/s, up to
-//!   200 deg/s) with the realistic corruptions.
+//!   200 deg/s) with the realistic corruptions;
+//! - `scanned`: `realistic` with a map rebuilt by TSDF fusion of a noisy
+//!   scanning run (Open3D, 1 cm voxels: blurred vertex colors, the scan's
+//!   light baked in, holes where the scan did not look, a small
+//!   registration error, stored in the scanner's frame), and flight images
+//!   under a different, moving light with auto-exposure steps (see
+//!   [`super::scanned`]). Any preset gets the same treatment with
+//!   [`Preset::scanned`] (`star synth --scanned`).
 //!
 //! All: 640x512, fx = fy = 420 px (74.6 x 62.7 degrees field of view),
 //! principal point at the image center, 50 Hz, an 8 x 6 x 3 m room with 6
@@ -19,6 +26,7 @@
 use serde::Serialize;
 
 use super::corrupt::{BlurSpec, PhotometricSpec};
+use super::scanned::ScannedSpec;
 use super::trajectory::{MotionSpec, TrajectoryKind};
 use crate::geometry::{Distortion, PinholeCamera};
 
@@ -72,10 +80,15 @@ pub struct Preset {
     pub photometric: PhotometricSpec,
     /// Motion blur; `None` renders one instant per frame.
     pub blur: Option<BlurSpec>,
+    /// The scanned variant: the map comes from TSDF fusion of a scanning
+    /// run and the flight has its own light and auto-exposure; `None` for
+    /// the closed-world presets.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scanned: Option<ScannedSpec>,
 }
 
 /// Names of all presets, in `--list-presets` order.
-pub const PRESET_NAMES: [&str; 3] = ["ideal", "realistic", "aggressive"];
+pub const PRESET_NAMES: [&str; 4] = ["ideal", "realistic", "aggressive", "scanned"];
 
 fn camera(distortion: Distortion) -> PinholeCamera {
     PinholeCamera {
@@ -136,6 +149,7 @@ impl Preset {
                 motion: TrajectoryKind::SlowLoop.spec(),
                 photometric: PhotometricSpec::NONE,
                 blur: None,
+                scanned: None,
             }),
             "realistic" => Some(Preset {
                 name: "realistic",
@@ -149,6 +163,7 @@ impl Preset {
                 motion: TrajectoryKind::SlowLoop.spec(),
                 photometric: REALISTIC_PHOTOMETRIC,
                 blur: Some(REALISTIC_BLUR),
+                scanned: None,
             }),
             "aggressive" => Some(Preset {
                 name: "aggressive",
@@ -157,7 +172,27 @@ impl Preset {
                 motion: TrajectoryKind::Aggressive.spec(),
                 ..Preset::by_name("realistic")?
             }),
+            "scanned" => Some(Preset {
+                name: "scanned",
+                description: "realistic, with a TSDF-fused map of a noisy scan (1 cm voxels, baked light, holes, scanner frame) and a moving light with auto-exposure steps in flight",
+                ..Preset::by_name("realistic")?.scanned()
+            }),
             _ => None,
+        }
+    }
+
+    /// The scanned variant of this preset: the map is rebuilt from a
+    /// scanning run of the scene (holes come from where the scan did not
+    /// look, so the scene's patch holes are off) and the flight gets a
+    /// moving light and auto-exposure steps. Keeps the name.
+    pub fn scanned(self) -> Preset {
+        Preset {
+            scene: ScenePreset {
+                map_hole_fraction: 0.0,
+                ..self.scene
+            },
+            scanned: Some(self.scanned.unwrap_or_default()),
+            ..self
         }
     }
 
@@ -216,5 +251,26 @@ mod tests {
         assert_eq!(aggr.trajectory, TrajectoryKind::Aggressive);
         assert_eq!(aggr.photometric, real.photometric);
         assert_eq!(aggr.motion.max_angular_speed_dps, Some(200.0));
+        assert!(ideal.scanned.is_none() && real.scanned.is_none() && aggr.scanned.is_none());
+    }
+
+    #[test]
+    fn scanned_is_realistic_with_a_fused_map() {
+        let scanned = Preset::by_name("scanned").expect("exists");
+        let real = Preset::by_name("realistic").expect("exists");
+        let spec = scanned.scanned.as_ref().expect("scanned");
+        assert_eq!(spec.voxel_m, 0.01);
+        assert_eq!(scanned.photometric, real.photometric);
+        assert_eq!(scanned.images_from, ImageSource::Truth);
+        assert_eq!(scanned.scene.map_hole_fraction, 0.0);
+        assert_eq!(scanned.scene.occluders, real.scene.occluders);
+        let text = scanned.to_toml();
+        assert!(
+            text.contains("[scanned.depth_sensor]") && text.contains("voxel_m"),
+            "{text}"
+        );
+        let aggr = Preset::by_name("aggressive").expect("exists").scanned();
+        assert_eq!(aggr.name, "aggressive");
+        assert_eq!(aggr.scanned.as_ref(), Some(spec));
     }
 }

@@ -10,14 +10,28 @@
 //! (ideal depth of the image mesh at the frame time, 16-bit), `rgb.txt`,
 //! `depth.txt`, `groundtruth.txt`, `camera.toml` and `synth.toml` (the
 //! exact preset and seed). Same preset, seed and count: same bytes.
+//!
+//! With a scanned preset ([`Preset::scanned`]) the map is instead rebuilt
+//! by [`super::scanned::build_scanned_map`] (a scanning run fused by
+//! Open3D, stored in the scanner's frame), `star.toml` declares its
+//! placement (`[map.world_from_mesh]`), `scan_groundtruth.txt` holds the
+//! scanning walk, and each flight sub-frame is shaded by a moving light
+//! before blur, distortion and the sensor model, with an auto-exposure
+//! gain applied before the sensor model.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use nalgebra::Vector3;
 
-use super::corrupt::{subframe_offsets_s, DistortionError, DistortionWarp, SensorModel};
+use super::corrupt::{
+    derive_seed, subframe_offsets_s, DistortionError, DistortionWarp, SensorModel,
+};
 use super::preset::{ImageSource, Preset};
+use super::scanned::exposure::ExposureSchedule;
+use super::scanned::fusion::FusionStats;
+use super::scanned::lighting::{depth_normals, shade};
+use super::scanned::{build_scanned_map, star_toml_text, ScanTools, ScannedError};
 use super::scene::{build_scene, Scene, SceneParams};
 use super::trajectory::{RoomBox, SynthTrajectory, TrajectoryError};
 use crate::dataset::{CameraFile, DatasetError, DatasetWriter, Trajectory};
@@ -69,6 +83,9 @@ pub enum SequenceError {
     /// Writing the dataset failed.
     #[error("writing the dataset")]
     Dataset(#[from] DatasetError),
+    /// Building the scanned map failed.
+    #[error("building the scanned map")]
+    Scanned(#[from] ScannedError),
     /// Writing `synth.toml` failed.
     #[error("writing {path}")]
     Io {
@@ -93,6 +110,23 @@ pub struct SequenceSummary {
     pub map_triangles: usize,
     /// Total renders (sub-frames included).
     pub renders: usize,
+    /// What the scanned variant built; `None` for a closed-world preset.
+    pub scanned: Option<ScannedSummary>,
+}
+
+/// What the scanned variant built.
+#[derive(Debug, Clone)]
+pub struct ScannedSummary {
+    /// `star.toml`: the config that places the map in the world.
+    pub config_path: PathBuf,
+    /// Scan frames fused.
+    pub scan_frames: usize,
+    /// Vertices of the fused map.
+    pub map_vertices: usize,
+    /// Time rendering the scanning run, seconds.
+    pub scan_render_s: f64,
+    /// The fusion's statistics (time, peak memory, tiles).
+    pub fusion: FusionStats,
 }
 
 /// The scene of `preset` for `seed`.
@@ -132,9 +166,10 @@ pub fn preset_trajectory(
 pub const MAX_SCENE_ATTEMPTS: u64 = 16;
 
 /// The scene and trajectory of `preset` for `seed`. When furniture blocks
-/// every loop the trajectory generator tries, the furniture layout is drawn
-/// again from seeds derived from `seed` (deterministically), up to
-/// [`MAX_SCENE_ATTEMPTS`] layouts. Returns the scene seed actually used.
+/// every loop the trajectory generator tries (or, for a scanned preset,
+/// every scanning walk), the furniture layout is drawn again from seeds
+/// derived from `seed` (deterministically), up to [`MAX_SCENE_ATTEMPTS`]
+/// layouts. Returns the scene seed actually used.
 pub fn scene_with_trajectory(
     preset: &Preset,
     seed: u64,
@@ -148,8 +183,22 @@ pub fn scene_with_trajectory(
             super::corrupt::derive_seed(seed, 0x5ce0_0000 + attempt)
         };
         let scene = preset_scene(preset, scene_seed);
+        let scan_blocked = preset
+            .scanned
+            .as_ref()
+            .and_then(|spec| super::scanned::scan_path_for(&scene, spec, seed).err());
         match preset_trajectory(preset, &scene, seed, duration_s) {
-            Ok(trajectory) => return Ok((scene, trajectory, scene_seed)),
+            Ok(trajectory) if scan_blocked.is_none() => return Ok((scene, trajectory, scene_seed)),
+            // The scanning walk is blocked but the flight is not: the
+            // flight's error is all the caller can be told after the last
+            // layout.
+            Ok(trajectory) if attempt + 1 >= MAX_SCENE_ATTEMPTS => {
+                tracing::warn!(seed, scene_seed, error = ?scan_blocked, "no layout fits the scanning walk");
+                return Ok((scene, trajectory, scene_seed));
+            }
+            Ok(_) => {
+                tracing::debug!(seed, scene_seed, error = ?scan_blocked, "layout blocks the scanning walk; drawing another")
+            }
             Err(e) if attempt + 1 >= MAX_SCENE_ATTEMPTS => return Err(e),
             Err(e) => {
                 tracing::debug!(seed, scene_seed, error = %e, "layout blocks the trajectory; drawing another")
@@ -160,10 +209,29 @@ pub fn scene_with_trajectory(
 }
 
 /// Writes the sequence into `out`; `progress` is called after each frame
-/// with the number of frames done.
+/// with the number of frames done. A scanned preset finds Python through
+/// [`ScanTools::from_env`].
 pub fn write_sequence(
     out: &Path,
     options: &SequenceOptions,
+    progress: &mut dyn FnMut(usize),
+) -> Result<SequenceSummary, SequenceError> {
+    write_sequence_with(
+        out,
+        options,
+        &ScanTools::from_env(),
+        &mut |_, _| {},
+        progress,
+    )
+}
+
+/// [`write_sequence`] with the scanned variant's tools given, and
+/// `scan_progress(done, total)` called per scan frame rendered.
+pub fn write_sequence_with(
+    out: &Path,
+    options: &SequenceOptions,
+    tools: &ScanTools,
+    scan_progress: &mut dyn FnMut(usize, usize),
     progress: &mut dyn FnMut(usize),
 ) -> Result<SequenceSummary, SequenceError> {
     let preset = &options.preset;
@@ -182,9 +250,68 @@ pub fn write_sequence(
             depth_scale: preset.depth_scale,
         },
     )?;
-    let map_path = crate::map::write_obj(&scene.map, &writer.map_dir(), "map")?;
+    let (map_path, map_triangles, scanned) = match &preset.scanned {
+        None => (
+            crate::map::write_obj(&scene.map, &writer.map_dir(), "map")?,
+            scene.map.triangle_count(),
+            None,
+        ),
+        Some(spec) => {
+            let work_dir = out.join("scan_work");
+            let map = build_scanned_map(
+                &scene,
+                spec,
+                options.seed,
+                &writer.map_dir(),
+                &work_dir,
+                tools,
+                scan_progress,
+            )?;
+            // The scan's raw frames are large and only the fusion needs them
+            // (STAR_SYNTH_KEEP_SCAN=1 keeps them, to rerun the fusion script).
+            if std::env::var_os("STAR_SYNTH_KEEP_SCAN").is_none() {
+                std::fs::remove_dir_all(&work_dir).map_err(|source| SequenceError::Io {
+                    path: work_dir.clone(),
+                    source,
+                })?;
+            }
+            let scan_gt = out.join("scan_groundtruth.txt");
+            let mut walk = Trajectory::default();
+            for i in 0..map.scan_frames {
+                let t_s = map.scan_path.duration_s() * i as f64 / map.scan_frames as f64;
+                walk.push(START_STAMP_S + t_s, map.scan_path.pose_at(t_s));
+            }
+            walk.write(&scan_gt)?;
+            let abs_obj =
+                std::fs::canonicalize(&map.obj_path).map_err(|source| SequenceError::Io {
+                    path: map.obj_path.clone(),
+                    source,
+                })?;
+            let config_path = out.join("star.toml");
+            std::fs::write(
+                &config_path,
+                star_toml_text(&abs_obj, &map.world_from_mesh_declared),
+            )
+            .map_err(|source| SequenceError::Io {
+                path: config_path.clone(),
+                source,
+            })?;
+            let summary = ScannedSummary {
+                config_path,
+                scan_frames: map.scan_frames,
+                map_vertices: map.mesh.positions.len(),
+                scan_render_s: map.scan_render_s,
+                fusion: map.fusion.clone(),
+            };
+            (
+                map.obj_path.clone(),
+                map.mesh.triangle_count(),
+                Some((summary, map)),
+            )
+        }
+    };
     let synth_toml = out.join("synth.toml");
-    let text = format!(
+    let mut text = format!(
         "# The exact parameters this dataset was synthesized with.\nseed = {}\n\
          # Seed of the room layout (the seed, or one derived from it when furniture blocked the trajectory).\n\
          scene_seed = {scene_seed}\nframes = {}\n\n{}",
@@ -192,6 +319,25 @@ pub fn write_sequence(
         options.frames,
         preset.to_toml()
     );
+    if let Some((_, map)) = &scanned {
+        let pose_text = |p: &crate::geometry::Pose| {
+            let t = p.translation.vector;
+            let q = p.rotation.quaternion();
+            format!("{} {} {} {} {} {} {}", t.x, t.y, t.z, q.i, q.j, q.k, q.w)
+        };
+        let light = map.scan_light.position_m;
+        text.push_str(&format!(
+            "\n# What the scanned variant drew (poses \"tx ty tz qx qy qz qw\"):\n\
+             # the map's declared placement (star.toml, the first scan camera): {}\n\
+             # the map's true placement (with the registration error):         {}\n\
+             # scan light at {:?} m; {} scan frames fused into {} tiles\n",
+            pose_text(&map.world_from_mesh_declared),
+            pose_text(&map.world_from_mesh_true),
+            [light.x, light.y, light.z],
+            map.scan_frames,
+            map.fusion.tiles,
+        ));
+    }
     std::fs::write(&synth_toml, text).map_err(|source| SequenceError::Io {
         path: synth_toml.clone(),
         source,
@@ -201,7 +347,15 @@ pub fn write_sequence(
         ImageSource::Map => scene.map.clone(),
         ImageSource::Truth => scene.truth.clone(),
     };
-    let map_triangles = scene.map.triangle_count();
+    // The flight's light and auto-exposure (scanned variant only).
+    let flight = preset.scanned.as_ref().map(|spec| {
+        let phase_rad = std::f64::consts::TAU * (derive_seed(options.seed, 0xf11) >> 11) as f64
+            / (1u64 << 53) as f64;
+        let exposure =
+            ExposureSchedule::new(&spec.exposure, derive_seed(options.seed, 0xe40), duration_s);
+        (spec.flight_light, phase_rad, exposure)
+    });
+    let mut normals = Vec::new();
     let mut renderer = CpuRenderer::new(Arc::new(image_mesh))?;
     let warp = DistortionWarp::new(&preset.camera)?;
     let render_camera = *warp.render_camera();
@@ -241,13 +395,30 @@ pub fn write_sequence(
         accum.fill(0.0);
         let weight = 1.0 / offsets_s.len() as f32;
         for &dt in &offsets_s {
-            renderer.render(&trajectory.pose_at(t_s + dt), &render_camera, &mut view)?;
+            let pose = trajectory.pose_at(t_s + dt);
+            renderer.render(&pose, &render_camera, &mut view)?;
             renders += 1;
+            if let Some((light, phase_rad, _)) = &flight {
+                depth_normals(&view.depth_m, &render_camera, &mut normals);
+                let light = light.at(scene.room_size_m, *phase_rad, t_s + dt);
+                shade(
+                    &mut view.gray,
+                    &view.depth_m,
+                    &normals,
+                    &render_camera,
+                    &pose,
+                    &light,
+                );
+            }
             for (a, &g) in accum.data_mut().iter_mut().zip(view.gray.data()) {
                 *a += weight * g;
             }
         }
         warp.warp_gray(&accum, &mut warped);
+        if let Some((_, _, exposure)) = &flight {
+            let gain = exposure.gain_at(t_s) as f32;
+            warped.data_mut().iter_mut().for_each(|g| *g *= gain);
+        }
         sensor.apply(&warped, i as u64, t_s, &mut frame);
         rgb.push(writer.write_rgb(stamp_s, &frame)?);
 
@@ -268,6 +439,7 @@ pub fn write_sequence(
         frames: options.frames,
         map_triangles,
         renders,
+        scanned: scanned.map(|(summary, _)| summary),
     })
 }
 
@@ -333,6 +505,27 @@ mod tests {
                     let p = trajectory.position_at(i as f64 * 0.1);
                     assert!(scene.is_free([p.x, p.y, p.z], 0.25), "{name} seed {seed}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn scanned_layouts_fit_the_scanning_walk() {
+        let preset = Preset::by_name("scanned").expect("preset");
+        let spec = preset.scanned.clone().expect("scanned");
+        for seed in 1..=12 {
+            let (scene, _, _) = scene_with_trajectory(&preset, seed, 10.0).expect("placed");
+            let walk = crate::synth::scanned::scan_path_for(&scene, &spec, seed)
+                .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
+            for i in 0..400 {
+                let p = walk.position_at(walk.duration_s() * i as f64 / 400.0);
+                assert!(
+                    !scene
+                        .furniture
+                        .iter()
+                        .any(|b| b.contains([p.x, p.y, p.z], 0.25)),
+                    "seed {seed}"
+                );
             }
         }
     }
