@@ -558,9 +558,17 @@ mod tests {
             UnitQuaternion::from_euler_angles(-1.7, 0.1, 0.6),
         );
         let text = star_toml_text(Path::new("/data/scan 1/map/map.obj"), &pose);
-        let config = crate::config::Config::parse(&text, Path::new("star.toml")).expect("valid");
-        assert_eq!(config.map.mesh, PathBuf::from("/data/scan 1/map/map.obj"));
-        let back = config.map.world_from_mesh.rigid().to_pose();
+        // The `[map]` section as the config reads it (the whole `Config` is
+        // checked by tests/synth_scanned.rs: `config` sits above `synth`).
+        #[derive(serde::Deserialize)]
+        struct MapOnly {
+            map: crate::map::MapConfig,
+        }
+        let parsed: MapOnly = toml::from_str(&text).expect("valid TOML with a [map] section");
+        let map = parsed.map;
+        map.validate().expect("valid placement");
+        assert_eq!(map.mesh, PathBuf::from("/data/scan 1/map/map.obj"));
+        let back = map.world_from_mesh.rigid().to_pose();
         assert!((back.translation.vector - pose.translation.vector).norm() < 1e-12);
         assert!(back.rotation.angle_to(&pose.rotation) < 1e-12);
     }
