@@ -234,14 +234,20 @@ fn trial(report: &OfflineReport, recovered_s: Option<f64>) -> Trial {
     }
 }
 
+/// A 3 s excerpt (150 frames at 50 Hz) from a random frame: the frame
+/// indices.
+fn excerpt(n: usize, rng: &mut SplitMix64) -> Vec<usize> {
+    let length = 150.min(n);
+    let first = rng.below(n - length + 1);
+    (first..first + length).collect()
+}
+
 /// Cold starts: 3 s excerpts from random frames, no pose given.
 fn cold_starts(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<Trial>> {
     let n = runner.dataset.len();
-    let length = 150.min(n);
     (0..trials)
         .map(|_| {
-            let first = rng.below(n - length + 1);
-            let order: Vec<usize> = (first..first + length).collect();
+            let order = excerpt(n, rng);
             let report = runner.run(&order, StartMode::Cold, None)?;
             Ok(trial(&report, report.first_pose_wall_s))
         })
@@ -283,12 +289,10 @@ fn kidnaps(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<T
 /// 3 m away from the truth in a random horizontal direction.
 fn wrong_hints(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<Trial>> {
     let n = runner.dataset.len();
-    let length = 150.min(n);
     (0..trials)
         .map(|_| {
-            let first = rng.below(n - length + 1);
-            let order: Vec<usize> = (first..first + length).collect();
-            let truth = runner.truth.poses[first];
+            let order = excerpt(n, rng);
+            let truth = runner.truth.poses[order[0]];
             let angle = rng.range(0.0, std::f64::consts::TAU);
             let offset_m = rng.range(1.0, 3.0);
             let shift = Vector3::new(angle.cos(), angle.sin(), 0.0) * offset_m;
