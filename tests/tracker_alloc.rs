@@ -80,35 +80,11 @@ fn pose_at(i: usize) -> Pose {
     )
 }
 
-/// The iceoryx2 resource prefix of this test process.
-fn prefix() -> String {
-    format!("st{}_trkalloc_", std::process::id())
-}
-
-/// Removes the shared-memory and descriptor files with this test's prefix
-/// when dropped. Declare it first so it drops after the nodes.
-struct Cleanup(String);
-
-impl Drop for Cleanup {
-    fn drop(&mut self) {
-        for dir in ["/dev/shm", "/tmp/iceoryx2/nodes", "/tmp/iceoryx2/services"] {
-            let Ok(entries) = std::fs::read_dir(dir) else {
-                continue;
-            };
-            for entry in entries.flatten() {
-                if entry.file_name().to_string_lossy().starts_with(&self.0) {
-                    let _ = std::fs::remove_file(entry.path());
-                }
-            }
-        }
-    }
-}
-
 /// Writes the shipped iceoryx2 config with this test's prefix into `dir`.
 fn write_iceoryx_config(dir: &Path) -> PathBuf {
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/iceoryx2.toml");
     let text = std::fs::read_to_string(shipped).expect("shipped iceoryx2.toml");
-    let prefix = prefix();
+    let prefix = common::prefix("trkalloc");
     let text = text.replace("prefix = \"iox2_\"", &format!("prefix = \"{prefix}\""));
     assert!(
         text.contains(&prefix),
@@ -328,7 +304,7 @@ fn step_until_done(tracker: &mut Tracker, stop: &mut StopWhen, processed: &Atomi
 
 #[test]
 fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
-    let _cleanup = Cleanup(prefix());
+    let _cleanup = common::Cleanup(common::prefix("trkalloc"));
     let dir = tempfile::tempdir().expect("tempdir");
     let mesh_path = star::map::write_obj(&wall(), dir.path(), "wall").expect("write the map");
     let iceoryx = write_iceoryx_config(dir.path());

@@ -50,6 +50,23 @@ pub struct DepthSensorSpec {
     pub random_dropout: f64,
 }
 
+impl DepthSensorSpec {
+    /// A structured-light RGB-D sensor (Kinect / RealSense class): the
+    /// `scanned` preset's.
+    pub const STRUCTURED_LIGHT: Self = Self {
+        sigma_mm_per_m2: 1.5,
+        quantization_mm: 1.0,
+        min_range_m: 0.4,
+        max_range_m: 4.0,
+        grazing_start_deg: 70.0,
+        grazing_end_deg: 85.0,
+        edge_jump_m: 0.03,
+        edge_jump_per_m: 0.01,
+        edge_dropout: 0.7,
+        random_dropout: 0.005,
+    };
+}
+
 /// Gaussian draws by Box-Muller, two per pair of uniforms.
 pub(super) struct Gaussian {
     rng: StdRng,
@@ -157,18 +174,7 @@ mod tests {
     use super::*;
 
     fn spec() -> DepthSensorSpec {
-        DepthSensorSpec {
-            sigma_mm_per_m2: 1.5,
-            quantization_mm: 1.0,
-            min_range_m: 0.4,
-            max_range_m: 4.0,
-            grazing_start_deg: 70.0,
-            grazing_end_deg: 85.0,
-            edge_jump_m: 0.03,
-            edge_jump_per_m: 0.01,
-            edge_dropout: 0.7,
-            random_dropout: 0.005,
-        }
+        DepthSensorSpec::STRUCTURED_LIGHT
     }
 
     fn camera() -> PinholeCamera {
