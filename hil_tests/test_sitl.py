@@ -85,7 +85,11 @@ def free_instance():
 
 class Gcs:
     """The test's pymavlink link to SERIAL0: STATUSTEXT, LOCAL_POSITION_NED
-    and ATTITUDE, each with its arrival time (CLOCK_MONOTONIC, s)."""
+    and ATTITUDE, each with its arrival time (CLOCK_MONOTONIC, s).
+
+    One thread reads the link; nothing else calls `recv_match` on it (a
+    second reader, such as `wait_heartbeat`, would take messages away from
+    the recorded ones: a CI run lost EKF3's tilt-alignment STATUSTEXT so)."""
 
     def __init__(self, port):
         end = time.monotonic() + 20
@@ -102,6 +106,7 @@ class Gcs:
         self.texts = []
         self.positions = []
         self.attitudes = []
+        self.heartbeat = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -116,7 +121,9 @@ class Gcs:
                 continue
             t = time.monotonic()
             kind = m.get_type()
-            if kind == "STATUSTEXT":
+            if kind == "HEARTBEAT" and m.get_srcSystem() != 255:
+                self.heartbeat.set()
+            elif kind == "STATUSTEXT":
                 self.texts.append((t, m.text))
             elif kind == "LOCAL_POSITION_NED":
                 self.positions.append((t, (m.x, m.y, m.z)))
@@ -124,7 +131,7 @@ class Gcs:
                 self.attitudes.append((t, m.yaw))
 
     def start_streams(self):
-        self.conn.wait_heartbeat(timeout=20)
+        assert self.heartbeat.wait(timeout=20), "no HEARTBEAT from SITL in 20 s"
         self.conn.mav.request_data_stream_send(
             self.conn.target_system, self.conn.target_component,
             mavutil.mavlink.MAV_DATA_STREAM_ALL, 10, 1)
