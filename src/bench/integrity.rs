@@ -42,6 +42,10 @@ pub struct IntegrityOptions {
     pub config: Config,
     /// Keep the sequence here (a temporary folder otherwise).
     pub keep: Option<PathBuf>,
+    /// The scanned variant of the preset.
+    pub scanned: bool,
+    /// An existing dataset to run on instead of writing one.
+    pub dataset: Option<PathBuf>,
 }
 
 /// One trial's outcome.
@@ -56,22 +60,35 @@ struct Trial {
 
 /// Runs the bench and prints its figures.
 pub fn run(options: &IntegrityOptions) -> Result<()> {
-    let tmp = tempfile_dir(options.keep.as_deref())?;
-    let root = tmp.join("seq");
-    let dataset = sequence(&root, options)?;
+    let (tmp, root) = match &options.dataset {
+        Some(root) => (None, root.clone()),
+        None => {
+            let tmp = tempfile_dir(options.keep.as_deref())?;
+            let root = tmp.join("seq");
+            (Some(tmp), root)
+        }
+    };
+    let dataset = match options.dataset {
+        Some(_) => Dataset::open(&root)
+            .with_context(|| format!("opening the dataset {}", root.display()))?,
+        None => sequence(&root, options)?,
+    };
     let truth = dataset
         .ground_truth
         .clone()
         .context("the synthetic sequence has ground truth")?;
-    let mesh = Arc::new(
-        crate::map::load_obj(&root.join("map").join("map.obj")).context("loading the map")?,
-    );
+    let mesh = Arc::new(map_of(&root)?);
     let db = database(&mesh, &dataset, &truth, &options.config)?;
     println!(
-        "integrity: preset {} seed {}: {} frames; database {} views, {} landmarks over the flown region",
-        options.preset,
+        "integrity: {} seed {}: {} frames, map {} triangles; database {} views, {} landmarks over the flown region",
+        match &options.dataset {
+            Some(root) => format!("dataset {}", root.display()),
+            None if options.scanned => format!("preset {} (scanned)", options.preset),
+            None => format!("preset {}", options.preset),
+        },
         options.seed,
         dataset.len(),
+        mesh.triangle_count(),
         db.entries.len(),
         db.landmarks.len()
     );
@@ -100,10 +117,27 @@ pub fn run(options: &IntegrityOptions) -> Result<()> {
         "integrity: wrong poses sent {wrong} of {sent} over {} runs",
         all.len()
     );
-    if options.keep.is_none() {
+    if let (Some(tmp), None) = (tmp, &options.keep) {
         let _ = std::fs::remove_dir_all(&tmp);
     }
     Ok(())
+}
+
+/// The dataset's map in the world frame: `map/map.obj`, placed by the
+/// `[map.world_from_mesh]` of `star.toml` beside it when there is one (a
+/// scanned dataset's map is in the scanner's frame).
+fn map_of(root: &Path) -> Result<Mesh> {
+    let obj = root.join("map").join("map.obj");
+    let placement = root.join("star.toml");
+    let mesh = if placement.exists() {
+        Config::load(&placement)
+            .with_context(|| format!("loading {}", placement.display()))?
+            .map
+            .load_mesh_from(&obj)
+    } else {
+        crate::map::load_obj(&obj)
+    };
+    mesh.with_context(|| format!("loading the map {}", obj.display()))
 }
 
 fn tempfile_dir(keep: Option<&Path>) -> Result<PathBuf> {
@@ -119,6 +153,11 @@ fn tempfile_dir(keep: Option<&Path>) -> Result<PathBuf> {
 fn sequence(root: &Path, options: &IntegrityOptions) -> Result<Dataset> {
     let preset = Preset::by_name(&options.preset)
         .with_context(|| format!("unknown preset `{}`", options.preset))?;
+    let preset = if options.scanned {
+        preset.scanned()
+    } else {
+        preset
+    };
     let sequence = SequenceOptions {
         preset,
         seed: options.seed,
@@ -150,6 +189,8 @@ fn database(
     let mut reloc = config.reloc.clone();
     reloc.heights_m = vec![mean_z];
     reloc.landmark_heights_m = vec![mean_z];
+    // The flight's heights are world heights.
+    reloc.floor_z_m = Some(0.0);
     reloc.bounds_margin_m = 0.0;
     let pad = 0.5;
     let region = (

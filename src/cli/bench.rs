@@ -69,6 +69,16 @@ pub enum BenchCommand {
         /// Keep the sequence in this folder.
         #[arg(long)]
         keep: Option<PathBuf>,
+        /// The scanned variant of the preset (`star synth --scanned`): the
+        /// map is rebuilt by TSDF fusion of a noisy scan, and the flight
+        /// has a moving light and auto-exposure steps.
+        #[arg(long)]
+        scanned: bool,
+        /// Run on this existing `star synth` dataset instead of writing one
+        /// (its `star.toml`, when present, places the map); `--preset`,
+        /// `--scanned` and `--frames` are then ignored.
+        #[arg(long, conflicts_with_all = ["keep", "scanned"])]
+        dataset: Option<PathBuf>,
     },
     /// Relocalization on the synthetic realistic scene: success rate,
     /// retrieval distance, search and recovery time.
@@ -99,6 +109,8 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             frames,
             trials,
             keep,
+            scanned,
+            dataset,
         } => {
             let config = match config {
                 Some(p) => crate::config::Config::load(p)
@@ -112,6 +124,8 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
                 trials: *trials as usize,
                 config,
                 keep: keep.clone(),
+                scanned: *scanned,
+                dataset: dataset.clone(),
             })
         }
         BenchCommand::Reloc {

@@ -10,9 +10,12 @@
 //! - [`Mesh::validate`]: the structural checks every loader and renderer
 //!   relies on, with [`MapError`] / [`MeshProblem`] naming the defect.
 //! - [`subdivide`]: 1-to-4 subdivision for large benchmark meshes.
+//! - [`floor::find_floor`]: the floor's height, which the relocalization
+//!   grid's heights are measured from.
 
 mod config;
 mod error;
+pub mod floor;
 mod obj;
 mod obj_write;
 mod subdivide;

@@ -96,7 +96,12 @@ fn write_obj_body(mesh: &Mesh, stem: &str, out: &mut impl Write) -> std::io::Res
         let end = first + group.index_count as usize;
         for tri in mesh.indices[first..end].chunks_exact(3) {
             let (a, b, c) = (tri[0] + 1, tri[1] + 1, tri[2] + 1);
-            writeln!(out, "f {a}/{a} {b}/{b} {c}/{c}")?;
+            if mesh.uvs.is_empty() {
+                // Vertex colors only: no texture coordinates to refer to.
+                writeln!(out, "f {a} {b} {c}")?;
+            } else {
+                writeln!(out, "f {a}/{a} {b}/{b} {c}/{c}")?;
+            }
         }
     }
     Ok(())

@@ -20,8 +20,13 @@ pub struct RelocConfig {
     /// Horizontal grid spacing of the virtual cameras, meters (0.35 m found
     /// 4 points fewer of the close-range views on the bench).
     pub grid_spacing_m: f64,
-    /// Camera heights (world z), meters.
+    /// Camera heights above the floor, meters.
     pub heights_m: Vec<f64>,
+    /// Height of the floor (world z, meters) that `heights_m` and
+    /// `landmark_heights_m` are measured from; absent: found in the map
+    /// (the lowest large horizontal surface, [`crate::map::floor`]), and a
+    /// map without one is refused with a message that says to set this.
+    pub floor_z_m: Option<f64>,
     /// Number of yaw angles per position, evenly spaced over 360 degrees.
     pub yaw_steps: u32,
     /// Camera pitch angles, degrees (negative looks down).
@@ -103,7 +108,7 @@ pub struct RelocConfig {
     /// Landmarks (`star reloc build`): full-resolution views on a horizontal
     /// grid this far apart (meters; 0: no landmarks), ...
     pub landmark_spacing_m: f64,
-    /// ... at these heights (world z, meters), ...
+    /// ... at these heights above the floor, meters, ...
     pub landmark_heights_m: Vec<f64>,
     /// ... with this many yaws, evenly spaced over 360 degrees, at the
     /// middle of `pitches_deg`.
@@ -123,6 +128,7 @@ impl Default for RelocConfig {
             database: None,
             grid_spacing_m: 0.25,
             heights_m: vec![1.0, 1.4, 1.8],
+            floor_z_m: None,
             yaw_steps: 24,
             pitches_deg: vec![-5.0],
             bounds_margin_m: 0.3,
@@ -182,6 +188,11 @@ impl RelocConfig {
                     self.heights_m
                 ),
             ));
+        }
+        if let Some(z) = self.floor_z_m {
+            if !(z.is_finite() && z.abs() <= 1000.0) {
+                return Err(("floor_z_m", format!("expected -1000..=1000 m, found {z}")));
+            }
         }
         if self.pitches_deg.is_empty()
             || self

@@ -4,7 +4,8 @@
 //!
 //! Takes the map mesh, the camera, a renderer and the `[reloc]` section;
 //! gives out a [`RelocDatabase`]. Positions lie on a horizontal grid inside
-//! the mesh bounds (shrunk by `bounds_margin_m`) at the configured heights;
+//! the mesh bounds (shrunk by `bounds_margin_m`) at the configured heights
+//! above the floor (`floor_z_m`, or the floor found in the map);
 //! each position gets `yaw_steps` yaws times the configured pitches. A
 //! position is dropped when any of its views has geometry nearer than
 //! `min_depth_m` (inside or against furniture); a view is dropped when less
@@ -18,6 +19,7 @@ use nalgebra::{Translation3, Vector3};
 
 use crate::geometry::look::camera_rotation;
 use crate::geometry::{PinholeCamera, Pose};
+use crate::map::floor::{find_floor, FloorError};
 use crate::map::Mesh;
 use crate::render::{RenderError, RenderedView, Renderer};
 
@@ -44,6 +46,13 @@ pub enum BuildError {
         margin_m: f64,
         /// The heights asked for.
         heights_m: Vec<f64>,
+    },
+    /// No floor was found to measure the heights from.
+    #[error("the grid heights are measured from the floor, and {source}; set `[reloc] floor_z_m` to the floor's height (world z, meters) to give it explicitly")]
+    NoFloor {
+        /// Why none was found.
+        #[source]
+        source: FloorError,
     },
     /// A render failed.
     #[error("rendering a database view at {position_m:?}")]
@@ -73,7 +82,8 @@ pub fn thumb_render_camera(camera: &PinholeCamera) -> PinholeCamera {
 }
 
 /// Grid positions (world, meters) inside the bounds of `mesh`, or inside
-/// `region` (`[min, max]` corners, meters) when given.
+/// `region` (`[min, max]` corners, meters) when given, at `heights_m` taken
+/// as world heights (see [`above_floor`]).
 pub fn grid_positions(
     mesh: &Mesh,
     config: &RelocConfig,
@@ -144,6 +154,7 @@ pub fn build_database_in(
     region: Option<([f32; 3], [f32; 3])>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RelocDatabase, BuildError> {
+    let config = &above_floor(mesh, config)?;
     let positions = grid_positions(mesh, config, region)?;
     let landmark_positions = landmark_positions(mesh, config, region);
     let total = positions.len() + landmark_positions.len();
@@ -223,6 +234,31 @@ pub fn build_database_in(
         coarse_points,
         landmarks,
         path: std::path::PathBuf::new(),
+    })
+}
+
+/// `config` with its heights made world heights: the floor's height (the
+/// configured `floor_z_m`, else [`find_floor`]) added, and `floor_z_m`
+/// set to 0.
+pub fn above_floor(mesh: &Mesh, config: &RelocConfig) -> Result<RelocConfig, BuildError> {
+    let floor_z_m = match config.floor_z_m {
+        Some(z) => z,
+        None => {
+            let floor = find_floor(mesh).map_err(|source| BuildError::NoFloor { source })?;
+            tracing::info!(
+                floor_z_m = floor.z_m,
+                area_m2 = floor.area_m2,
+                "relocalization grid: heights measured from the floor found in the map"
+            );
+            floor.z_m
+        }
+    };
+    let lift = |h: &[f64]| h.iter().map(|z| z + floor_z_m).collect();
+    Ok(RelocConfig {
+        heights_m: lift(&config.heights_m),
+        landmark_heights_m: lift(&config.landmark_heights_m),
+        floor_z_m: Some(0.0),
+        ..config.clone()
     })
 }
 

@@ -63,6 +63,8 @@ pub fn fixture_with_seed(seed: u64) -> Fixture {
     config.reloc = RelocConfig {
         grid_spacing_m: 0.3,
         heights_m: vec![mean_z],
+        // The flight's heights are world heights.
+        floor_z_m: Some(0.0),
         yaw_steps: 24,
         bounds_margin_m: 0.0,
         landmark_spacing_m: 0.4,

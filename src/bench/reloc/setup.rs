@@ -118,7 +118,8 @@ impl Bench {
             .map(|_| Box::new(Keyframe::new(&pinhole, &tracker)))
             .collect();
         let reloc = Relocalizer::new(db.clone(), rc, &camera)?;
-        let z_range_m = rc
+        // World heights: the configured ones above the map's floor.
+        let z_range_m = crate::reloc::above_floor(&map, rc)?
             .heights_m
             .iter()
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &h| {
