@@ -38,7 +38,10 @@ pub struct OfflineOptions {
     pub world_from_camera_start: Option<Pose>,
     /// Process at most this many frames.
     pub max_frames: Option<usize>,
-    /// Pace frames at the recorded rate (as a live camera would deliver them).
+    /// Pace frames at the recorded rate (as a live camera would deliver them):
+    /// a frame whose successor is already due when the loop gets to it is
+    /// skipped, as a live camera's frame is replaced by the next one while
+    /// the tracker is busy (`star run` takes the latest frame).
     pub realtime: bool,
     /// Relocalize from this database when lost.
     pub relocalizer: Option<crate::reloc::Relocalizer>,
@@ -71,6 +74,9 @@ pub struct OfflineReport {
     pub track_ms: Vec<f64>,
     /// Frames that could not be decoded or were rejected, with the reason.
     pub bad_frames: Vec<(usize, String)>,
+    /// Frames skipped in real time because the loop was still busy when
+    /// the next one was due (a live camera would have replaced them).
+    pub skipped_frames: usize,
     /// Frames processed.
     pub frames: usize,
     /// Frames in the lost state.
@@ -217,6 +223,7 @@ pub fn localize_dataset(
         estimate: Trajectory::default(),
         track_ms: Vec::with_capacity(n),
         bad_frames: Vec::new(),
+        skipped_frames: 0,
         frames: 0,
         lost_frames: 0,
         reset_counters: Vec::with_capacity(n),
@@ -240,6 +247,15 @@ pub fn localize_dataset(
     for i in 0..n {
         let stamp_s = dataset.frames[i].timestamp_s;
         if options.realtime {
+            let next_due_s = dataset
+                .frames
+                .get(i + 1)
+                .map_or(f64::INFINITY, |f| f.timestamp_s - first_stamp_s);
+            if wall_start.elapsed().as_secs_f64() >= next_due_s {
+                report.skipped_frames += 1;
+                on_frame(i);
+                continue;
+            }
             let due = std::time::Duration::from_secs_f64((stamp_s - first_stamp_s).max(0.0));
             if let Some(wait) = due.checked_sub(wall_start.elapsed()) {
                 std::thread::sleep(wait);

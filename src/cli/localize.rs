@@ -132,11 +132,12 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
         output.display()
     );
     println!(
-        "  frames {}  tracked {}  lost {}  bad {}  renderer {}",
+        "  frames {}  tracked {}  lost {}  bad {}  skipped while busy {}  renderer {}",
         report.frames,
         report.estimate.len(),
         report.lost_frames,
         report.bad_frames.len(),
+        report.skipped_frames,
         report.renderer
     );
     println!(
