@@ -214,8 +214,9 @@ pub fn localize_dataset(
     if let Some(r) = &options.relocalizer {
         localizer.set_relocalizer(r.clone())?;
     }
-    if options.start != StartMode::Trusted {
-        localizer.verify_start(&config.reloc, options.start == StartMode::Hint);
+    match options.start {
+        StartMode::Trusted => localizer.use_gate(&config.reloc),
+        start => localizer.verify_start(&config.reloc, start == StartMode::Hint),
     }
     let mut image = ImageU8::new(camera.width as usize, camera.height as usize, 0);
     let mut scratch = Vec::new();

@@ -70,7 +70,9 @@ impl Localizer {
         }
     }
 
-    /// Whether a frame that passed the ordinary lost test may be output.
+    /// Whether a frame that passed the ordinary lost test may be output:
+    /// while tracking, yes; while verifying, when it passes the gate; while
+    /// lost, only within `resume_window_s` of the loss and through the gate.
     pub(super) fn may_resume(&self, capture_ns: u64, q: &AlignQuality) -> bool {
         let Some(config) = gate_config(&self.reloc, &self.start_gate) else {
             return true;
@@ -81,10 +83,14 @@ impl Localizer {
         if self.state == TrackState::Tracking {
             return true;
         }
-        self.lost_s(capture_ns) <= config.resume_window_s
+        // Resuming on its own after a short loss: the frame must also pass
+        // the relocalization gate (the lost test's thresholds are for
+        // noticing a loss, not for trusting a pose again).
+        self.lost_s(capture_ns) <= config.resume_window_s && passes_gate(q, config)
     }
 
-    /// With relocalization enabled, tracking also needs the keyframe points
+    /// With a gate (a database, a verified start, or [`Self::use_gate`]),
+    /// tracking also needs the keyframe points
     /// to correlate with the frame at the aligned pose (`reloc.
     /// track_min_correlation`): a frame from elsewhere (a teleport, a
     /// look-alike wall) can pass the inlier test with an affine photometric
@@ -106,6 +112,16 @@ impl Localizer {
             tracing::debug!(?ncc, "frame does not correlate with the keyframe");
         }
         ok
+    }
+
+    /// Uses the relocalization gate of `gate` (the `[reloc]` settings) for
+    /// every later loss without a database, while trusting the start pose:
+    /// the benchmarks' trusted start. After a loss, tracking then resumes
+    /// only as it does in flight (correlation with the keyframe within
+    /// `resume_window_s`, else re-verified against the last keyframe
+    /// through the gate).
+    pub fn use_gate(&mut self, gate: &RelocConfig) {
+        self.start_gate = Some(gate.clone());
     }
 
     /// Makes the start pose a hint that must pass the relocalization gate

@@ -96,8 +96,10 @@ pub struct RelocConfig {
     pub confirm_max_m: f64,
     /// ... and degrees.
     pub confirm_max_deg: f64,
-    /// With relocalization enabled, ordinary tracking is also lost when the
-    /// keyframe points correlate less than this with the frame.
+    /// Ordinary tracking is also lost when the keyframe points correlate
+    /// less than this with the frame (pyramid level 1). Correct poses
+    /// measured 0.37-0.95 on the synthetic presets (the lowest on a dim,
+    /// blurred `realistic` sequence, seed 12).
     pub track_min_correlation: f32,
     /// Frames after an accepted relocalization that must track through the
     /// same gate before a pose is output again.
@@ -150,7 +152,7 @@ impl Default for RelocConfig {
             refine_renders: 2,
             confirm_max_m: 0.03,
             confirm_max_deg: 1.5,
-            track_min_correlation: 0.5,
+            track_min_correlation: 0.3,
             verify_frames: 1,
             resume_window_s: 0.2,
             landmark_spacing_m: 0.5,
