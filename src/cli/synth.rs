@@ -41,6 +41,11 @@ pub struct SynthArgs {
     /// steps. `--preset scanned` is `realistic` with this.
     #[arg(long)]
     pub scanned: bool,
+    /// A look-alike room: the textures of this seed's room in the layout of
+    /// `--seed` (the integrity tests fly it to check that a place that
+    /// looks the same is not taken for the mapped one).
+    #[arg(long)]
+    pub texture_seed: Option<u64>,
     /// TSDF voxel edge of the scanned map, meters (default: the preset's,
     /// 0.01); a coarser voxel is faster (for tests).
     #[arg(long)]
@@ -79,6 +84,7 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     } else {
         preset
     };
+    preset.scene.texture_seed = args.texture_seed;
     if let Some(voxel_m) = args.scan_voxel_m {
         let Some(spec) = preset.scanned.as_mut() else {
             bail!("--scan-voxel-m applies to a scanned preset (--preset scanned or --scanned)");

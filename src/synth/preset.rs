@@ -53,6 +53,10 @@ pub struct ScenePreset {
     pub map_hole_fraction: f64,
     /// Texture resolution, texels per meter.
     pub texture_px_per_m: f64,
+    /// Seed of the textures, when not the sequence's: a look-alike room
+    /// (`star synth --texture-seed`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub texture_seed: Option<u64>,
 }
 
 /// A complete, exact description of a synthetic sequence.
@@ -126,6 +130,7 @@ const SCENE: ScenePreset = ScenePreset {
     occluders: 0,
     map_hole_fraction: 0.0,
     texture_px_per_m: 128.0,
+    texture_seed: None,
 };
 
 impl Preset {

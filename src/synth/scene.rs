@@ -85,6 +85,7 @@ pub fn build_scene(params: &SceneParams) -> Scene {
     let params = params.clamped();
     let [lx, ly, lz] = params.room_size_m;
     let root = SplitMix64::new(params.seed);
+    let texture_root = SplitMix64::new(params.texture_seed.unwrap_or(params.seed));
 
     let mut layout_rng = root.fork(1);
     let furniture = place_boxes(&mut layout_rng, &params, &[], params.boxes, false);
@@ -116,7 +117,7 @@ pub fn build_scene(params: &SceneParams) -> Scene {
             .par_iter()
             .enumerate()
             .map(|(i, &(kind, w, h))| {
-                let seed = root.fork(100 + i as u64).next_u64();
+                let seed = texture_root.fork(100 + i as u64).next_u64();
                 paint_surface(kind, w, h, params.texture_px_per_m, seed)
             })
             .collect()

@@ -133,6 +133,7 @@ pub struct ScannedSummary {
 pub fn preset_scene(preset: &Preset, seed: u64) -> Scene {
     build_scene(&SceneParams {
         seed,
+        texture_seed: preset.scene.texture_seed,
         room_size_m: preset.scene.room_size_m,
         boxes: preset.scene.furniture_boxes,
         texture_px_per_m: preset.scene.texture_px_per_m,

@@ -7,6 +7,9 @@
 pub struct SceneParams {
     /// Seed of every random choice (layout, holes, textures).
     pub seed: u64,
+    /// Seed of the textures when it differs from `seed`: a look-alike of
+    /// another room, with that room's textures in this seed's layout.
+    pub texture_seed: Option<u64>,
     /// Room size `[x, y, z]` in meters (x/y floor, z height).
     pub room_size_m: [f64; 3],
     /// Number of furniture boxes on the floor (fewer when they do not fit).
@@ -23,6 +26,7 @@ impl Default for SceneParams {
     fn default() -> Self {
         Self {
             seed: 1,
+            texture_seed: None,
             room_size_m: [8.0, 6.0, 3.0],
             boxes: 6,
             texture_px_per_m: 128.0,
@@ -86,6 +90,7 @@ impl SceneParams {
             |v: f64, lo: f64, hi: f64, def: f64| if v.is_nan() { def } else { v.clamp(lo, hi) };
         Self {
             seed: self.seed,
+            texture_seed: self.texture_seed,
             room_size_m: [
                 clamp(self.room_size_m[0], 2.0, 50.0, d.room_size_m[0]),
                 clamp(self.room_size_m[1], 2.0, 50.0, d.room_size_m[1]),
