@@ -46,6 +46,8 @@ pub struct IntegrityOptions {
     pub scanned: bool,
     /// An existing dataset to run on instead of writing one.
     pub dataset: Option<PathBuf>,
+    /// Read the database from this file when it exists, else write it there.
+    pub database: Option<PathBuf>,
 }
 
 /// One trial's outcome.
@@ -78,7 +80,26 @@ pub fn run(options: &IntegrityOptions) -> Result<()> {
         .clone()
         .context("the synthetic sequence has ground truth")?;
     let mesh = Arc::new(map_of(&root)?);
-    let db = database(&mesh, &dataset, &truth, &options.config)?;
+    let db = match &options.database {
+        Some(path) if path.exists() => {
+            let db = RelocDatabase::read(path)
+                .with_context(|| format!("reading the database {}", path.display()))?;
+            if db.map_fingerprint != crate::reloc::map_fingerprint(&mesh) {
+                anyhow::bail!(
+                    "the database {} was built from another map; delete it to rebuild",
+                    path.display()
+                );
+            }
+            db
+        }
+        Some(path) => {
+            let db = database(&mesh, &dataset, &truth, &options.config)?;
+            db.write(path)
+                .with_context(|| format!("writing the database {}", path.display()))?;
+            db
+        }
+        None => database(&mesh, &dataset, &truth, &options.config)?,
+    };
     println!(
         "integrity: {} seed {}: {} frames, map {} triangles; database {} views, {} landmarks over the flown region",
         match &options.dataset {

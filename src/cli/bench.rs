@@ -79,6 +79,11 @@ pub enum BenchCommand {
         /// `--scanned` and `--frames` are then ignored.
         #[arg(long, conflicts_with_all = ["keep", "scanned"])]
         dataset: Option<PathBuf>,
+        /// Relocalization database over the flown region: read from this
+        /// file when it exists (and matches the map), else built and
+        /// written there (a heavy map's database takes minutes).
+        #[arg(long)]
+        database: Option<PathBuf>,
     },
     /// Relocalization on the synthetic realistic scene: success rate,
     /// retrieval distance, search and recovery time.
@@ -111,6 +116,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             keep,
             scanned,
             dataset,
+            database,
         } => {
             let config = match config {
                 Some(p) => crate::config::Config::load(p)
@@ -126,6 +132,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
                 keep: keep.clone(),
                 scanned: *scanned,
                 dataset: dataset.clone(),
+                database: database.clone(),
             })
         }
         BenchCommand::Reloc {

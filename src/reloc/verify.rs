@@ -195,6 +195,16 @@ pub fn verify_candidate(
             .filter(|c| {
                 c.all >= config.min_correlation && c.trimmed >= config.min_trimmed_correlation
             });
+        tracing::debug!(
+            inliers = q.inlier_ratio,
+            visible = q.visible_ratio,
+            residual_gray = q.residual_rms,
+            gain = a.gain,
+            correlations = ?min_correlations(keyframe, frame, camera, &a.camera_from_keyframe)
+                .map(|c| (c.all, c.trimmed)),
+            accepted = accepted.is_some(),
+            "candidate start aligned"
+        );
         if let Some(ncc) = accepted {
             let better = best
                 .as_ref()
