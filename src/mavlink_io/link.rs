@@ -10,6 +10,7 @@
 use std::fmt;
 use std::io;
 use std::net::{TcpStream, ToSocketAddrs};
+use std::sync::Arc;
 use std::time::Duration;
 
 use mavlink::dialects::common::MavMessage;
@@ -18,6 +19,9 @@ use mavlink::{
     Connectable, Connection, MavConnection, MavHeader, MavlinkVersion, SerialConfig, TcpConfig,
     UdpConfig, UdpMode,
 };
+
+use super::stats::Counters;
+use super::udpin::{PeerPolicy, UdpIn};
 
 /// How long a blocking receive waits before it returns `Ok(None)`.
 pub const READ_TIMEOUT: Duration = Duration::from_millis(100);
@@ -61,7 +65,8 @@ pub enum LinkError {
 pub enum LinkAddress {
     /// `udpout:HOST:PORT`: send to HOST:PORT from an ephemeral port; replies come back to it.
     UdpOut(String),
-    /// `udpin:ADDR:PORT`: listen on ADDR:PORT; send to whoever sent last.
+    /// `udpin:ADDR:PORT`: listen on ADDR:PORT; send to the autopilot it
+    /// locked to (`udpin.rs`).
     UdpIn(String),
     /// `tcpout:HOST:PORT`: a TCP client.
     TcpOut(String),
@@ -137,16 +142,35 @@ impl LinkAddress {
     }
 }
 
+/// The transport behind a [`Link`].
+enum Transport {
+    /// rust-mavlink's connection (`udpout`, `tcpout`, `serial`).
+    Crate(Connection<MavMessage>),
+    /// Our own `udpin` socket, locked to one autopilot (`udpin.rs`).
+    UdpIn(UdpIn),
+}
+
 /// An open MAVLink 2 connection.
 pub struct Link {
-    connection: Connection<MavMessage>,
+    transport: Transport,
     address: LinkAddress,
 }
 
 impl Link {
-    /// Opens `address`. UDP binds immediately (it never fails for a reachable
-    /// local address), TCP connects with a 1 s timeout, serial opens the device.
+    /// Opens `address` with the default `udpin` peer policy.
     pub fn open(address: &LinkAddress) -> Result<Self, LinkError> {
+        Self::open_with(address, &PeerPolicy::default(), Arc::default())
+    }
+
+    /// Opens `address`. UDP binds immediately (it never fails for a reachable
+    /// local address), TCP connects with a 1 s timeout, serial opens the
+    /// device. `udpin` locks to an autopilot by `policy` and counts into
+    /// `counters`.
+    pub(crate) fn open_with(
+        address: &LinkAddress,
+        policy: &PeerPolicy,
+        counters: Arc<Counters>,
+    ) -> Result<Self, LinkError> {
         let open_error = |source: io::Error| LinkError::Open {
             address: address.to_string(),
             source,
@@ -155,9 +179,14 @@ impl Link {
             LinkAddress::UdpOut(a) => UdpConfig::new(a.clone(), UdpMode::Udpout)
                 .read_timeout(READ_TIMEOUT)
                 .connect::<MavMessage>(),
-            LinkAddress::UdpIn(a) => UdpConfig::new(a.clone(), UdpMode::Udpin)
-                .read_timeout(READ_TIMEOUT)
-                .connect::<MavMessage>(),
+            LinkAddress::UdpIn(a) => {
+                let udpin =
+                    UdpIn::bind(a, policy.clone(), READ_TIMEOUT, counters).map_err(open_error)?;
+                return Ok(Self {
+                    transport: Transport::UdpIn(udpin),
+                    address: address.clone(),
+                });
+            }
             LinkAddress::TcpOut(a) => {
                 tcp_connect(a).and_then(|s| TcpConfig::from_stream(s)?.connect())
             }
@@ -170,9 +199,19 @@ impl Link {
         // Autopilots may talk MAVLink 1 until they hear MAVLink 2.
         connection.set_allow_recv_any_version(true);
         Ok(Self {
-            connection,
+            transport: Transport::Crate(connection),
             address: address.clone(),
         })
+    }
+
+    /// How many times the peer was locked: 0 until a `udpin` link hears an
+    /// autopilot, 1 for the other transports (their peer is fixed). A
+    /// change means a new autopilot, hence a new stream.
+    pub fn peer_epoch(&self) -> u64 {
+        match &self.transport {
+            Transport::Crate(_) => 1,
+            Transport::UdpIn(u) => u.peer_epoch(),
+        }
     }
 
     /// The address this link was opened with.
@@ -183,9 +222,14 @@ impl Link {
     /// Sends one message. `Ok(false)` when there is nobody to send to yet
     /// (`udpin` before the first packet arrives).
     pub fn send(&self, header: &MavHeader, message: &MavMessage) -> Result<bool, LinkError> {
-        match self.connection.send(header, message) {
-            Ok(n) => Ok(n > 0),
-            Err(e) => Err(self.broken(e.to_string())),
+        match &self.transport {
+            Transport::Crate(connection) => match connection.send(header, message) {
+                Ok(n) => Ok(n > 0),
+                Err(e) => Err(self.broken(e.to_string())),
+            },
+            Transport::UdpIn(udpin) => udpin
+                .send(header, message)
+                .map_err(|e| self.broken(e.to_string())),
         }
     }
 
@@ -194,12 +238,15 @@ impl Link {
     pub fn recv(&self) -> Result<Option<(MavHeader, MavMessage)>, LinkError> {
         // The serial transport's blocking `recv` retries timeouts forever;
         // its `try_recv` waits for the port timeout instead.
-        let result = match self.address {
-            LinkAddress::Serial { .. } => self.connection.try_recv(),
-            _ => self.connection.recv(),
+        let result = match (&self.transport, &self.address) {
+            (Transport::UdpIn(udpin), _) => udpin.recv().map_err(MessageReadError::Io),
+            (Transport::Crate(connection), LinkAddress::Serial { .. }) => {
+                connection.try_recv().map(Some)
+            }
+            (Transport::Crate(connection), _) => connection.recv().map(Some),
         };
         match result {
-            Ok(m) => Ok(Some(m)),
+            Ok(m) => Ok(m),
             Err(MessageReadError::Io(e)) => match e.kind() {
                 io::ErrorKind::WouldBlock
                 | io::ErrorKind::TimedOut

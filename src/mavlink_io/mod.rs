@@ -1,7 +1,8 @@
 //! The MAVLink link to the autopilot (PX4 or ArduPilot), on the `mavlink`
 //! crate with the common dialect, MAVLink 2.
 //!
-//! Owns the connection (`udpout:`, `udpin:`, `tcpout:`, `serial:`) and two
+//! Owns the connection (`udpout:`, `udpin:` locked to one autopilot, see
+//! `udpin.rs`, `tcpout:`, `serial:`) and two
 //! threads: `mavlink-tx` (reconnects, sends poses at a capped rate, HEARTBEAT
 //! at 1 Hz, TIMESYNC requests) and `mavlink-rx` (answers TIMESYNC requests,
 //! feeds the offset estimator). Takes [`PoseSample`]s from the tracker through
@@ -51,6 +52,7 @@ mod sender;
 pub mod stamp;
 mod stats;
 pub mod timesync;
+pub mod udpin;
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex, PoisonError};
@@ -130,7 +132,7 @@ pub(crate) struct Shared {
     /// The pose clock; never locked while `timesync` is held (nor the
     /// other way round).
     pub clock: Mutex<PoseClock>,
-    pub counters: Counters,
+    pub counters: Arc<Counters>,
 }
 
 impl Shared {
@@ -211,7 +213,7 @@ impl MavlinkLink {
                 u64::from(config.timesync_wait_ms) * 1_000_000,
                 config.min_interval_ns(),
             )),
-            counters: Counters::default(),
+            counters: Arc::default(),
         });
         let (done_tx, done_rx) = mpsc::channel();
         let mut handle = MavlinkHandle {

@@ -124,6 +124,8 @@ struct Sender {
     state: LinkState,
     link: Option<(u64, Arc<Link>)>,
     generation: u64,
+    /// The link's peer epoch the current stream belongs to.
+    peer_epoch: u64,
     backoff: Duration,
     reconnect_at: Instant,
     next_heartbeat: Instant,
@@ -145,6 +147,7 @@ pub(crate) fn run(shared: Arc<Shared>) {
         state: LinkState::Standby,
         link: None,
         generation: 0,
+        peer_epoch: 0,
         backoff: MIN_BACKOFF,
         reconnect_at: now,
         next_heartbeat: now,
@@ -160,6 +163,7 @@ pub(crate) fn run(shared: Arc<Shared>) {
 impl Sender {
     fn step(&mut self) {
         self.check_link();
+        self.check_peer();
         let now = Instant::now();
         if self.link.is_some() {
             if now >= self.next_heartbeat {
@@ -209,9 +213,11 @@ impl Sender {
             return;
         }
         let counters = &self.shared.counters;
-        match Link::open(&self.shared.address) {
+        let policy = self.shared.config.peer_policy();
+        match Link::open_with(&self.shared.address, &policy, self.shared.counters.clone()) {
             Ok(link) => {
                 self.generation += 1;
+                self.peer_epoch = link.peer_epoch();
                 let link = Arc::new(link);
                 *self
                     .shared
@@ -238,6 +244,22 @@ impl Sender {
                 self.reconnect_at = Instant::now() + self.backoff;
                 self.backoff = (self.backoff * 2).min(MAX_BACKOFF);
             }
+        }
+    }
+
+    /// A `udpin` link that locked a new autopilot starts a new stream (its
+    /// clock is another one), with HEARTBEAT and TIMESYNC at once.
+    fn check_peer(&mut self) {
+        let Some((_, link)) = &self.link else {
+            return;
+        };
+        let epoch = link.peer_epoch();
+        if epoch != self.peer_epoch {
+            self.peer_epoch = epoch;
+            self.start_stream();
+            let now = Instant::now();
+            self.next_heartbeat = now;
+            self.next_timesync = now;
         }
     }
 
