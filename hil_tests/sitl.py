@@ -9,6 +9,7 @@ beside the repository); `SKIP` skips a test module without it.
 import math
 import os
 import pathlib
+import shutil
 import socket
 import subprocess
 import threading
@@ -24,6 +25,7 @@ from pymavlink import mavutil  # noqa: E402
 SITL_DIR = pathlib.Path(os.environ.get("STAR_SITL_DIR", REPO.parent / "shared" / "sitl"))
 ARDUCOPTER = SITL_DIR / "arducopter"
 HOME = "-35.363261,149.165230,584,0"
+SOCAT = shutil.which("socat")
 
 SKIP = pytest.mark.skipif(
     not ARDUCOPTER.exists(),
@@ -248,6 +250,20 @@ class Sitl:
                 self.proc.wait()
         self.log.close()
 
+    def log_rows(self, types):
+        """Records of the given types from SITL's dataflash log, as dicts
+        (empty where there is no log)."""
+        logs = sorted((self.dir / "logs").glob("*.BIN"))
+        if not logs:
+            return []
+        log = mavutil.mavlink_connection(str(logs[-1]))
+        rows = []
+        while True:
+            m = log.recv_match(type=list(types))
+            if m is None:
+                return rows
+            rows.append({"type": m.get_type(), **m.to_dict()})
+
     def vision_log(self):
         """VISP records of SITL's dataflash log: (TimeUS, RTimeUS, CTimeMS,
         Ign), or None where the log cannot be read."""
@@ -277,3 +293,60 @@ def yaw_of(fields):
 
 def angle_deg(a, b):
     return abs(math.degrees(math.atan2(math.sin(a - b), math.cos(a - b))))
+
+
+class PtyPair:
+    """`socat` joining two ptys; `a` and `b` are their /dev/pts paths."""
+
+    def __init__(self, workdir):
+        self.a_link = workdir / "pty_sitl"
+        self.b_link = workdir / "pty_star"
+        self.proc = subprocess.Popen(
+            [SOCAT, "-d", "-d", f"pty,raw,echo=0,link={self.a_link}", f"pty,raw,echo=0,link={self.b_link}"],
+            stdout=subprocess.DEVNULL, stderr=open(workdir / "socat.out", "w"))
+        end = time.monotonic() + 10
+        while not (self.a_link.exists() and self.b_link.exists()):
+            assert self.proc.poll() is None, (workdir / "socat.out").read_text()
+            assert time.monotonic() < end, "socat made no pty pair in 10 s"
+            time.sleep(0.05)
+        self.a = os.path.realpath(self.a_link)
+        self.b = os.path.realpath(self.b_link)
+
+    def drain_b(self):
+        """Reads and discards what waits on `b` (what SITL wrote before the
+        reader opened it); returns the byte count."""
+        fd = os.open(self.b, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY)
+        n = 0
+        try:
+            while True:
+                try:
+                    chunk = os.read(fd, 65536)
+                except BlockingIOError:
+                    return n
+                if not chunk:
+                    return n
+                n += len(chunk)
+        finally:
+            os.close(fd)
+
+    def close(self):
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(timeout=5)
+
+
+def dataflash(sitl_dir):
+    """(VISP rows (TimeUS, (PX, PY, PZ)), MSG rows (TimeUS, text)) of SITL's log."""
+    logs = sorted((sitl_dir / "logs").glob("*.BIN"))
+    assert logs, f"no SITL dataflash log in {sitl_dir / 'logs'}"
+    log = mavutil.mavlink_connection(str(logs[-1]))
+    visp, msgs = [], []
+    while True:
+        m = log.recv_match(type=["VISP", "MSG"])
+        if m is None:
+            break
+        if m.get_type() == "VISP":
+            visp.append((m.TimeUS, (m.PX, m.PY, m.PZ)))
+        else:
+            msgs.append((m.TimeUS, m.Message))
+    return visp, msgs

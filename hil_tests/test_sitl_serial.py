@@ -13,20 +13,13 @@ Skips without the SITL binary or without `socat` (`apt-get install socat`;
 """
 
 import math
-import os
-import shutil
-import subprocess
 import time
 
 import pytest
 
 from conftest import Rig, write_subset
-from sitl import SKIP, Gcs, Sitl, free_instance
+from sitl import SKIP, SOCAT, Gcs, PtyPair, Sitl, dataflash, free_instance
 
-os.environ["MAVLINK20"] = "1"
-from pymavlink import mavutil  # noqa: E402
-
-SOCAT = shutil.which("socat")
 pytestmark = [
     SKIP,
     pytest.mark.skipif(SOCAT is None, reason="socat not installed (apt-get install socat, or scripts/setup.sh); "
@@ -37,46 +30,6 @@ BAUD = 921600
 STILL_FRAMES = 300
 FUSE_WITHIN_S = 1.0
 POSITION_TOL_M = 0.01
-
-
-class PtyPair:
-    """`socat` joining two ptys; `a` and `b` are their /dev/pts paths."""
-
-    def __init__(self, workdir):
-        self.a_link = workdir / "pty_sitl"
-        self.b_link = workdir / "pty_star"
-        self.proc = subprocess.Popen(
-            [SOCAT, "-d", "-d", f"pty,raw,echo=0,link={self.a_link}", f"pty,raw,echo=0,link={self.b_link}"],
-            stdout=subprocess.DEVNULL, stderr=open(workdir / "socat.out", "w"))
-        end = time.monotonic() + 10
-        while not (self.a_link.exists() and self.b_link.exists()):
-            assert self.proc.poll() is None, (workdir / "socat.out").read_text()
-            assert time.monotonic() < end, "socat made no pty pair in 10 s"
-            time.sleep(0.05)
-        self.a = os.path.realpath(self.a_link)
-        self.b = os.path.realpath(self.b_link)
-
-    def close(self):
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            self.proc.wait(timeout=5)
-
-
-def dataflash(sitl_dir):
-    """(VISP rows (TimeUS, (PX, PY, PZ)), MSG rows (TimeUS, text)) of SITL's log."""
-    logs = sorted((sitl_dir / "logs").glob("*.BIN"))
-    assert logs, f"no SITL dataflash log in {sitl_dir / 'logs'}"
-    log = mavutil.mavlink_connection(str(logs[-1]))
-    visp, msgs = [], []
-    while True:
-        m = log.recv_match(type=["VISP", "MSG"])
-        if m is None:
-            break
-        if m.get_type() == "VISP":
-            visp.append((m.TimeUS, (m.PX, m.PY, m.PZ)))
-        else:
-            msgs.append((m.TimeUS, m.Message))
-    return visp, msgs
 
 
 @pytest.fixture(scope="module")

@@ -83,6 +83,12 @@ pub struct MavlinkConfig {
     /// `udpin` only: how long the locked autopilot must send no valid frame
     /// before another may take the link, s.
     pub peer_silence_s: f64,
+    /// MAVLink 2 signing: a file holding the 32-byte secret key (raw bytes).
+    /// Set: every frame we send is signed (link id 0), frames with a bad
+    /// signature are dropped (counted). Unset: no signing.
+    pub signing_key: Option<std::path::PathBuf>,
+    /// With `signing_key`: drop unsigned incoming frames too (counted).
+    pub signing_required: bool,
     /// The map (world) frame in local NED: `ned_from_world`.
     pub ned_from_world: TransformConfig,
     /// The camera mounting on the body (FRD): `body_from_camera`.
@@ -103,6 +109,8 @@ impl Default for MavlinkConfig {
             timesync_wait_ms: 1500,
             autopilot_system_ids: Vec::new(),
             peer_silence_s: 5.0,
+            signing_key: None,
+            signing_required: false,
             // A z-up map with x east, y north: NED x = world y, NED y = world x,
             // NED z = -world z.
             ned_from_world: TransformConfig::from_rpy_deg([0.0; 3], [180.0, 0.0, 90.0]),
@@ -154,6 +162,11 @@ impl MavlinkConfig {
                     "expected {} <= peer_silence_s <= {}, found {}",
                     PEER_SILENCE_RANGE_S.0, PEER_SILENCE_RANGE_S.1, self.peer_silence_s
                 ),
+            ),
+            (
+                "signing_required",
+                !self.signing_required || self.signing_key.is_some(),
+                "signing_required = true needs signing_key (the key file)".into(),
             ),
             (
                 "autopilot_system_ids",
@@ -271,6 +284,11 @@ mod tests {
             assert_eq!(e.key, "peer_silence_s", "{bad}");
             assert!(e.reason.contains("0.5 <= peer_silence_s <= 600"), "{e}");
         }
+        let c = MavlinkConfig {
+            signing_required: true,
+            ..Default::default()
+        };
+        assert_eq!(c.validate().unwrap_err().key, "signing_required");
         let c = MavlinkConfig {
             autopilot_system_ids: vec![1, 0],
             ..Default::default()

@@ -49,6 +49,7 @@ pub mod messages;
 mod receiver;
 pub mod reset;
 mod sender;
+pub mod signing;
 pub mod stamp;
 mod stats;
 pub mod timesync;
@@ -106,6 +107,9 @@ pub enum MavlinkError {
     /// The configuration failed validation.
     #[error("invalid [mavlink] config: {0}")]
     Config(#[source] crate::settings::SettingError),
+    /// The signing key file cannot be used.
+    #[error("invalid [mavlink] signing_key: {0}")]
+    SigningKey(#[from] signing::SigningKeyError),
     /// A thread could not be started.
     #[error("cannot start MAVLink thread {name}: {source}")]
     Thread {
@@ -119,6 +123,9 @@ pub enum MavlinkError {
 /// State shared by the handle and the two threads.
 pub(crate) struct Shared {
     pub config: MavlinkConfig,
+    /// MAVLink 2 signing, when `signing_key` is set (shared by every link
+    /// opened: its timestamps must keep increasing across reconnects).
+    pub signing: Option<Arc<signing::Signing>>,
     pub address: LinkAddress,
     pub header: MavHeader,
     pub shutdown: Arc<AtomicBool>,
@@ -194,8 +201,21 @@ impl MavlinkLink {
             .validate()
             .map_err(|e| MavlinkError::Config(e.within("mavlink")))?;
         let address = LinkAddress::parse(&config.connection)?;
+        let signing = match &config.signing_key {
+            Some(path) => {
+                let key = signing::load_key(path)?;
+                tracing::info!(key = %path.display(), required = config.signing_required, "MAVLink 2 signing on");
+                Some(Arc::new(signing::Signing::new(
+                    key,
+                    0,
+                    config.signing_required,
+                )))
+            }
+            None => None,
+        };
         let shared = Arc::new(Shared {
             config: config.clone(),
+            signing,
             address,
             header: MavHeader {
                 system_id: u32::from(config.system_id),

@@ -214,7 +214,12 @@ impl Sender {
         }
         let counters = &self.shared.counters;
         let policy = self.shared.config.peer_policy();
-        match Link::open_with(&self.shared.address, &policy, self.shared.counters.clone()) {
+        match Link::open_with(
+            &self.shared.address,
+            &policy,
+            self.shared.counters.clone(),
+            self.shared.signing.clone(),
+        ) {
             Ok(link) => {
                 self.generation += 1;
                 self.peer_epoch = link.peer_epoch();

@@ -34,8 +34,9 @@ use std::time::{Duration, Instant};
 
 use mavlink::dialects::common::{MavAutopilot, MavMessage, MavType};
 use mavlink::error::MessageReadError;
-use mavlink::{MavHeader, MavlinkReader};
+use mavlink::{MAVLinkMessageRaw, MavHeader, MavlinkReader};
 
+use super::signing::{self, Signing};
 use super::stats::{bump, Counters};
 
 /// Largest UDP datagram we read (the UDP maximum payload).
@@ -179,6 +180,7 @@ pub struct UdpIn {
     sequence: AtomicU8,
     waiting_logged: AtomicBool,
     counters: Arc<Counters>,
+    signing: Option<Arc<Signing>>,
 }
 
 impl UdpIn {
@@ -188,6 +190,7 @@ impl UdpIn {
         policy: PeerPolicy,
         read_timeout: Duration,
         counters: Arc<Counters>,
+        signing: Option<Arc<Signing>>,
     ) -> io::Result<Self> {
         let socket = UdpSocket::bind(address)?;
         socket.set_read_timeout(Some(read_timeout))?;
@@ -204,6 +207,7 @@ impl UdpIn {
             sequence: AtomicU8::new(0),
             waiting_logged: AtomicBool::new(false),
             counters,
+            signing,
         })
     }
 
@@ -219,6 +223,19 @@ impl UdpIn {
 
     /// Sends `message` to the locked peer; `Ok(false)` while none is.
     pub fn send(&self, header: &MavHeader, message: &MavMessage) -> io::Result<bool> {
+        let header = MavHeader {
+            sequence: self.sequence.fetch_add(1, Ordering::Relaxed),
+            ..*header
+        };
+        let mut frame = [0u8; mavlink::consts::MAX_FRAME_SIZE];
+        let n = mavlink::write_v2_msg(&mut &mut frame[..], header, message)
+            .map_err(|e| io::Error::other(e.to_string()))?;
+        self.send_frame(frame.get(..n).unwrap_or(&frame))
+    }
+
+    /// Sends one serialized frame to the locked peer; `Ok(false)` while
+    /// none is.
+    pub fn send_frame(&self, bytes: &[u8]) -> io::Result<bool> {
         let Some(peer) = *self.peer.lock().unwrap_or_else(PoisonError::into_inner) else {
             if !self.waiting_logged.swap(true, Ordering::Relaxed) {
                 tracing::info!(
@@ -228,14 +245,6 @@ impl UdpIn {
             }
             return Ok(false);
         };
-        let header = MavHeader {
-            sequence: self.sequence.fetch_add(1, Ordering::Relaxed),
-            ..*header
-        };
-        let mut frame = [0u8; mavlink::consts::MAX_FRAME_SIZE];
-        let n = mavlink::write_v2_msg(&mut &mut frame[..], header, message)
-            .map_err(|e| io::Error::other(e.to_string()))?;
-        let bytes = frame.get(..n).unwrap_or(&frame);
         self.socket.send_to(bytes, peer)?;
         Ok(true)
     }
@@ -254,7 +263,10 @@ impl UdpIn {
         } = &mut *rx;
         let (n, from) = self.socket.recv_from(datagram)?;
         frames.clear();
-        parse_datagram(datagram.get(..n).unwrap_or_default(), frames);
+        let (signing, counters) = (self.signing.as_deref(), &*self.counters);
+        parse_datagram(datagram.get(..n).unwrap_or_default(), frames, |raw| {
+            signing::admit(signing, counters, raw)
+        });
         let verdict = self
             .lock
             .lock()
@@ -294,14 +306,23 @@ impl UdpIn {
     }
 }
 
-/// The CRC-valid MAVLink 1 or 2 frames of one datagram that decode, in
-/// order, at most [`MAX_MESSAGES_PER_DATAGRAM`].
-pub fn parse_datagram(bytes: &[u8], out: &mut Vec<(MavHeader, MavMessage)>) {
+/// The CRC-valid MAVLink 1 or 2 frames of one datagram that `admit` lets
+/// through (signing) and that decode, in order, at most
+/// [`MAX_MESSAGES_PER_DATAGRAM`].
+pub fn parse_datagram(
+    bytes: &[u8],
+    out: &mut Vec<(MavHeader, MavMessage)>,
+    mut admit: impl FnMut(&MAVLinkMessageRaw) -> bool,
+) {
     let mut reader = MavlinkReader::with_capacity(bytes.len(), bytes);
     while out.len() < MAX_MESSAGES_PER_DATAGRAM {
-        match reader.read_any_message::<MavMessage>() {
-            Ok(m) => out.push(m),
-            // A valid frame of a message we cannot decode: skip it.
+        match reader.read_any_raw_message::<MavMessage>() {
+            Ok(raw) => {
+                if admit(&raw) {
+                    // A valid frame of a message we cannot decode is skipped.
+                    out.extend(signing::decode(&raw));
+                }
+            }
             Err(MessageReadError::Parse(_)) => continue,
             // End of the datagram.
             Err(MessageReadError::Io(_)) => break,
@@ -366,6 +387,7 @@ mod tests {
                 0xFD, 9, 0, 0, 7, 1, 1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10,
             ],
             &mut frames,
+            |_| true,
         );
         assert!(frames.is_empty());
         assert_eq!(lock.on_datagram(addr(1), t0, &frames), Verdict::Ignore);
@@ -478,7 +500,7 @@ mod tests {
         bytes.extend_from_slice(&[0x13, 0x37]);
         bytes.extend(encode(&ardupilot(3)));
         let mut frames = Vec::new();
-        parse_datagram(&bytes, &mut frames);
+        parse_datagram(&bytes, &mut frames, |_| true);
         let ids: Vec<u32> = frames.iter().map(|(h, _)| h.system_id).collect();
         assert_eq!(ids, [1, 3]);
     }
