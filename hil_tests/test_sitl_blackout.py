@@ -17,6 +17,12 @@ camera), with the tap forwarding whole MAVLink frames:
   `reset_counter` + 1. EKF3 must follow to the new pose within
   FOLLOW_WITHIN_S and never leave the straight path from the old pose to
   the new one by more than GLITCH_TOL_M (no overshoot, no excursion).
+  EKF3 flags only the first sample of a new reset_counter as a reset; when
+  star sent the next pose right behind it (2 of 3 runs before star held the
+  pose after a reset for one interval), EKF3 kept the newer one, lost the
+  reset and overshot by 75 cm. The printed VISP records show the timing.
+  EKF3 resets the position only: its yaw slews to the new heading (about
+  22 deg/s, printed), which this test reports but does not check.
 
 Figures are printed (`pytest -s`). Skips without the SITL binary.
 """
@@ -202,11 +208,6 @@ def segment_distance(p, a, b):
     return float(np.linalg.norm(p - (a + s * ab)))
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "issue 20 finding: on a reset_counter change EKF3 reset its position onto the new pose within 10 ms "
-    "in 1 of 3 runs; in the other 2 it fused the 1.1 m jump as a measurement and overshot by up to 75 cm "
-    "for about 1 s, and it never resets yaw (slews ~22 deg/s). star sends the jump with the new "
-    "reset_counter (see the printed trace); why EKF3 misses the reset is open"))
 def test_relocalization_jump_follows_reset_counter(star_bin, dataset, teleport, reloc_db, tmp_path):
     _, gt = read_tum(dataset / "groundtruth.txt")
     jump_gt_m = float(np.linalg.norm(gt[TELEPORT_TO][:3] - gt[0][:3]))
@@ -266,6 +267,15 @@ def test_relocalization_jump_follows_reset_counter(star_bin, dataset, teleport, 
             print(f"  t{t - t_jump:+.2f} s  EKF ({p[0]:+.3f} {p[1]:+.3f} {p[2]:+.3f}) yaw {math.degrees(yaw):+.1f}"
                   f"  star ({sent['x']:+.3f} {sent['y']:+.3f} {sent['z']:+.3f}) yaw {math.degrees(sent['yaw']):+.1f}"
                   f"  reset_counter {sent['reset_counter']}")
+    # SITL's own record of the samples around the reset: when it received
+    # them (TimeUS), star's usec (RTimeUS), the corrected time EKF3 used
+    # (CTimeMS), the reset counter (Rst) and whether it ignored them (Ign).
+    visp = [r for r in sitl.log_rows(["VISP"])]
+    k_log = next((i for i, r in enumerate(visp) if r.get("Rst") != visp[0].get("Rst")), None)
+    if k_log is not None:
+        for r in visp[max(0, k_log - 3):k_log + 4]:
+            print(f"  VISP TimeUS {r['TimeUS']} RTimeUS {r['RTimeUS']} CTimeMS {r['CTimeMS']} "
+                  f"Rst {r.get('Rst')} Ign {r.get('Ign')} PX {r['PX']:+.3f} PY {r['PY']:+.3f}")
     assert jump_m > 0.3, f"the teleport moved star's pose only {jump_m:.3f} m"
     assert follow_s is not None and follow_s <= FOLLOW_WITHIN_S, f"EKF followed after {follow_s} s"
     assert excursion <= GLITCH_TOL_M, f"EKF left the old-new path by {excursion * 100:.2f} cm"

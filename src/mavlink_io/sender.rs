@@ -126,6 +126,10 @@ struct Sender {
     generation: u64,
     /// The link's peer epoch the current stream belongs to.
     peer_epoch: u64,
+    /// The reset counter last sent, and until when nothing follows a pose
+    /// that changed it (see `handle`).
+    last_reset_sent: Option<u8>,
+    reset_hold_until: Option<Instant>,
     backoff: Duration,
     reconnect_at: Instant,
     next_heartbeat: Instant,
@@ -148,6 +152,8 @@ pub(crate) fn run(shared: Arc<Shared>) {
         link: None,
         generation: 0,
         peer_epoch: 0,
+        last_reset_sent: None,
+        reset_hold_until: None,
         backoff: MIN_BACKOFF,
         reconnect_at: now,
         next_heartbeat: now,
@@ -368,6 +374,19 @@ impl Sender {
             bump(&counters.poses_dropped_rate);
             return;
         }
+        // A pose that changed reset_counter gets one rate interval of wall
+        // time to itself. ArduPilot flags only that one sample as a reset;
+        // when the next one came right behind it (the tracker catching up
+        // after a relocalization), EKF3 dated both to the same fusion time,
+        // kept the newer and lost the reset: it then fused a 1.1 m jump as a
+        // measurement and overshot by 75 cm (hil_tests/test_sitl_blackout.py).
+        if let Some(until) = self.reset_hold_until {
+            if Instant::now() < until {
+                bump(&counters.poses_dropped_rate);
+                return;
+            }
+            self.reset_hold_until = None;
+        }
         let pose = self.converter.ned_pose(&sample.world_from_camera);
         let finite = pose.position_ned_m().iter().all(|v| v.is_finite())
             && [pose.roll_rad, pose.pitch_rad, pose.yaw_rad]
@@ -412,6 +431,14 @@ impl Sender {
                 .reset_counter
                 .store(reset_counter, Ordering::Relaxed);
             self.rate.sent(sample.capture_ns);
+            if self
+                .last_reset_sent
+                .is_some_and(|last| last != reset_counter)
+            {
+                self.reset_hold_until =
+                    Some(Instant::now() + Duration::from_nanos(shared.config.min_interval_ns()));
+            }
+            self.last_reset_sent = Some(reset_counter);
         } else {
             bump(&counters.poses_dropped_link);
         }
