@@ -32,6 +32,11 @@ pub const MAX_TIMESYNC_WAIT_MS: u32 = 60_000;
 /// is no failover.
 pub const PEER_SILENCE_RANGE_S: (f64, f64) = (0.5, 600.0);
 
+/// Default `position_sigma_floor_m` (see `docs/benchmarks.md`, covariance).
+pub const DEFAULT_POSITION_SIGMA_FLOOR_M: f64 = 0.0012;
+/// Default `angle_sigma_floor_deg`.
+pub const DEFAULT_ANGLE_SIGMA_FLOOR_DEG: f64 = 0.02;
+
 /// Which message carries the pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -83,6 +88,11 @@ pub struct MavlinkConfig {
     /// `udpin` only: how long the locked autopilot must send no valid frame
     /// before another may take the link, s.
     pub peer_silence_s: f64,
+    /// Smallest position standard deviation sent, m (each of x, y, z): the
+    /// tracker's own covariance is a floor-free photometric estimate.
+    pub position_sigma_floor_m: f64,
+    /// Smallest angle standard deviation sent, degrees (roll, pitch, yaw).
+    pub angle_sigma_floor_deg: f64,
     /// MAVLink 2 signing: a file holding the 32-byte secret key (raw bytes).
     /// Set: every frame we send is signed (link id 0), frames with a bad
     /// signature are dropped (counted). Unset: no signing.
@@ -109,6 +119,8 @@ impl Default for MavlinkConfig {
             timesync_wait_ms: 1500,
             autopilot_system_ids: Vec::new(),
             peer_silence_s: 5.0,
+            position_sigma_floor_m: DEFAULT_POSITION_SIGMA_FLOOR_M,
+            angle_sigma_floor_deg: DEFAULT_ANGLE_SIGMA_FLOOR_DEG,
             signing_key: None,
             signing_required: false,
             // A z-up map with x east, y north: NED x = world y, NED y = world x,
@@ -161,6 +173,24 @@ impl MavlinkConfig {
                 format!(
                     "expected {} <= peer_silence_s <= {}, found {}",
                     PEER_SILENCE_RANGE_S.0, PEER_SILENCE_RANGE_S.1, self.peer_silence_s
+                ),
+            ),
+            (
+                "position_sigma_floor_m",
+                self.position_sigma_floor_m.is_finite()
+                    && (0.0..=10.0).contains(&self.position_sigma_floor_m),
+                format!(
+                    "expected 0 <= position_sigma_floor_m <= 10, found {}",
+                    self.position_sigma_floor_m
+                ),
+            ),
+            (
+                "angle_sigma_floor_deg",
+                self.angle_sigma_floor_deg.is_finite()
+                    && (0.0..=90.0).contains(&self.angle_sigma_floor_deg),
+                format!(
+                    "expected 0 <= angle_sigma_floor_deg <= 90, found {}",
+                    self.angle_sigma_floor_deg
                 ),
             ),
             (
@@ -283,6 +313,24 @@ mod tests {
             let e = c.validate().unwrap_err();
             assert_eq!(e.key, "peer_silence_s", "{bad}");
             assert!(e.reason.contains("0.5 <= peer_silence_s <= 600"), "{e}");
+        }
+        for (c, key) in [
+            (
+                MavlinkConfig {
+                    position_sigma_floor_m: -0.001,
+                    ..Default::default()
+                },
+                "position_sigma_floor_m",
+            ),
+            (
+                MavlinkConfig {
+                    angle_sigma_floor_deg: f64::NAN,
+                    ..Default::default()
+                },
+                "angle_sigma_floor_deg",
+            ),
+        ] {
+            assert_eq!(c.validate().unwrap_err().key, key);
         }
         let c = MavlinkConfig {
             signing_required: true,

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use mavlink::dialects::common::MavMessage;
 use nalgebra::Matrix6;
 
-use super::frames::FrameConverter;
+use super::frames::{self, FrameConverter};
 use super::link::Link;
 use super::messages::{self, LinkState};
 use super::reset::ResetCounter;
@@ -405,7 +405,13 @@ impl Sender {
             }
         };
         let twist_covariance = Matrix6::from_fn(|r, c| sample.covariance_6x6[r][c]);
-        let covariance = self.converter.pose_covariance(&pose, &twist_covariance);
+        let mut covariance = self.converter.pose_covariance(&pose, &twist_covariance);
+        let config = &shared.config;
+        frames::floor_variances(
+            &mut covariance,
+            config.position_sigma_floor_m,
+            config.angle_sigma_floor_deg.to_radians(),
+        );
         let reset_counter =
             self.reset
                 .next(sample.reset_counter, sample.capture_ns, &pose.ned_from_body);
