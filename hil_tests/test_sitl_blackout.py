@@ -182,7 +182,8 @@ def test_link_blackouts(star_bin, long_still, tmp_path):
               f"external nav announced again {['%.3f s' % u for u in using]} after the resume, "
               f"back within {BACK_TOL_M * 100:.0f} cm after "
               f"{'never' if back_s is None else '%.3f s' % back_s}, largest height step "
-              f"{step * 100:.2f} cm (horizontal {step_xy * 100:.2f} cm: EKF3 resets onto the resumed vision), "
+              f"{step * 100:.2f} cm (horizontal {step_xy * 100:.2f} cm; a step of about the drift is EKF3 resetting "
+              f"onto the resumed vision), "
               f"largest error 1-3 s after {max(after, default=float('nan')) * 100:.2f} cm")
         if len(dropped) < duration * FPS * 0.8:
             failures.append(f"{duration} s outage dropped only {len(dropped)} poses")
