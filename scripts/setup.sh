@@ -10,13 +10,15 @@ cd "$root"
 
 # System packages: libclang for the v4l bindings, Aravis (library + fake
 # camera tools), libusb, Mesa's Vulkan drivers (lavapipe) for wgpu, a Python
-# venv for the harness, systemd-analyze for unit checks, pkg-config.
+# venv for the harness, systemd-analyze for unit checks, pkg-config, socat
+# (a pty pair stands in for the autopilot's UART in the SITL serial test).
 packages=(
   pkg-config clang libclang-dev
   libaravis-dev aravis-tools libusb-1.0-0-dev
   mesa-vulkan-drivers libvulkan1
   python3 python3-venv python3-pip
   systemd
+  socat
 )
 missing=()
 for p in "${packages[@]}"; do

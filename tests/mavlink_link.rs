@@ -382,3 +382,76 @@ fn hostile_timesync_replies_do_not_move_usec() {
     }
     check_spacing(&poses, 10_000);
 }
+
+/// ArduPilot flags only the first sample of a new `reset_counter` as a
+/// reset; a pose right behind it made EKF3 drop it and lose the reset
+/// (hil_tests/test_sitl_blackout.py). The pose after a reset waits at least
+/// one rate interval (20 ms at 50 Hz) of wall time, also when the tracker
+/// hands over the next one at once.
+#[test]
+fn the_pose_after_a_reset_waits_one_interval() {
+    let (peer, mut config) = udp_peer();
+    config.timesync = false;
+    let shutdown = Arc::new(AtomicBool::new(false));
+    let link = MavlinkLink::spawn(&config, shutdown).unwrap();
+    wait_for("link up", || link.stats().heartbeat_sent >= 1);
+    let receiver = std::thread::spawn(move || {
+        let mut arrivals = Vec::new();
+        let end = Instant::now() + Duration::from_secs(3);
+        let mut buf = [0u8; 512];
+        while Instant::now() < end {
+            if let Ok((n, _)) = peer.recv_from(&mut buf) {
+                let t = Instant::now();
+                let mut reader = MavlinkReader::new(&buf[..n]);
+                if let Ok((_, MavMessage::VISION_POSITION_ESTIMATE(d))) =
+                    reader.read_message::<MavMessage>(MavlinkVersion::V2)
+                {
+                    arrivals.push((t, d.reset_counter));
+                }
+            }
+        }
+        arrivals
+    });
+    let mut tracker_counter = 0u8;
+    for k in 0..60u64 {
+        if k % 20 == 10 {
+            // A relocalization: the tracker's counter changes, and the next
+            // frame follows as soon as the link has taken this one.
+            tracker_counter += 1;
+            let mut reset = sample(monotonic_now_ns() - 10_000_000, true);
+            reset.reset_counter = tracker_counter;
+            let sent = link.stats().vision_position_estimate_sent;
+            link.publish(reset);
+            wait_for("the reset pose sent", || {
+                link.stats().vision_position_estimate_sent > sent
+            });
+            let mut next = sample(monotonic_now_ns() + 10_000_000, true);
+            next.reset_counter = tracker_counter;
+            link.publish(next);
+        } else {
+            let mut s = sample(monotonic_now_ns(), true);
+            s.reset_counter = tracker_counter;
+            link.publish(s);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let arrivals = receiver.join().unwrap();
+    let resets: Vec<usize> = (1..arrivals.len())
+        .filter(|&i| arrivals[i].1 != arrivals[i - 1].1)
+        .collect();
+    assert_eq!(resets.len(), 3, "three resets: {arrivals:?}");
+    for i in resets {
+        let (t_reset, _) = arrivals[i];
+        let (t_next, _) = arrivals
+            .get(i + 1)
+            .copied()
+            .expect("a pose after the reset");
+        let gap = t_next - t_reset;
+        println!("pose after reset {}: {gap:?} later", arrivals[i].1);
+        assert!(
+            gap >= Duration::from_millis(19),
+            "the pose after a reset came {gap:?} later"
+        );
+    }
+    assert!(link.shutdown());
+}

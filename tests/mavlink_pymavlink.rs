@@ -236,6 +236,9 @@ fn vision_position_estimate_to_pymavlink() {
     let config = MavlinkConfig {
         connection: format!("udpout:127.0.0.1:{port}"),
         body_from_camera: TransformConfig::from_rpy_deg([0.10, 0.0, 0.05], [90.0, 0.0, 90.0]),
+        // The covariance conversion exactly, without the default floor.
+        position_sigma_floor_m: 0.0,
+        angle_sigma_floor_deg: 0.0,
         ..MavlinkConfig::default()
     };
     let link = MavlinkLink::spawn(&config, Arc::new(AtomicBool::new(false))).unwrap();
@@ -388,6 +391,8 @@ fn odometry_to_pymavlink() {
         rate_hz: 30.0,
         // usec = capture time exactly, so the rate cap shows unblurred.
         timesync: false,
+        position_sigma_floor_m: 0.0,
+        angle_sigma_floor_deg: 0.0,
         ..MavlinkConfig::default()
     };
     let link = MavlinkLink::spawn(&config, Arc::new(AtomicBool::new(false))).unwrap();

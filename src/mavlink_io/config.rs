@@ -10,10 +10,13 @@
 //! Z-Y-X order, `R = Rz(yaw) * Ry(pitch) * Rx(roll)`, the same as MAVLink's
 //! attitude angles. A rotation may instead be given as `quaternion_wxyz`.
 
+use std::time::Duration;
+
 use serde::{Deserialize, Serialize};
 
 pub use crate::geometry::TransformConfig;
 use crate::mavlink_io::link::LinkAddress;
+use crate::mavlink_io::udpin::PeerPolicy;
 use crate::settings::{first_failure, SettingError};
 
 /// MAVLink component id of a visual-inertial odometry source
@@ -23,6 +26,16 @@ pub const COMPONENT_ID_VISUAL_INERTIAL_ODOMETRY: u8 = 197;
 /// Longest `timesync_wait_ms` accepted (a minute without poses is a
 /// misconfiguration, not a wait).
 pub const MAX_TIMESYNC_WAIT_MS: u32 = 60_000;
+
+/// Bounds of `peer_silence_s`: shorter than a few HEARTBEAT periods lets a
+/// foreign sender take the link in a short dropout; longer than ten minutes
+/// is no failover.
+pub const PEER_SILENCE_RANGE_S: (f64, f64) = (0.5, 600.0);
+
+/// Default `position_sigma_floor_m` (see `docs/benchmarks.md`, covariance).
+pub const DEFAULT_POSITION_SIGMA_FLOOR_M: f64 = 0.0012;
+/// Default `angle_sigma_floor_deg`.
+pub const DEFAULT_ANGLE_SIGMA_FLOOR_DEG: f64 = 0.02;
 
 /// Which message carries the pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -68,6 +81,24 @@ pub struct MavlinkConfig {
     /// CLOCK_MONOTONIC from its first pose on (never switched later), logged
     /// at warn.
     pub timesync_wait_ms: u32,
+    /// `udpin` only: system ids whose autopilot HEARTBEAT (`autopilot` not
+    /// MAV_AUTOPILOT_INVALID, `type` not MAV_TYPE_GCS) may lock the link;
+    /// empty = any system id.
+    pub autopilot_system_ids: Vec<u8>,
+    /// `udpin` only: how long the locked autopilot must send no valid frame
+    /// before another may take the link, s.
+    pub peer_silence_s: f64,
+    /// Smallest position standard deviation sent, m (each of x, y, z): the
+    /// tracker's own covariance is a floor-free photometric estimate.
+    pub position_sigma_floor_m: f64,
+    /// Smallest angle standard deviation sent, degrees (roll, pitch, yaw).
+    pub angle_sigma_floor_deg: f64,
+    /// MAVLink 2 signing: a file holding the 32-byte secret key (raw bytes).
+    /// Set: every frame we send is signed (link id 0), frames with a bad
+    /// signature are dropped (counted). Unset: no signing.
+    pub signing_key: Option<std::path::PathBuf>,
+    /// With `signing_key`: drop unsigned incoming frames too (counted).
+    pub signing_required: bool,
     /// The map (world) frame in local NED: `ned_from_world`.
     pub ned_from_world: TransformConfig,
     /// The camera mounting on the body (FRD): `body_from_camera`.
@@ -86,6 +117,12 @@ impl Default for MavlinkConfig {
             max_pose_age_ms: 100,
             timesync: true,
             timesync_wait_ms: 1500,
+            autopilot_system_ids: Vec::new(),
+            peer_silence_s: 5.0,
+            position_sigma_floor_m: DEFAULT_POSITION_SIGMA_FLOOR_M,
+            angle_sigma_floor_deg: DEFAULT_ANGLE_SIGMA_FLOOR_DEG,
+            signing_key: None,
+            signing_required: false,
             // A z-up map with x east, y north: NED x = world y, NED y = world x,
             // NED z = -world z.
             ned_from_world: TransformConfig::from_rpy_deg([0.0; 3], [180.0, 0.0, 90.0]),
@@ -130,6 +167,45 @@ impl MavlinkConfig {
                     self.timesync_wait_ms
                 ),
             ),
+            (
+                "peer_silence_s",
+                (PEER_SILENCE_RANGE_S.0..=PEER_SILENCE_RANGE_S.1).contains(&self.peer_silence_s),
+                format!(
+                    "expected {} <= peer_silence_s <= {}, found {}",
+                    PEER_SILENCE_RANGE_S.0, PEER_SILENCE_RANGE_S.1, self.peer_silence_s
+                ),
+            ),
+            (
+                "position_sigma_floor_m",
+                self.position_sigma_floor_m.is_finite()
+                    && (0.0..=10.0).contains(&self.position_sigma_floor_m),
+                format!(
+                    "expected 0 <= position_sigma_floor_m <= 10, found {}",
+                    self.position_sigma_floor_m
+                ),
+            ),
+            (
+                "angle_sigma_floor_deg",
+                self.angle_sigma_floor_deg.is_finite()
+                    && (0.0..=90.0).contains(&self.angle_sigma_floor_deg),
+                format!(
+                    "expected 0 <= angle_sigma_floor_deg <= 90, found {}",
+                    self.angle_sigma_floor_deg
+                ),
+            ),
+            (
+                "signing_required",
+                !self.signing_required || self.signing_key.is_some(),
+                "signing_required = true needs signing_key (the key file)".into(),
+            ),
+            (
+                "autopilot_system_ids",
+                !self.autopilot_system_ids.contains(&0),
+                format!(
+                    "expected system ids 1..=255, found {:?}",
+                    self.autopilot_system_ids
+                ),
+            ),
         ])?;
         self.ned_from_world
             .validate()
@@ -138,6 +214,15 @@ impl MavlinkConfig {
             .validate()
             .map_err(|e| SettingError::new("body_from_camera", e))?;
         Ok(())
+    }
+
+    /// Who may take a `udpin` link.
+    pub fn peer_policy(&self) -> PeerPolicy {
+        PeerPolicy {
+            autopilot_system_ids: self.autopilot_system_ids.clone(),
+            peer_silence: Duration::from_secs_f64(self.peer_silence_s),
+            own_ids: (u32::from(self.system_id), self.component_id),
+        }
     }
 
     /// Minimum spacing of pose messages on capture time, nanoseconds.
@@ -220,6 +305,45 @@ mod tests {
             ..Default::default()
         };
         c.validate().expect("0 = do not wait");
+        for bad in [0.0, 0.1, 601.0, f64::NAN, f64::INFINITY] {
+            let c = MavlinkConfig {
+                peer_silence_s: bad,
+                ..Default::default()
+            };
+            let e = c.validate().unwrap_err();
+            assert_eq!(e.key, "peer_silence_s", "{bad}");
+            assert!(e.reason.contains("0.5 <= peer_silence_s <= 600"), "{e}");
+        }
+        for (c, key) in [
+            (
+                MavlinkConfig {
+                    position_sigma_floor_m: -0.001,
+                    ..Default::default()
+                },
+                "position_sigma_floor_m",
+            ),
+            (
+                MavlinkConfig {
+                    angle_sigma_floor_deg: f64::NAN,
+                    ..Default::default()
+                },
+                "angle_sigma_floor_deg",
+            ),
+        ] {
+            assert_eq!(c.validate().unwrap_err().key, key);
+        }
+        let c = MavlinkConfig {
+            signing_required: true,
+            ..Default::default()
+        };
+        assert_eq!(c.validate().unwrap_err().key, "signing_required");
+        let c = MavlinkConfig {
+            autopilot_system_ids: vec![1, 0],
+            ..Default::default()
+        };
+        let e = c.validate().unwrap_err();
+        assert_eq!(e.key, "autopilot_system_ids");
+        assert!(e.reason.contains("[1, 0]"), "{e}");
         let c = MavlinkConfig {
             connection: "udp:1.2.3.4".into(),
             ..Default::default()

@@ -157,6 +157,28 @@ pub fn twist_covariance_world_from_camera(
     ad * covariance_camera * ad.transpose()
 }
 
+/// Raises the variances of `(x, y, z)` to at least `position_sigma_m^2` and
+/// those of `(roll, pitch, yaw)` to at least `angle_sigma_rad^2`: adds a
+/// non-negative diagonal, so a positive semi-definite matrix stays one and
+/// the correlations the tracker measured are kept. A matrix with a
+/// non-finite entry ("unknown") is left alone.
+pub fn floor_variances(covariance: &mut Matrix6<f64>, position_sigma_m: f64, angle_sigma_rad: f64) {
+    if covariance.iter().any(|v| !v.is_finite()) {
+        return;
+    }
+    for i in 0..6 {
+        let sigma = if i < 3 {
+            position_sigma_m
+        } else {
+            angle_sigma_rad
+        };
+        let floor = sigma * sigma;
+        if covariance[(i, i)] < floor {
+            covariance[(i, i)] = floor;
+        }
+    }
+}
+
 /// Row-major upper triangle of a symmetric 6x6 matrix, as MAVLink sends it
 /// (21 floats, diagonal at [`UPPER_TRIANGLE_DIAGONAL`]). A matrix with a
 /// non-finite entry becomes "unknown": NaN in the first element.

@@ -285,3 +285,23 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn variance_floor_raises_only_what_is_below_it() {
+    let mut c = Matrix6::<f64>::identity() * 1e-8;
+    c[(0, 0)] = 0.04; // 20 cm: above a 1 cm floor, kept
+    c[(0, 1)] = 1e-9;
+    c[(1, 0)] = 1e-9;
+    floor_variances(&mut c, 0.01, 0.002);
+    assert_eq!(c[(0, 0)], 0.04);
+    assert!((c[(1, 1)] - 1e-4).abs() < 1e-15 && (c[(2, 2)] - 1e-4).abs() < 1e-15);
+    for i in 3..6 {
+        assert!((c[(i, i)] - 4e-6).abs() < 1e-15, "{}", c[(i, i)]);
+    }
+    assert_eq!(c[(0, 1)], 1e-9, "correlations kept");
+    assert!(c.symmetric_eigenvalues().iter().all(|&l| l > 0.0));
+    let mut unknown = Matrix6::<f64>::identity();
+    unknown[(2, 4)] = f64::NAN;
+    floor_variances(&mut unknown, 0.01, 0.002);
+    assert_eq!(unknown[(0, 0)], 1.0);
+}

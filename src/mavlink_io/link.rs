@@ -6,18 +6,31 @@
 //! gives out a [`Link`]: `send` and a `recv` that returns `Ok(None)` on a read
 //! timeout. Reconnecting is the sender thread's job (see `sender.rs`); a
 //! [`LinkError::Broken`] tells it to.
+//!
+//! `udpout`, `tcpout` and `serial` use the `mavlink` crate's connections;
+//! `udpin` is our own socket locked to one autopilot (`udpin.rs`). With
+//! MAVLink 2 signing (`signing.rs`) every frame is serialized and signed
+//! here and sent raw, and every incoming frame is read raw, checked (drops
+//! counted) and then decoded; a signed serial link reads the port itself,
+//! since the crate's raw serial read never returns on a timeout.
 
 use std::fmt;
-use std::io;
+use std::io::{self, Write};
 use std::net::{TcpStream, ToSocketAddrs};
+use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use mavlink::dialects::common::MavMessage;
 use mavlink::error::MessageReadError;
 use mavlink::{
-    Connectable, Connection, MavConnection, MavHeader, MavlinkVersion, SerialConfig, TcpConfig,
-    UdpConfig, UdpMode,
+    Connectable, Connection, MAVLinkMessageRaw, MAVLinkV2MessageRaw, MavConnection, MavHeader,
+    MavlinkReader, MavlinkVersion, SerialConfig, TcpConfig, UdpConfig, UdpMode,
 };
+
+use super::signing::{self, Signing};
+use super::stats::Counters;
+use super::udpin::{PeerPolicy, UdpIn};
 
 /// How long a blocking receive waits before it returns `Ok(None)`.
 pub const READ_TIMEOUT: Duration = Duration::from_millis(100);
@@ -61,7 +74,8 @@ pub enum LinkError {
 pub enum LinkAddress {
     /// `udpout:HOST:PORT`: send to HOST:PORT from an ephemeral port; replies come back to it.
     UdpOut(String),
-    /// `udpin:ADDR:PORT`: listen on ADDR:PORT; send to whoever sent last.
+    /// `udpin:ADDR:PORT`: listen on ADDR:PORT; send to the autopilot it
+    /// locked to (`udpin.rs`).
     UdpIn(String),
     /// `tcpout:HOST:PORT`: a TCP client.
     TcpOut(String),
@@ -137,16 +151,68 @@ impl LinkAddress {
     }
 }
 
+/// The transport behind a [`Link`].
+enum Transport {
+    /// rust-mavlink's connection (`udpout`, `tcpout`, `serial`).
+    Crate(Connection<MavMessage>),
+    /// Our own `udpin` socket, locked to one autopilot (`udpin.rs`).
+    UdpIn(UdpIn),
+    /// A serial port read frame by frame as raw frames (signing on: the
+    /// crate's `recv_raw` on serial never returns on a read timeout).
+    SerialRaw(SerialRaw),
+}
+
+/// A serial port with our own reader and writer.
+struct SerialRaw {
+    reader: Mutex<MavlinkReader<Box<dyn serialport::SerialPort>>>,
+    writer: Mutex<Box<dyn serialport::SerialPort>>,
+}
+
+impl SerialRaw {
+    fn open(port: &str, baud: u32) -> io::Result<Self> {
+        let read_port = serialport::new(port, baud)
+            .data_bits(serialport::DataBits::Eight)
+            .parity(serialport::Parity::None)
+            .stop_bits(serialport::StopBits::One)
+            .flow_control(serialport::FlowControl::None)
+            .timeout(READ_TIMEOUT)
+            .open()
+            .map_err(io::Error::from)?;
+        let write_port = read_port.try_clone().map_err(io::Error::from)?;
+        Ok(Self {
+            reader: Mutex::new(MavlinkReader::new(read_port)),
+            writer: Mutex::new(write_port),
+        })
+    }
+}
+
 /// An open MAVLink 2 connection.
 pub struct Link {
-    connection: Connection<MavMessage>,
+    transport: Transport,
     address: LinkAddress,
+    /// MAVLink 2 signing of what we send and check of what we receive.
+    signing: Option<Arc<Signing>>,
+    counters: Arc<Counters>,
+    /// Our sequence numbers while signing (the crate's send is bypassed).
+    sequence: AtomicU8,
 }
 
 impl Link {
-    /// Opens `address`. UDP binds immediately (it never fails for a reachable
-    /// local address), TCP connects with a 1 s timeout, serial opens the device.
+    /// Opens `address` with the default `udpin` peer policy.
     pub fn open(address: &LinkAddress) -> Result<Self, LinkError> {
+        Self::open_with(address, &PeerPolicy::default(), Arc::default(), None)
+    }
+
+    /// Opens `address`. UDP binds immediately (it never fails for a reachable
+    /// local address), TCP connects with a 1 s timeout, serial opens the
+    /// device. `udpin` locks to an autopilot by `policy`; drops count into
+    /// `counters`; `signing` signs and checks frames.
+    pub(crate) fn open_with(
+        address: &LinkAddress,
+        policy: &PeerPolicy,
+        counters: Arc<Counters>,
+        signing: Option<Arc<Signing>>,
+    ) -> Result<Self, LinkError> {
         let open_error = |source: io::Error| LinkError::Open {
             address: address.to_string(),
             source,
@@ -155,11 +221,35 @@ impl Link {
             LinkAddress::UdpOut(a) => UdpConfig::new(a.clone(), UdpMode::Udpout)
                 .read_timeout(READ_TIMEOUT)
                 .connect::<MavMessage>(),
-            LinkAddress::UdpIn(a) => UdpConfig::new(a.clone(), UdpMode::Udpin)
-                .read_timeout(READ_TIMEOUT)
-                .connect::<MavMessage>(),
+            LinkAddress::UdpIn(a) => {
+                let udpin = UdpIn::bind(
+                    a,
+                    policy.clone(),
+                    READ_TIMEOUT,
+                    counters.clone(),
+                    signing.clone(),
+                )
+                .map_err(open_error)?;
+                return Ok(Self {
+                    transport: Transport::UdpIn(udpin),
+                    address: address.clone(),
+                    signing,
+                    counters,
+                    sequence: AtomicU8::new(0),
+                });
+            }
             LinkAddress::TcpOut(a) => {
                 tcp_connect(a).and_then(|s| TcpConfig::from_stream(s)?.connect())
+            }
+            LinkAddress::Serial { port, baud } if signing.is_some() => {
+                let serial = SerialRaw::open(port, *baud).map_err(open_error)?;
+                return Ok(Self {
+                    transport: Transport::SerialRaw(serial),
+                    address: address.clone(),
+                    signing,
+                    counters,
+                    sequence: AtomicU8::new(0),
+                });
             }
             LinkAddress::Serial { port, baud } => SerialConfig::new(port.clone(), *baud)
                 .timeout(READ_TIMEOUT)
@@ -170,9 +260,22 @@ impl Link {
         // Autopilots may talk MAVLink 1 until they hear MAVLink 2.
         connection.set_allow_recv_any_version(true);
         Ok(Self {
-            connection,
+            transport: Transport::Crate(connection),
             address: address.clone(),
+            signing,
+            counters,
+            sequence: AtomicU8::new(0),
         })
+    }
+
+    /// How many times the peer was locked: 0 until a `udpin` link hears an
+    /// autopilot, 1 for the other transports (their peer is fixed). A
+    /// change means a new autopilot, hence a new stream.
+    pub fn peer_epoch(&self) -> u64 {
+        match &self.transport {
+            Transport::Crate(_) | Transport::SerialRaw(_) => 1,
+            Transport::UdpIn(u) => u.peer_epoch(),
+        }
     }
 
     /// The address this link was opened with.
@@ -183,9 +286,40 @@ impl Link {
     /// Sends one message. `Ok(false)` when there is nobody to send to yet
     /// (`udpin` before the first packet arrives).
     pub fn send(&self, header: &MavHeader, message: &MavMessage) -> Result<bool, LinkError> {
-        match self.connection.send(header, message) {
-            Ok(n) => Ok(n > 0),
-            Err(e) => Err(self.broken(e.to_string())),
+        if let Some(signing) = &self.signing {
+            let header = MavHeader {
+                sequence: self.sequence.fetch_add(1, Ordering::Relaxed),
+                ..*header
+            };
+            let mut frame = MAVLinkV2MessageRaw::new();
+            signing.sign(header, message, &mut frame);
+            return match &self.transport {
+                Transport::Crate(connection) => connection
+                    .send_raw(&MAVLinkMessageRaw::V2(frame))
+                    .map(|n| n > 0)
+                    .map_err(|e| self.broken(e.to_string())),
+                Transport::UdpIn(udpin) => udpin
+                    .send_frame(frame.raw_bytes())
+                    .map_err(|e| self.broken(e.to_string())),
+                Transport::SerialRaw(serial) => serial
+                    .writer
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .write_all(frame.raw_bytes())
+                    .map(|()| true)
+                    .map_err(|e| self.broken(e.to_string())),
+            };
+        }
+        match &self.transport {
+            Transport::Crate(connection) => match connection.send(header, message) {
+                Ok(n) => Ok(n > 0),
+                Err(e) => Err(self.broken(e.to_string())),
+            },
+            Transport::UdpIn(udpin) => udpin
+                .send(header, message)
+                .map_err(|e| self.broken(e.to_string())),
+            // Only opened with signing, which returned above.
+            Transport::SerialRaw(_) => Ok(false),
         }
     }
 
@@ -194,12 +328,33 @@ impl Link {
     pub fn recv(&self) -> Result<Option<(MavHeader, MavMessage)>, LinkError> {
         // The serial transport's blocking `recv` retries timeouts forever;
         // its `try_recv` waits for the port timeout instead.
-        let result = match self.address {
-            LinkAddress::Serial { .. } => self.connection.try_recv(),
-            _ => self.connection.recv(),
+        let result = match (&self.transport, &self.address) {
+            (Transport::UdpIn(udpin), _) => udpin.recv().map_err(MessageReadError::Io),
+            (Transport::SerialRaw(serial), _) => serial
+                .reader
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .read_any_raw_message::<MavMessage>()
+                .map(|raw| {
+                    signing::admit(self.signing.as_deref(), &self.counters, &raw)
+                        .then(|| signing::decode(&raw))
+                        .flatten()
+                }),
+            // Signing: raw frames, checked here (counted), then decoded.
+            (Transport::Crate(connection), _) if self.signing.is_some() => {
+                connection.recv_raw().map(|raw| {
+                    signing::admit(self.signing.as_deref(), &self.counters, &raw)
+                        .then(|| signing::decode(&raw))
+                        .flatten()
+                })
+            }
+            (Transport::Crate(connection), LinkAddress::Serial { .. }) => {
+                connection.try_recv().map(Some)
+            }
+            (Transport::Crate(connection), _) => connection.recv().map(Some),
         };
         match result {
-            Ok(m) => Ok(Some(m)),
+            Ok(m) => Ok(m),
             Err(MessageReadError::Io(e)) => match e.kind() {
                 io::ErrorKind::WouldBlock
                 | io::ErrorKind::TimedOut

@@ -1,7 +1,8 @@
 //! The MAVLink link to the autopilot (PX4 or ArduPilot), on the `mavlink`
 //! crate with the common dialect, MAVLink 2.
 //!
-//! Owns the connection (`udpout:`, `udpin:`, `tcpout:`, `serial:`) and two
+//! Owns the connection (`udpout:`, `udpin:` locked to one autopilot, see
+//! `udpin.rs`, `tcpout:`, `serial:`) and two
 //! threads: `mavlink-tx` (reconnects, sends poses at a capped rate, HEARTBEAT
 //! at 1 Hz, TIMESYNC requests) and `mavlink-rx` (answers TIMESYNC requests,
 //! feeds the offset estimator). Takes [`PoseSample`]s from the tracker through
@@ -48,9 +49,11 @@ pub mod messages;
 mod receiver;
 pub mod reset;
 mod sender;
+pub mod signing;
 pub mod stamp;
 mod stats;
 pub mod timesync;
+pub mod udpin;
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex, PoisonError};
@@ -104,6 +107,9 @@ pub enum MavlinkError {
     /// The configuration failed validation.
     #[error("invalid [mavlink] config: {0}")]
     Config(#[source] crate::settings::SettingError),
+    /// The signing key file cannot be used.
+    #[error("invalid [mavlink] signing_key: {0}")]
+    SigningKey(#[from] signing::SigningKeyError),
     /// A thread could not be started.
     #[error("cannot start MAVLink thread {name}: {source}")]
     Thread {
@@ -117,6 +123,9 @@ pub enum MavlinkError {
 /// State shared by the handle and the two threads.
 pub(crate) struct Shared {
     pub config: MavlinkConfig,
+    /// MAVLink 2 signing, when `signing_key` is set (shared by every link
+    /// opened: its timestamps must keep increasing across reconnects).
+    pub signing: Option<Arc<signing::Signing>>,
     pub address: LinkAddress,
     pub header: MavHeader,
     pub shutdown: Arc<AtomicBool>,
@@ -130,7 +139,7 @@ pub(crate) struct Shared {
     /// The pose clock; never locked while `timesync` is held (nor the
     /// other way round).
     pub clock: Mutex<PoseClock>,
-    pub counters: Counters,
+    pub counters: Arc<Counters>,
 }
 
 impl Shared {
@@ -192,8 +201,21 @@ impl MavlinkLink {
             .validate()
             .map_err(|e| MavlinkError::Config(e.within("mavlink")))?;
         let address = LinkAddress::parse(&config.connection)?;
+        let signing = match &config.signing_key {
+            Some(path) => {
+                let key = signing::load_key(path)?;
+                tracing::info!(key = %path.display(), required = config.signing_required, "MAVLink 2 signing on");
+                Some(Arc::new(signing::Signing::new(
+                    key,
+                    0,
+                    config.signing_required,
+                )))
+            }
+            None => None,
+        };
         let shared = Arc::new(Shared {
             config: config.clone(),
+            signing,
             address,
             header: MavHeader {
                 system_id: u32::from(config.system_id),
@@ -211,7 +233,7 @@ impl MavlinkLink {
                 u64::from(config.timesync_wait_ms) * 1_000_000,
                 config.min_interval_ns(),
             )),
-            counters: Counters::default(),
+            counters: Arc::default(),
         });
         let (done_tx, done_rx) = mpsc::channel();
         let mut handle = MavlinkHandle {

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use mavlink::dialects::common::MavMessage;
 use nalgebra::Matrix6;
 
-use super::frames::FrameConverter;
+use super::frames::{self, FrameConverter};
 use super::link::Link;
 use super::messages::{self, LinkState};
 use super::reset::ResetCounter;
@@ -124,6 +124,12 @@ struct Sender {
     state: LinkState,
     link: Option<(u64, Arc<Link>)>,
     generation: u64,
+    /// The link's peer epoch the current stream belongs to.
+    peer_epoch: u64,
+    /// The reset counter last sent, and until when nothing follows a pose
+    /// that changed it (see `handle`).
+    last_reset_sent: Option<u8>,
+    reset_hold_until: Option<Instant>,
     backoff: Duration,
     reconnect_at: Instant,
     next_heartbeat: Instant,
@@ -145,6 +151,9 @@ pub(crate) fn run(shared: Arc<Shared>) {
         state: LinkState::Standby,
         link: None,
         generation: 0,
+        peer_epoch: 0,
+        last_reset_sent: None,
+        reset_hold_until: None,
         backoff: MIN_BACKOFF,
         reconnect_at: now,
         next_heartbeat: now,
@@ -160,6 +169,7 @@ pub(crate) fn run(shared: Arc<Shared>) {
 impl Sender {
     fn step(&mut self) {
         self.check_link();
+        self.check_peer();
         let now = Instant::now();
         if self.link.is_some() {
             if now >= self.next_heartbeat {
@@ -209,9 +219,16 @@ impl Sender {
             return;
         }
         let counters = &self.shared.counters;
-        match Link::open(&self.shared.address) {
+        let policy = self.shared.config.peer_policy();
+        match Link::open_with(
+            &self.shared.address,
+            &policy,
+            self.shared.counters.clone(),
+            self.shared.signing.clone(),
+        ) {
             Ok(link) => {
                 self.generation += 1;
+                self.peer_epoch = link.peer_epoch();
                 let link = Arc::new(link);
                 *self
                     .shared
@@ -238,6 +255,22 @@ impl Sender {
                 self.reconnect_at = Instant::now() + self.backoff;
                 self.backoff = (self.backoff * 2).min(MAX_BACKOFF);
             }
+        }
+    }
+
+    /// A `udpin` link that locked a new autopilot starts a new stream (its
+    /// clock is another one), with HEARTBEAT and TIMESYNC at once.
+    fn check_peer(&mut self) {
+        let Some((_, link)) = &self.link else {
+            return;
+        };
+        let epoch = link.peer_epoch();
+        if epoch != self.peer_epoch {
+            self.peer_epoch = epoch;
+            self.start_stream();
+            let now = Instant::now();
+            self.next_heartbeat = now;
+            self.next_timesync = now;
         }
     }
 
@@ -341,6 +374,19 @@ impl Sender {
             bump(&counters.poses_dropped_rate);
             return;
         }
+        // A pose that changed reset_counter gets one rate interval of wall
+        // time to itself. ArduPilot flags only that one sample as a reset;
+        // when the next one came right behind it (the tracker catching up
+        // after a relocalization), EKF3 dated both to the same fusion time,
+        // kept the newer and lost the reset: it then fused a 1.1 m jump as a
+        // measurement and overshot by 75 cm (hil_tests/test_sitl_blackout.py).
+        if let Some(until) = self.reset_hold_until {
+            if Instant::now() < until {
+                bump(&counters.poses_dropped_rate);
+                return;
+            }
+            self.reset_hold_until = None;
+        }
         let pose = self.converter.ned_pose(&sample.world_from_camera);
         let finite = pose.position_ned_m().iter().all(|v| v.is_finite())
             && [pose.roll_rad, pose.pitch_rad, pose.yaw_rad]
@@ -359,7 +405,13 @@ impl Sender {
             }
         };
         let twist_covariance = Matrix6::from_fn(|r, c| sample.covariance_6x6[r][c]);
-        let covariance = self.converter.pose_covariance(&pose, &twist_covariance);
+        let mut covariance = self.converter.pose_covariance(&pose, &twist_covariance);
+        let config = &shared.config;
+        frames::floor_variances(
+            &mut covariance,
+            config.position_sigma_floor_m,
+            config.angle_sigma_floor_deg.to_radians(),
+        );
         let reset_counter =
             self.reset
                 .next(sample.reset_counter, sample.capture_ns, &pose.ned_from_body);
@@ -385,6 +437,14 @@ impl Sender {
                 .reset_counter
                 .store(reset_counter, Ordering::Relaxed);
             self.rate.sent(sample.capture_ns);
+            if self
+                .last_reset_sent
+                .is_some_and(|last| last != reset_counter)
+            {
+                self.reset_hold_until =
+                    Some(Instant::now() + Duration::from_nanos(shared.config.min_interval_ns()));
+            }
+            self.last_reset_sent = Some(reset_counter);
         } else {
             bump(&counters.poses_dropped_link);
         }

@@ -31,6 +31,16 @@ pub struct LinkStats {
     pub timesync_resyncs: u64,
     /// HEARTBEATs received from an autopilot.
     pub autopilot_heartbeats: u64,
+    /// `udpin`: datagrams ignored (garbage, or from a sender other than the
+    /// locked autopilot).
+    pub udpin_foreign_datagrams: u64,
+    /// `udpin`: autopilots locked (the first one included; more means the
+    /// peer changed after a silence).
+    pub udpin_peer_locks: u64,
+    /// Signing required: unsigned (or MAVLink 1) frames dropped.
+    pub signing_rejected_unsigned: u64,
+    /// Signing on: frames with a bad signature or a replayed timestamp dropped.
+    pub signing_rejected_bad: u64,
     /// Samples not sent because tracking was lost.
     pub poses_dropped_lost: u64,
     /// Samples not sent because they were older than `max_pose_age_ms`.
@@ -69,6 +79,10 @@ pub(crate) struct Counters {
     pub timesync_rejected: AtomicU64,
     pub timesync_resyncs: AtomicU64,
     pub autopilot_heartbeats: AtomicU64,
+    pub udpin_foreign_datagrams: AtomicU64,
+    pub udpin_peer_locks: AtomicU64,
+    pub signing_rejected_unsigned: AtomicU64,
+    pub signing_rejected_bad: AtomicU64,
     pub poses_dropped_lost: AtomicU64,
     pub poses_dropped_stale: AtomicU64,
     pub poses_dropped_rate: AtomicU64,
@@ -108,6 +122,10 @@ impl Counters {
             timesync_rejected: self.timesync_rejected.load(Relaxed),
             timesync_resyncs: self.timesync_resyncs.load(Relaxed),
             autopilot_heartbeats: self.autopilot_heartbeats.load(Relaxed),
+            udpin_foreign_datagrams: self.udpin_foreign_datagrams.load(Relaxed),
+            udpin_peer_locks: self.udpin_peer_locks.load(Relaxed),
+            signing_rejected_unsigned: self.signing_rejected_unsigned.load(Relaxed),
+            signing_rejected_bad: self.signing_rejected_bad.load(Relaxed),
             poses_dropped_lost: self.poses_dropped_lost.load(Relaxed),
             poses_dropped_stale: self.poses_dropped_stale.load(Relaxed),
             poses_dropped_rate: self.poses_dropped_rate.load(Relaxed),
