@@ -102,6 +102,9 @@ pub struct TrackSummary {
     pub trajectory_poses: Option<u64>,
     /// The renderer in use.
     pub renderer: String,
+    /// Why the loop ended (`None` only for a summary not made by
+    /// [`Tracker::run`]).
+    pub stop_reason: Option<StopReason>,
 }
 
 /// What one iteration of the loop ([`Tracker::step`]) did.
@@ -125,7 +128,8 @@ pub enum Step {
 /// Why the loop ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum StopReason {
-    /// SIGTERM/SIGINT set the shutdown flag.
+    /// A stop signal (SIGTERM, SIGINT, SIGHUP, SIGQUIT, SIGUSR1) set the
+    /// shutdown flag.
     Shutdown,
     /// [`StopWhen::frames`] frames were processed, the last one in this step.
     FrameLimit,
@@ -182,8 +186,14 @@ impl Tracker {
     /// Runs until SIGTERM/SIGINT or a `stop` condition: [`Tracker::step`]
     /// until it returns [`Step::Stop`], then [`Tracker::finish`].
     pub fn run(mut self, stop: &mut StopWhen) -> Result<TrackSummary> {
-        while !matches!(self.step(stop)?, Step::Stop(_)) {}
-        self.finish(stop)
+        let reason = loop {
+            if let Step::Stop(reason) = self.step(stop)? {
+                break reason;
+            }
+        };
+        let mut summary = self.finish(stop)?;
+        summary.stop_reason = Some(reason);
+        Ok(summary)
     }
 
     /// One iteration of the loop. Feeds the watchdog, then tracks the newest
