@@ -18,6 +18,7 @@
 //! wake it through the event.
 
 use std::ops::ControlFlow;
+use std::path::Path;
 use std::time::Duration;
 
 use iceoryx2::identifiers::UniquePublisherId;
@@ -26,13 +27,17 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::{CallbackProgression, PortFactory};
 use iceoryx2::sample::Sample;
 use iceoryx2::service::ipc;
 use iceoryx2_bb_posix::file_descriptor::FileDescriptorBased;
 use tracing::{debug, info, warn};
 
 use super::frame::{Frame, FrameError, FrameSlot, FrameView};
-use super::services::{open_event_service, open_frame_service, FRAME_EVENT_SERVICE, FRAME_SERVICE};
+use super::services::{
+    check_shm_space, frame_segment_bytes, open_event_service, open_frame_service,
+    publisher_refused, FRAME_EVENT_SERVICE, FRAME_MAX_LOANED, FRAME_SERVICE, SHM_DIR,
+};
 use super::IpcError;
 use crate::clock::monotonic_now_ns;
 
@@ -72,12 +77,20 @@ pub struct FramePublisher {
 impl FramePublisher {
     /// Opens the frame and event services on `node` and creates the ports.
     pub fn new(node: &Node<ipc::Service>) -> Result<Self, IpcError> {
+        check_shm_space(Path::new(SHM_DIR), FRAME_SERVICE, frame_segment_bytes())?;
         let service = open_frame_service(node)?;
         let publisher = service
             .publisher_builder()
-            .max_loaned_samples(1)
+            .max_loaned_samples(FRAME_MAX_LOANED)
             .create()
-            .map_err(|e| IpcError::iceoryx("create publisher", FRAME_SERVICE, e))?;
+            .map_err(|e| {
+                let mut holders = Vec::new();
+                service.dynamic_config().list_publishers(|p| {
+                    holders.push(p.node_id);
+                    CallbackProgression::Continue
+                });
+                publisher_refused(node, FRAME_SERVICE, &holders, e)
+            })?;
         let event = open_event_service(node, FRAME_EVENT_SERVICE)?;
         let notifier = event
             .notifier_builder()

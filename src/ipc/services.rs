@@ -4,11 +4,23 @@
 //! Takes in the `[ipc]` section of the star config (the iceoryx2 config file);
 //! gives out a [`Node`] and opened service port factories. Both sides open a
 //! service through the same function here, so their QoS always match.
+//!
+//! Each data service admits one publisher ([`MAX_PUBLISHERS`]): a second
+//! `star camera` or a second tracker on the same prefix is refused with an
+//! error naming the process that holds the service ([`publisher_refused`]),
+//! instead of two cameras interleaving frames. Before a publisher creates
+//! its data segment, [`check_shm_space`] compares the free space of
+//! `/dev/shm` with the segment's size, so a full `/dev/shm` is an error at
+//! start naming the bytes needed, not a SIGBUS when a page is first touched.
 
 use std::path::{Path, PathBuf};
 
-use iceoryx2::node::Node;
-use iceoryx2::prelude::{FileName, FilePath, NodeBuilder, NodeName, SemanticString, ServiceName};
+use iceoryx2::identifiers::UniqueNodeId;
+use iceoryx2::node::{Node, NodeState, NodeView};
+use iceoryx2::port::publisher::PublisherCreateError;
+use iceoryx2::prelude::{
+    CallbackProgression, FileName, FilePath, NodeBuilder, NodeName, SemanticString, ServiceName,
+};
 use iceoryx2::service::ipc;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use tracing::{info, warn};
@@ -25,6 +37,13 @@ pub const FRAME_EVENT_SERVICE: &str = "star/camera/frames/ready";
 pub const POSE_SERVICE: &str = "star/tracker/poses";
 /// Event raised after every published pose.
 pub const POSE_EVENT_SERVICE: &str = "star/tracker/poses/ready";
+
+/// Publishers a data service admits: one camera, one tracker.
+pub const MAX_PUBLISHERS: usize = 1;
+/// Where iceoryx2 keeps its shared memory segments (POSIX shm on Linux).
+pub const SHM_DIR: &str = "/dev/shm";
+/// Frames the camera's publisher may loan at once.
+pub const FRAME_MAX_LOANED: usize = 1;
 
 /// Frame subscribers the service admits (tracker, recorder, viewer, spare).
 pub const FRAME_MAX_SUBSCRIBERS: usize = 4;
@@ -124,7 +143,7 @@ pub fn open_frame_service(
         .subscriber_max_buffer_size(1)
         .subscriber_max_borrowed_samples(FRAME_MAX_BORROWED)
         .history_size(0)
-        .max_publishers(2)
+        .max_publishers(MAX_PUBLISHERS)
         .max_subscribers(FRAME_MAX_SUBSCRIBERS)
         .open_or_create()
         .map_err(|e| iox_err("open service", FRAME_SERVICE)(e.to_string()))
@@ -140,7 +159,7 @@ pub fn open_pose_service(
         .subscriber_max_buffer_size(POSE_BUFFER)
         .subscriber_max_borrowed_samples(2)
         .history_size(1)
-        .max_publishers(2)
+        .max_publishers(MAX_PUBLISHERS)
         .max_subscribers(POSE_MAX_SUBSCRIBERS)
         .open_or_create()
         .map_err(|e| iox_err("open service", POSE_SERVICE)(e.to_string()))
@@ -159,9 +178,142 @@ pub fn open_event_service(
         .map_err(|e| iox_err("open event service", name)(e.to_string()))
 }
 
+/// Bytes of the data segment a publisher of `T` creates: iceoryx2 sizes it
+/// for every sample that can be in flight at once (each subscriber's buffer
+/// and borrowed samples, the history and the publisher's loans).
+pub fn data_segment_bytes<T>(
+    max_subscribers: usize,
+    buffer: usize,
+    borrowed: usize,
+    history: usize,
+    loaned: usize,
+) -> u64 {
+    let samples = max_subscribers * (buffer + borrowed) + history + loaned;
+    samples as u64 * std::mem::size_of::<T>() as u64
+}
+
+/// The frame publisher's data segment, bytes.
+pub fn frame_segment_bytes() -> u64 {
+    data_segment_bytes::<Frame>(
+        FRAME_MAX_SUBSCRIBERS,
+        1,
+        FRAME_MAX_BORROWED,
+        0,
+        FRAME_MAX_LOANED,
+    )
+}
+
+/// The pose publisher's data segment, bytes (iceoryx2's default of 2 loans).
+pub fn pose_segment_bytes() -> u64 {
+    data_segment_bytes::<PoseMsg>(POSE_MAX_SUBSCRIBERS, POSE_BUFFER, 2, 1, 2)
+}
+
+/// Free bytes for an unprivileged writer on the file system holding `dir`.
+pub fn free_bytes(dir: &Path) -> Result<u64, IpcError> {
+    let failed = |reason: String| IpcError::SharedMemory {
+        dir: dir.to_owned(),
+        reason,
+    };
+    let path = std::ffi::CString::new(dir.as_os_str().as_encoded_bytes())
+        .map_err(|_| failed("the path holds a NUL byte".into()))?;
+    // SAFETY: a zeroed statvfs is a valid out-parameter; `path` is a valid
+    // NUL-terminated string that outlives the call.
+    let mut stat: libc::statvfs = unsafe { std::mem::zeroed() };
+    if unsafe { libc::statvfs(path.as_ptr(), &mut stat) } != 0 {
+        return Err(failed(format!(
+            "statvfs: {}",
+            std::io::Error::last_os_error()
+        )));
+    }
+    Ok((stat.f_bavail as u64).saturating_mul(stat.f_frsize as u64))
+}
+
+/// Errors with [`IpcError::ShmFull`] when `dir` has less than
+/// `needed_bytes` free for `service`'s data segment.
+pub fn check_shm_space(dir: &Path, service: &str, needed_bytes: u64) -> Result<(), IpcError> {
+    let free = free_bytes(dir)?;
+    if free < needed_bytes {
+        return Err(IpcError::ShmFull {
+            dir: dir.to_owned(),
+            service: service.to_string(),
+            needed_bytes,
+            free_bytes: free,
+        });
+    }
+    Ok(())
+}
+
+/// The processes holding the publishers with these node ids, for an error:
+/// `node `star-camera` (pid 1234)`, or the bare node id when the node's
+/// details cannot be read.
+pub fn describe_nodes(config: &iceoryx2::config::Config, ids: &[UniqueNodeId]) -> String {
+    let mut found: Vec<String> = Vec::new();
+    let listed = Node::<ipc::Service>::list(config, |state| {
+        if let NodeState::Alive(view) = &state {
+            if ids.contains(view.id()) {
+                found.push(match view.details() {
+                    Some(d) => format!(
+                        "node `{}` (pid {}, {})",
+                        d.name(),
+                        d.process_id().value(),
+                        d.executable()
+                    ),
+                    None => format!("node {}", view.id()),
+                });
+            }
+        }
+        CallbackProgression::Continue
+    });
+    if found.is_empty() || listed.is_err() {
+        found.extend(ids.iter().map(|id| format!("node {id}")));
+    }
+    found.join(", ")
+}
+
+/// The error for a publisher that `service` refused: when the service's one
+/// publisher slot is taken, names who holds it.
+pub fn publisher_refused(
+    node: &Node<ipc::Service>,
+    service: &'static str,
+    holders: &[UniqueNodeId],
+    error: PublisherCreateError,
+) -> IpcError {
+    if error == PublisherCreateError::ExceedsMaxSupportedPublishers {
+        return IpcError::PublisherTaken {
+            service,
+            holder: describe_nodes(node.config(), holders),
+        };
+    }
+    IpcError::iceoryx("create publisher", service, error)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shm_space_check_names_the_bytes_needed() {
+        let free = free_bytes(Path::new("/tmp")).expect("statvfs /tmp");
+        check_shm_space(Path::new("/tmp"), "small", 1).expect("one byte fits");
+        let err = check_shm_space(Path::new("/tmp"), "huge", free.saturating_add(1 << 40))
+            .expect_err("more than free");
+        let msg = err.to_string();
+        assert!(msg.contains("huge") && msg.contains("/tmp"), "{msg}");
+        assert!(
+            msg.contains(&free.saturating_add(1 << 40).to_string()),
+            "{msg}"
+        );
+        assert!(free_bytes(Path::new("/nonexistent/shm")).is_err());
+    }
+
+    #[test]
+    fn frame_segment_is_every_frame_in_flight() {
+        // 4 subscribers x (1 buffered + 2 borrowed) + 1 loaned.
+        assert_eq!(
+            frame_segment_bytes(),
+            13 * std::mem::size_of::<Frame>() as u64
+        );
+    }
 
     #[test]
     fn shipped_iceoryx_config_parses_and_missing_file_falls_back() {
