@@ -205,6 +205,41 @@ struct Ports {
     listener: Listener<ipc::Service>,
 }
 
+impl Ports {
+    /// A subscriber on `service` and a listener on the frame event, and the
+    /// listener's socket.
+    fn open(
+        node: &Node<ipc::Service>,
+        service: &iceoryx2::service::port_factory::publish_subscribe::PortFactory<
+            ipc::Service,
+            Frame,
+            (),
+        >,
+    ) -> Result<(Self, libc::c_int), IpcError> {
+        let subscriber = service
+            .subscriber_builder()
+            .buffer_size(1)
+            .create()
+            .map_err(|e| IpcError::iceoryx("create subscriber", FRAME_SERVICE, e))?;
+        let event = open_event_service(node, FRAME_EVENT_SERVICE)?;
+        let listener = event
+            .listener_builder()
+            .create()
+            .map_err(|e| IpcError::iceoryx("create listener", FRAME_EVENT_SERVICE, e))?;
+        // SAFETY: the descriptor is only used while `listener` (which owns
+        // it) is alive: both live in the `FrameSubscriber`, and the
+        // descriptor is replaced whenever the listener is.
+        let listener_fd = unsafe { listener.file_descriptor().native_handle() };
+        Ok((
+            Self {
+                subscriber,
+                listener,
+            },
+            listener_fd,
+        ))
+    }
+}
+
 #[derive(Default)]
 struct ReceiveState {
     last: Option<(UniquePublisherId, u64)>,
@@ -341,28 +376,46 @@ impl FrameSubscriber {
     /// Opens the frame and event services on `node` and creates the ports.
     pub fn new(node: &Node<ipc::Service>) -> Result<Self, IpcError> {
         let service = open_frame_service(node)?;
-        let subscriber = service
-            .subscriber_builder()
-            .buffer_size(1)
-            .create()
-            .map_err(|e| IpcError::iceoryx("create subscriber", FRAME_SERVICE, e))?;
-        let event = open_event_service(node, FRAME_EVENT_SERVICE)?;
-        let listener = event
-            .listener_builder()
-            .create()
-            .map_err(|e| IpcError::iceoryx("create listener", FRAME_EVENT_SERVICE, e))?;
-        // SAFETY: the descriptor is only used while `listener` (which owns
-        // it) is alive: both live in `Self`.
-        let listener_fd = unsafe { listener.file_descriptor().native_handle() };
+        let (ports, listener_fd) = Ports::open(node, &service)?;
         Ok(Self {
-            ports: Ports {
-                subscriber,
-                listener,
-            },
+            ports,
             state: ReceiveState::default(),
             spin: Duration::ZERO,
             listener_fd,
         })
+    }
+
+    /// Checks that this subscriber is still attached to the frame service a
+    /// new camera would open. When the service's shared memory was deleted
+    /// (files removed from `/dev/shm`), opening it recreates it
+    /// ([`super::services::remove_orphaned`]) and this subscriber, left on
+    /// the old one, re-attaches to the new one: new ports, counters kept.
+    /// Returns whether it re-attached. Opens a service, so it allocates:
+    /// call it while the camera is silent, not per frame.
+    pub fn reattach_if_orphaned(&mut self, node: &Node<ipc::Service>) -> Result<bool, IpcError> {
+        let service = open_frame_service(node)?;
+        let mine = self.ports.subscriber.id();
+        let mut attached = false;
+        service.dynamic_config().list_subscribers(|d| {
+            attached = d.subscriber_id == mine;
+            if attached {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        if attached {
+            return Ok(false);
+        }
+        warn!(
+            service = FRAME_SERVICE,
+            "the frame service was recreated (its shared memory had been deleted); re-attaching"
+        );
+        let (ports, listener_fd) = Ports::open(node, &service)?;
+        self.ports = ports;
+        self.listener_fd = listener_fd;
+        self.state.predictor.reset();
+        Ok(true)
     }
 
     /// Polls for frames during `spin` either side of a frame's predicted

@@ -9,7 +9,10 @@
 //! Subscribers block on an iceoryx2 event listener, not a sleep loop, and
 //! poll briefly around a periodic camera's predicted arrival.
 //! Each process calls [`services::create_node`] first, which removes the
-//! resources of crashed processes.
+//! resources of crashed processes. Each data service admits one publisher;
+//! `/dev/shm` space is checked before a publisher starts; a service whose
+//! shared memory was deleted is recreated, and the frame subscriber
+//! re-attaches to it ([`FrameSubscriber::reattach_if_orphaned`]).
 
 pub mod config;
 pub mod frame;

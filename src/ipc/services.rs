@@ -19,7 +19,12 @@ use iceoryx2::identifiers::UniqueNodeId;
 use iceoryx2::node::{Node, NodeState, NodeView};
 use iceoryx2::port::publisher::PublisherCreateError;
 use iceoryx2::prelude::{
-    CallbackProgression, FileName, FilePath, NodeBuilder, NodeName, SemanticString, ServiceName,
+    CallbackProgression, FileName, FilePath, MessagingPattern, NodeBuilder, NodeName,
+    SemanticString, ServiceName,
+};
+use iceoryx2::service::builder::event::{EventOpenError, EventOpenOrCreateError};
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
 };
 use iceoryx2::service::ipc;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
@@ -133,49 +138,127 @@ fn iox_err(op: &'static str, name: &'static str) -> impl FnOnce(String) -> IpcEr
 
 /// Opens (or creates) the frame service: one publisher, a buffer of one
 /// frame per subscriber with safe overflow, so a slow consumer always finds
-/// the newest frame and nothing queues up.
+/// the newest frame and nothing queues up. A service whose shared memory
+/// was deleted is removed and created anew ([`remove_orphaned`]).
 pub fn open_frame_service(
     node: &Node<ipc::Service>,
 ) -> Result<publish_subscribe::PortFactory<ipc::Service, Frame, ()>, IpcError> {
-    node.service_builder(&service_name(FRAME_SERVICE)?)
-        .publish_subscribe::<Frame>()
-        .enable_safe_overflow(true)
-        .subscriber_max_buffer_size(1)
-        .subscriber_max_borrowed_samples(FRAME_MAX_BORROWED)
-        .history_size(0)
-        .max_publishers(MAX_PUBLISHERS)
-        .max_subscribers(FRAME_MAX_SUBSCRIBERS)
-        .open_or_create()
-        .map_err(|e| iox_err("open service", FRAME_SERVICE)(e.to_string()))
+    let name = service_name(FRAME_SERVICE)?;
+    let open = || {
+        node.service_builder(&name)
+            .publish_subscribe::<Frame>()
+            .enable_safe_overflow(true)
+            .subscriber_max_buffer_size(1)
+            .subscriber_max_borrowed_samples(FRAME_MAX_BORROWED)
+            .history_size(0)
+            .max_publishers(MAX_PUBLISHERS)
+            .max_subscribers(FRAME_MAX_SUBSCRIBERS)
+            .open_or_create()
+    };
+    match open() {
+        Err(e) if pubsub_orphaned(&e) => {
+            remove_orphaned(node, FRAME_SERVICE, MessagingPattern::PublishSubscribe);
+            open()
+        }
+        other => other,
+    }
+    .map_err(|e| iox_err("open service", FRAME_SERVICE)(e.to_string()))
 }
 
-/// Opens (or creates) the pose service.
+/// Opens (or creates) the pose service (recreated like the frame service
+/// when its shared memory was deleted).
 pub fn open_pose_service(
     node: &Node<ipc::Service>,
 ) -> Result<publish_subscribe::PortFactory<ipc::Service, PoseMsg, ()>, IpcError> {
-    node.service_builder(&service_name(POSE_SERVICE)?)
-        .publish_subscribe::<PoseMsg>()
-        .enable_safe_overflow(true)
-        .subscriber_max_buffer_size(POSE_BUFFER)
-        .subscriber_max_borrowed_samples(2)
-        .history_size(1)
-        .max_publishers(MAX_PUBLISHERS)
-        .max_subscribers(POSE_MAX_SUBSCRIBERS)
-        .open_or_create()
-        .map_err(|e| iox_err("open service", POSE_SERVICE)(e.to_string()))
+    let name = service_name(POSE_SERVICE)?;
+    let open = || {
+        node.service_builder(&name)
+            .publish_subscribe::<PoseMsg>()
+            .enable_safe_overflow(true)
+            .subscriber_max_buffer_size(POSE_BUFFER)
+            .subscriber_max_borrowed_samples(2)
+            .history_size(1)
+            .max_publishers(MAX_PUBLISHERS)
+            .max_subscribers(POSE_MAX_SUBSCRIBERS)
+            .open_or_create()
+    };
+    match open() {
+        Err(e) if pubsub_orphaned(&e) => {
+            remove_orphaned(node, POSE_SERVICE, MessagingPattern::PublishSubscribe);
+            open()
+        }
+        other => other,
+    }
+    .map_err(|e| iox_err("open service", POSE_SERVICE)(e.to_string()))
 }
 
-/// Opens (or creates) an event service used to wake subscribers.
+/// Whether opening failed because the service's shared state is gone: its
+/// static description exists but its dynamic segment does not (files
+/// deleted from `/dev/shm` while processes used it), so nobody can open it
+/// again until it is removed.
+fn pubsub_orphaned(e: &PublishSubscribeOpenOrCreateError) -> bool {
+    matches!(
+        e,
+        PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+            PublishSubscribeOpenError::HangsInCreation
+                | PublishSubscribeOpenError::ServiceInCorruptedState
+        )
+    )
+}
+
+/// [`pubsub_orphaned`] for an event service.
+fn event_orphaned(e: &EventOpenOrCreateError) -> bool {
+    matches!(
+        e,
+        EventOpenOrCreateError::EventOpenError(
+            EventOpenError::HangsInCreation | EventOpenError::ServiceInCorruptedState
+        )
+    )
+}
+
+/// Removes what is left of a service whose shared memory was deleted, so
+/// the next open creates it anew. Processes still attached keep their own
+/// mappings of the old one (a running camera keeps publishing into it); the
+/// frame subscriber notices that it was left behind and re-attaches
+/// ([`crate::ipc::FrameSubscriber::reattach_if_orphaned`]).
+pub fn remove_orphaned(node: &Node<ipc::Service>, name: &'static str, pattern: MessagingPattern) {
+    warn!(
+        service = name,
+        "iceoryx2 service lost its shared memory (files deleted from /dev/shm?); removing what is left so it is created anew"
+    );
+    let Ok(service) = service_name(name) else {
+        return;
+    };
+    // SAFETY: nobody can open the service any more (its dynamic state is
+    // gone); the processes still attached use their own mappings, which
+    // removing the files does not unmap.
+    if let Err(e) = unsafe { node.force_remove_service(&service, pattern) } {
+        warn!(service = name, error = ?e, "cannot remove the orphaned iceoryx2 service");
+    }
+}
+
+/// Opens (or creates) an event service used to wake subscribers (recreated
+/// like the frame service when its shared memory was deleted).
 pub fn open_event_service(
     node: &Node<ipc::Service>,
     name: &'static str,
 ) -> Result<event::PortFactory<ipc::Service>, IpcError> {
-    node.service_builder(&service_name(name)?)
-        .event()
-        .max_notifiers(4)
-        .max_listeners(POSE_MAX_SUBSCRIBERS)
-        .open_or_create()
-        .map_err(|e| iox_err("open event service", name)(e.to_string()))
+    let service = service_name(name)?;
+    let open = || {
+        node.service_builder(&service)
+            .event()
+            .max_notifiers(4)
+            .max_listeners(POSE_MAX_SUBSCRIBERS)
+            .open_or_create()
+    };
+    match open() {
+        Err(e) if event_orphaned(&e) => {
+            remove_orphaned(node, name, MessagingPattern::Event);
+            open()
+        }
+        other => other,
+    }
+    .map_err(|e| iox_err("open event service", name)(e.to_string()))
 }
 
 /// Bytes of the data segment a publisher of `T` creates: iceoryx2 sizes it

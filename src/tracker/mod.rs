@@ -118,6 +118,6 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
         silence: Duration::from_millis(config.ipc.silence_timeout_ms),
         world_from_camera_start,
         looping,
-        _node: node,
+        node,
     })
 }
