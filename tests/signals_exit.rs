@@ -3,7 +3,8 @@
 //! and asserted at 1.0 s), and SIGHUP, SIGQUIT and SIGUSR1 stop as
 //! gracefully as SIGTERM, the trajectory file holding every pose produced.
 //!
-//! The states: the tracker waiting for a camera; `star run` in a two-hour
+//! The states: the tracker starting; the tracker waiting for a camera;
+//! `star run` in a two-hour
 //! gap between replay stamps; `star run` and `star camera` replaying at
 //! 0.01x (a frame every 2 s). The processes run one at a time, so the
 //! figures are not inflated by each other on a small machine.
@@ -53,6 +54,22 @@ fn sigterm_ends_every_state_within_a_second() {
     let _cleanup = common::Cleanup(common::prefix(tag));
     let cfg = config(dir.path(), tag, "");
     let cfg = cfg.to_str().unwrap();
+
+    // 0. The tracker starting (map, renderer, first keyframe): the start
+    // stops between its steps.
+    let mut starting = spawn(&["--log", "info", "track", "--config", cfg]);
+    // The map is loaded after the handlers are installed; the renderer and
+    // the first keyframe come next.
+    assert!(starting.wait_for("mesh loaded", START), "no map loaded");
+    assert_quick_exit("star track, starting", &mut starting, libc::SIGTERM);
+    assert!(
+        starting
+            .child
+            .try_wait()
+            .unwrap()
+            .is_some_and(|s| s.success()),
+        "a tracker stopped while starting exits 0"
+    );
 
     // 1. The tracker waiting for a camera that never comes.
     let mut track = spawn(&["--log", "info", "track", "--config", cfg]);

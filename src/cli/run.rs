@@ -58,7 +58,14 @@ pub fn run(args: &RunArgs) -> Result<()> {
     }
     let hint = initial_pose(args.track.init_pose.as_deref(), &config)?;
     let mut stop = stop_when(&args.track)?;
-    let tracker = start(&config, hint, shutdown.clone())?;
+    let tracker = match start(&config, hint, shutdown.clone()) {
+        Ok(tracker) => tracker,
+        Err(e) if e.is::<crate::tracker::StoppedDuringStart>() => {
+            println!("track: {e}");
+            return Ok(());
+        }
+        Err(e) => return Err(e),
+    };
     let done = Arc::new(AtomicBool::new(false));
     let camera = {
         let (config, shutdown, done) = (config.clone(), shutdown.clone(), done.clone());

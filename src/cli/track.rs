@@ -20,7 +20,7 @@ use crate::config::Config;
 use crate::dataset::TrajectoryWriter;
 use crate::geometry::Pose;
 use crate::service::signals;
-use crate::tracker::{start, StopReason, StopWhen, TrackSummary};
+use crate::tracker::{start, StopReason, StopWhen, StoppedDuringStart, TrackSummary};
 
 use super::pose_arg::parse_pose;
 
@@ -131,7 +131,14 @@ pub fn run(args: &TrackArgs) -> Result<()> {
     let config = load_config(args)?;
     let hint = initial_pose(args.init_pose.as_deref(), &config)?;
     let mut stop = stop_when(args)?;
-    let tracker = start(&config, hint, shutdown)?;
+    let tracker = match start(&config, hint, shutdown) {
+        Ok(tracker) => tracker,
+        Err(e) if e.is::<StoppedDuringStart>() => {
+            println!("track: {e}");
+            return Ok(());
+        }
+        Err(e) => return Err(e),
+    };
     let summary = tracker.run(&mut stop)?;
     finish(&summary, args.trajectory.as_deref())
 }
