@@ -1,9 +1,9 @@
 //! Issue 24, IPC: iceoryx2's files deleted from `/dev/shm` while the
 //! tracker runs (a cleanup script, a careless `rm`). The processes attached
 //! keep their mappings, but nobody could open the services again: a
-//! restarted camera failed with `HangsInCreation`. Now the service is
-//! removed and created anew, the silent tracker notices it was left on the
-//! old one and re-attaches, and tracking resumes.
+//! restarted camera failed with `HangsInCreation`. Now the restarted camera
+//! removes what is left and creates the services anew, the silent tracker
+//! notices it was left on the old ones and re-attaches, and frames flow.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -63,17 +63,18 @@ fn a_camera_restarted_after_shm_files_were_deleted_reaches_the_tracker() {
     let err = track.drain_log();
     assert!(status.success(), "{status}\n{out}\n{err}");
     assert!(
-        err.contains("re-attaching") || log.contains("created anew"),
+        log.contains("created anew") && err.contains("re-attaching"),
         "the recovery was not logged:\n{err}\n{log}"
     );
-    let frames: u64 = out
-        .split("frames processed ")
+    // Frames from the second camera (a new publisher) reached the loop.
+    let restarts: u64 = out
+        .split("camera restarts ")
         .nth(1)
         .and_then(|s| s.split_whitespace().next())
         .and_then(|s| s.parse().ok())
-        .unwrap_or_else(|| panic!("no frame count in {out}"));
+        .unwrap_or_else(|| panic!("no restart count in {out}"));
     assert!(
-        frames >= 30,
-        "{frames} frames: the second camera's did not arrive\n{out}"
+        restarts >= 1,
+        "the second camera's frames did not arrive\n{out}"
     );
 }

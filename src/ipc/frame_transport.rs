@@ -35,8 +35,9 @@ use tracing::{debug, info, warn};
 
 use super::frame::{Frame, FrameError, FrameSlot, FrameView};
 use super::services::{
-    check_shm_space, frame_segment_bytes, open_event_service, open_frame_service,
-    publisher_refused, FRAME_EVENT_SERVICE, FRAME_MAX_LOANED, FRAME_SERVICE, SHM_DIR,
+    check_shm_space, frame_segment_bytes, open_event_service, open_existing_event_service,
+    open_existing_frame_service, open_frame_service, publisher_refused, FRAME_EVENT_SERVICE,
+    FRAME_MAX_LOANED, FRAME_SERVICE, SHM_DIR,
 };
 use super::IpcError;
 use crate::clock::monotonic_now_ns;
@@ -209,19 +210,18 @@ impl Ports {
     /// A subscriber on `service` and a listener on the frame event, and the
     /// listener's socket.
     fn open(
-        node: &Node<ipc::Service>,
         service: &iceoryx2::service::port_factory::publish_subscribe::PortFactory<
             ipc::Service,
             Frame,
             (),
         >,
+        event: &iceoryx2::service::port_factory::event::PortFactory<ipc::Service>,
     ) -> Result<(Self, libc::c_int), IpcError> {
         let subscriber = service
             .subscriber_builder()
             .buffer_size(1)
             .create()
             .map_err(|e| IpcError::iceoryx("create subscriber", FRAME_SERVICE, e))?;
-        let event = open_event_service(node, FRAME_EVENT_SERVICE)?;
         let listener = event
             .listener_builder()
             .create()
@@ -376,7 +376,8 @@ impl FrameSubscriber {
     /// Opens the frame and event services on `node` and creates the ports.
     pub fn new(node: &Node<ipc::Service>) -> Result<Self, IpcError> {
         let service = open_frame_service(node)?;
-        let (ports, listener_fd) = Ports::open(node, &service)?;
+        let event = open_event_service(node, FRAME_EVENT_SERVICE)?;
+        let (ports, listener_fd) = Ports::open(&service, &event)?;
         Ok(Self {
             ports,
             state: ReceiveState::default(),
@@ -387,13 +388,19 @@ impl FrameSubscriber {
 
     /// Checks that this subscriber is still attached to the frame service a
     /// new camera would open. When the service's shared memory was deleted
-    /// (files removed from `/dev/shm`), opening it recreates it
+    /// (files removed from `/dev/shm`), the next camera recreates it
     /// ([`super::services::remove_orphaned`]) and this subscriber, left on
     /// the old one, re-attaches to the new one: new ports, counters kept.
     /// Returns whether it re-attached. Opens a service, so it allocates:
     /// call it while the camera is silent, not per frame.
     pub fn reattach_if_orphaned(&mut self, node: &Node<ipc::Service>) -> Result<bool, IpcError> {
-        let service = open_frame_service(node)?;
+        // Open only, never create: this node still holds the old ports, and
+        // iceoryx2 aborts when a node registers a service twice. The next
+        // camera recreates the services; until then there is nothing to
+        // attach to.
+        let Some(service) = open_existing_frame_service(node)? else {
+            return Ok(false);
+        };
         let mine = self.ports.subscriber.id();
         let mut attached = false;
         service.dynamic_config().list_subscribers(|d| {
@@ -407,11 +414,14 @@ impl FrameSubscriber {
         if attached {
             return Ok(false);
         }
+        let Some(event) = open_existing_event_service(node, FRAME_EVENT_SERVICE)? else {
+            return Ok(false);
+        };
         warn!(
             service = FRAME_SERVICE,
             "the frame service was recreated (its shared memory had been deleted); re-attaching"
         );
-        let (ports, listener_fd) = Ports::open(node, &service)?;
+        let (ports, listener_fd) = Ports::open(&service, &event)?;
         self.ports = ports;
         self.listener_fd = listener_fd;
         self.state.predictor.reset();

@@ -192,6 +192,59 @@ pub fn open_pose_service(
     .map_err(|e| iox_err("open service", POSE_SERVICE)(e.to_string()))
 }
 
+/// Opens the frame service only if it exists and is usable: `None` when it
+/// does not exist or lost its shared memory and was not recreated yet. It
+/// never creates the service, so a process that still holds ports of the
+/// old one can call it (iceoryx2 refuses to register a service twice in one
+/// node).
+pub fn open_existing_frame_service(
+    node: &Node<ipc::Service>,
+) -> Result<Option<publish_subscribe::PortFactory<ipc::Service, Frame, ()>>, IpcError> {
+    let opened = node
+        .service_builder(&service_name(FRAME_SERVICE)?)
+        .publish_subscribe::<Frame>()
+        .enable_safe_overflow(true)
+        .subscriber_max_buffer_size(1)
+        .subscriber_max_borrowed_samples(FRAME_MAX_BORROWED)
+        .history_size(0)
+        .max_publishers(MAX_PUBLISHERS)
+        .max_subscribers(FRAME_MAX_SUBSCRIBERS)
+        .open();
+    match opened {
+        Ok(factory) => Ok(Some(factory)),
+        Err(
+            PublishSubscribeOpenError::DoesNotExist
+            | PublishSubscribeOpenError::HangsInCreation
+            | PublishSubscribeOpenError::ServiceInCorruptedState
+            | PublishSubscribeOpenError::IsMarkedForDestruction,
+        ) => Ok(None),
+        Err(e) => Err(iox_err("open service", FRAME_SERVICE)(e.to_string())),
+    }
+}
+
+/// [`open_existing_frame_service`] for an event service.
+pub fn open_existing_event_service(
+    node: &Node<ipc::Service>,
+    name: &'static str,
+) -> Result<Option<event::PortFactory<ipc::Service>>, IpcError> {
+    let opened = node
+        .service_builder(&service_name(name)?)
+        .event()
+        .max_notifiers(4)
+        .max_listeners(POSE_MAX_SUBSCRIBERS)
+        .open();
+    match opened {
+        Ok(factory) => Ok(Some(factory)),
+        Err(
+            EventOpenError::DoesNotExist
+            | EventOpenError::HangsInCreation
+            | EventOpenError::ServiceInCorruptedState
+            | EventOpenError::IsMarkedForDestruction,
+        ) => Ok(None),
+        Err(e) => Err(iox_err("open event service", name)(e.to_string())),
+    }
+}
+
 /// Whether opening failed because the service's shared state is gone: its
 /// static description exists but its dynamic segment does not (files
 /// deleted from `/dev/shm` while processes used it), so nobody can open it
@@ -220,7 +273,9 @@ fn event_orphaned(e: &EventOpenOrCreateError) -> bool {
 /// the next open creates it anew. Processes still attached keep their own
 /// mappings of the old one (a running camera keeps publishing into it); the
 /// frame subscriber notices that it was left behind and re-attaches
-/// ([`crate::ipc::FrameSubscriber::reattach_if_orphaned`]).
+/// ([`crate::ipc::FrameSubscriber::reattach_if_orphaned`]). Only a node that
+/// holds no ports of the service may call this (through the `open_*`
+/// functions): iceoryx2 aborts when one node registers a service twice.
 pub fn remove_orphaned(node: &Node<ipc::Service>, name: &'static str, pattern: MessagingPattern) {
     warn!(
         service = name,
