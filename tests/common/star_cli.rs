@@ -18,11 +18,14 @@ pub fn star(args: &[&str]) -> Output {
 }
 
 /// A 60-frame synthetic sequence (50 Hz, stamps from 1000 s), made once per
-/// test process.
+/// test process in the target's temporary folder (one per test binary,
+/// replaced by the next run, so runs do not pile up copies in /tmp).
 pub fn dataset() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("star_cli_ds_{}", std::process::id()));
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
+            .join(format!("star_cli_ds_{}", env!("CARGO_CRATE_NAME")));
+        let _ = std::fs::remove_dir_all(&dir);
         let o = star(&[
             "--log",
             "warn",
