@@ -283,3 +283,37 @@ fn check_config_opens_every_file_it_names() {
     );
     assert!(check_config(&cfg, &["--values-only"]).status.success());
 }
+
+#[test]
+fn a_fifo_config_or_material_library_is_refused_not_waited_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let mkfifo = |path: &Path| {
+        let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+        // SAFETY: mkfifo with a valid C string.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+    };
+    let fifo_cfg = dir.path().join("fifo.toml");
+    mkfifo(&fifo_cfg);
+    let mtl = dir.path().join("fifo.mtl");
+    mkfifo(&mtl);
+    let mesh = dir.path().join("map.obj");
+    std::fs::write(
+        &mesh,
+        "mtllib fifo.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n",
+    )
+    .unwrap();
+    let cfg = config_for(dir.path(), &mesh, "");
+    for (config, named) in [(&fifo_cfg, &fifo_cfg), (&cfg, &mtl)] {
+        let mut run = common::star_cli::spawn(&["check-config", config.to_str().unwrap()]);
+        let (status, _) = run.wait_timeout(
+            std::time::Duration::from_secs(60),
+            std::time::Instant::now(),
+        );
+        let err = run.drain_log();
+        assert!(!status.success(), "{err}");
+        assert!(
+            err.contains(named.to_str().unwrap()) && err.contains("not a regular file"),
+            "{err}"
+        );
+    }
+}

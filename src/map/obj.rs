@@ -279,6 +279,12 @@ fn load_mtl_checked(path: &Path) -> (tobj::MTLLoadResult, MtlRecord) {
         names: Vec::new(),
         error: None,
     };
+    // A FIFO would block the read forever.
+    let regular = std::fs::metadata(path).map(|m| m.is_file());
+    if let Ok(false) = regular {
+        record.error = Some("not a regular file".into());
+        return (Err(tobj::LoadError::OpenFileFailed), record);
+    }
     let text = match std::fs::read_to_string(path) {
         Ok(text) => text,
         Err(e) => {
