@@ -313,7 +313,9 @@ def test_v4l2loopback_path(rig, autopilot, dataset):
 
 def test_wrong_size_frames_are_rejected_and_counted(rig):
     """(5, continued) A camera publishing frames of another size: the tracker
-    rejects and counts them, keeps running, and exits cleanly."""
+    rejects and counts them, keeps running, stops on SIGTERM with its
+    summary, and exits 1 saying it tracked nothing (issue 24: a run that
+    tracked nothing fails)."""
     track = rig.start_tracker()
     camera = rig.spawn(["camera", "--config", str(rig.config), "--source", "pattern:320x240",
                         "--frames", "20"], "camera")
@@ -322,7 +324,8 @@ def test_wrong_size_frames_are_rejected_and_counted(rig):
     assert track.poll() is None, "tracker died on bad frames"
     track.send_signal(signal.SIGTERM)
     out = summary_line(track)
-    assert track.returncode == 0
+    assert track.returncode == 1, out
+    assert "tracked nothing" in track.log_path.read_text(), track.log_path.read_text()[-2000:]
     rejected = int(out.split("rejected ")[1].split()[0])
     assert rejected >= 10, out
     assert "frames processed 0" in out, out

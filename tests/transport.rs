@@ -75,6 +75,8 @@ fn inconsistent_headers_are_rejected_and_counted() {
     assert_eq!(publisher.stats().published, 0);
 
     // A foreign publisher that skips validation: the subscriber rejects.
+    // The service admits one publisher, so the checked one steps aside.
+    drop(publisher);
     let raw = open_frame_service(&node)
         .expect("service")
         .publisher_builder()
@@ -99,6 +101,8 @@ fn inconsistent_headers_are_rejected_and_counted() {
     }
     assert_eq!(subscriber.stats().rejected, 3);
 
+    drop(raw);
+    let mut publisher = FramePublisher::new(&node).expect("publisher again");
     publish_gray(&mut publisher, 8, 8, 5);
     assert!(subscriber.take_latest().expect("receive").is_some());
 }

@@ -165,6 +165,9 @@ pub enum CameraError {
     /// The replay reached the end of the dataset.
     #[error("end of dataset")]
     EndOfStream,
+    /// A stop signal arrived while the source waited for a frame.
+    #[error("stopped by a signal while waiting for a frame")]
+    Stopped,
 }
 
 impl CameraError {
@@ -175,7 +178,7 @@ impl CameraError {
             CameraError::Open { .. }
             | CameraError::Disconnected { .. }
             | CameraError::Timeout { .. } => ErrorAction::Reconnect,
-            CameraError::EndOfStream => ErrorAction::End,
+            CameraError::EndOfStream | CameraError::Stopped => ErrorAction::End,
             CameraError::InvalidUri { .. }
             | CameraError::FeatureDisabled { .. }
             | CameraError::Unsupported { .. }

@@ -10,6 +10,14 @@
 //! can associate poses with ground truth.
 //! Decoding a PNG allocates; replay is a test tool, not the flight path.
 //!
+//! A frame that is missing, does not decode, is not a regular file (a FIFO
+//! would block the reader forever) or differs in size from the first frame
+//! is a [`CameraError::Dataset`] naming the file: the run stops with an
+//! error rather than publish a partial replay. The wait for a frame's due
+//! time sleeps in slices of at most 50 ms and ends early with
+//! [`CameraError::Stopped`] once a stop signal arrived, so a slow replay or
+//! a long gap between stamps never delays a shutdown.
+//!
 //! The frame list is read here with a minimal `rgb.txt` parser; when the
 //! shared `dataset` module lands this can call `dataset::Dataset` instead.
 
@@ -19,6 +27,7 @@ use std::time::Duration;
 use super::{CameraError, FrameSource, SourceSettings};
 use crate::clock::monotonic_now_ns;
 use crate::ipc::{FrameHeader, FrameSlot, FRAME_MAX_HEIGHT, FRAME_MAX_WIDTH};
+use crate::service::signals::sleep_unless_shutdown;
 
 /// One line of `rgb.txt`.
 #[derive(Debug, Clone, PartialEq)]
@@ -33,10 +42,16 @@ pub struct ReplayEntry {
 /// must increase. Errors name the file and line.
 pub fn read_frame_list(dir: &Path) -> Result<Vec<ReplayEntry>, CameraError> {
     let file = dir.join("rgb.txt");
-    let text = std::fs::read_to_string(&file).map_err(|e| CameraError::Dataset {
-        path: file.clone(),
-        reason: format!("cannot read: {e}"),
-    })?;
+    let mut text = String::new();
+    crate::dataset::open_regular_file(&file)
+        .and_then(|mut f| {
+            std::io::Read::read_to_string(&mut f, &mut text)
+                .map_err(|e| crate::dataset::DatasetError::io(&file, e))
+        })
+        .map_err(|e| CameraError::Dataset {
+            path: file.clone(),
+            reason: format!("cannot read: {e}"),
+        })?;
     let mut entries: Vec<ReplayEntry> = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -87,6 +102,8 @@ pub struct ReplaySource {
     next: usize,
     /// Monotonic time that corresponds to the first frame's dataset time.
     start_mono_ns: Option<u64>,
+    /// The first frame's size: every later frame must match it.
+    size: Option<(u32, u32)>,
 }
 
 impl ReplaySource {
@@ -111,6 +128,7 @@ impl ReplaySource {
             looping: settings.replay_loop,
             next: 0,
             start_mono_ns: None,
+            size: None,
         })
     }
 
@@ -124,25 +142,45 @@ impl ReplaySource {
         self.entries.is_empty()
     }
 
-    fn load(dir: &Path, entry: &ReplayEntry, slot: &mut FrameSlot<'_>) -> Result<(), CameraError> {
+    fn load(
+        dir: &Path,
+        entry: &ReplayEntry,
+        expected: &mut Option<(u32, u32)>,
+        slot: &mut FrameSlot<'_>,
+    ) -> Result<(), CameraError> {
         let path = dir.join(&entry.path);
-        let image = image::open(&path)
-            .map_err(|e| CameraError::Dataset {
-                path: path.clone(),
-                reason: format!("cannot decode image: {e}"),
-            })?
+        let bad = |reason: String| CameraError::Dataset {
+            path: path.clone(),
+            reason,
+        };
+        let file = crate::dataset::open_regular_file(&path)
+            .map_err(|e| bad(format!("cannot read the frame: {e}")))?;
+        let image = image::ImageReader::new(std::io::BufReader::new(file))
+            .with_guessed_format()
+            .map_err(|e| bad(format!("cannot read the frame: {e}")))?
+            .decode()
+            .map_err(|e| bad(format!("cannot decode image: {e}")))?
             .into_luma8();
         let (w, h) = image.dimensions();
         if w > FRAME_MAX_WIDTH || h > FRAME_MAX_HEIGHT || w == 0 || h == 0 {
-            return Err(CameraError::Dataset {
-                path,
-                reason: format!(
-                    "image is {w}x{h}, frames hold 1x1 to {FRAME_MAX_WIDTH}x{FRAME_MAX_HEIGHT}"
-                ),
-            });
+            return Err(bad(format!(
+                "image is {w}x{h}, frames hold 1x1 to {FRAME_MAX_WIDTH}x{FRAME_MAX_HEIGHT}"
+            )));
+        }
+        let (want_w, want_h) = *expected.get_or_insert((w, h));
+        if (w, h) != (want_w, want_h) {
+            return Err(bad(format!(
+                "image is {w}x{h} but the first frame is {want_w}x{want_h}"
+            )));
         }
         let bytes = image.as_raw();
-        slot.pixels[..bytes.len()].copy_from_slice(bytes);
+        let Some(pixels) = slot.pixels.get_mut(..bytes.len()) else {
+            return Err(bad(format!(
+                "image of {} bytes does not fit a frame",
+                bytes.len()
+            )));
+        };
+        pixels.copy_from_slice(bytes);
         *slot.header = FrameHeader::gray8(0, w, h);
         slot.header.dataset_stamp_ns = (entry.timestamp_s * 1e9).round() as i64;
         Ok(())
@@ -170,16 +208,18 @@ impl FrameSource for ReplaySource {
         }
         let index = self.next;
         self.next += 1;
-        let entry = &self.entries[index];
-        let first_s = self.entries[0].timestamp_s;
+        let (Some(entry), Some(first)) = (self.entries.get(index), self.entries.first()) else {
+            return Err(CameraError::EndOfStream);
+        };
+        let first_s = first.timestamp_s;
         // Decode before waiting so the frame goes out on time.
-        Self::load(&self.dir, entry, slot)?;
+        Self::load(&self.dir, entry, &mut self.size, slot)?;
         let start = *self.start_mono_ns.get_or_insert_with(monotonic_now_ns);
         let offset_ns = ((entry.timestamp_s - first_s) / self.speed * 1e9).round() as u64;
-        let due = start + offset_ns;
+        let due = start.saturating_add(offset_ns);
         let now = monotonic_now_ns();
-        if due > now {
-            std::thread::sleep(Duration::from_nanos(due - now));
+        if due > now && !sleep_unless_shutdown(Duration::from_nanos(due - now)) {
+            return Err(CameraError::Stopped);
         }
         slot.header.capture_ns = due;
         Ok(())

@@ -1,10 +1,10 @@
 //! `star camera`: the camera process. Reads the configured (or `--source`)
-//! camera and publishes its frames on the iceoryx2 frame service until
-//! SIGINT/SIGTERM, reconnecting when the camera fails.
+//! camera and publishes its frames on the iceoryx2 frame service until a stop
+//! signal (SIGTERM, SIGINT, SIGHUP, SIGQUIT, SIGUSR1), reconnecting when the
+//! camera fails.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
@@ -13,7 +13,7 @@ use tracing::{info, warn};
 use crate::camera::{open_source, run_camera, RunnerSettings, SourceUri};
 use crate::config::Config;
 use crate::ipc::{create_node, load_iceoryx_config, FramePublisher};
-use crate::service::Service;
+use crate::service::{signals, Service};
 
 /// Options of `star camera`.
 #[derive(Debug, clap::Args)]
@@ -61,6 +61,8 @@ pub fn run(args: &CameraArgs) -> Result<()> {
         settings.replay_speed = speed;
     }
     settings.replay_loop |= args.looping;
+    // Before iceoryx2: see `signals::install_shutdown_handler`.
+    let shutdown = signals::install_shutdown_handler()?;
     let iox =
         load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
     let node = create_node("star-camera", &iox).context("iceoryx2 node")?;
@@ -68,13 +70,15 @@ pub fn run(args: &CameraArgs) -> Result<()> {
     // systemd: READY=1 once the publisher is up (star-camera.service is
     // Type=notify), and WATCHDOG=1 while the runner loop turns: it asks
     // `stop` between frames and while it waits to reconnect a camera.
-    let shutdown = Arc::new(AtomicBool::new(false));
     let service = Service::start(shutdown.clone()).context("service thread")?;
     let watchdog = service.watchdog();
     service.ready();
     info!(source = %uri, "camera process started");
     let stop = || {
         watchdog.feed();
+        if shutdown.load(Ordering::Relaxed) {
+            return true;
+        }
         let stopping = node.wait(Duration::ZERO).is_err();
         if stopping {
             shutdown.store(true, Ordering::Relaxed);

@@ -1,6 +1,7 @@
 //! `star localize`: run the STAR loop over a recorded dataset and write the
 //! estimated trajectory (TUM format), with a progress bar and a timing and
-//! quality summary.
+//! quality summary. Exits non-zero when a frame could not be read (missing,
+//! truncated, wrong size, not a regular file) or nothing was tracked.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -120,6 +121,26 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         .write(&args.output)
         .with_context(|| format!("writing {}", args.output.display()))?;
     print_summary(&report, &args.output);
+    check_report(&report)
+}
+
+/// A run whose dataset had unreadable frames, or that tracked nothing,
+/// failed: the trajectory is written, and the error says why.
+fn check_report(report: &OfflineReport) -> Result<()> {
+    if let Some((index, first)) = report.bad_frames.first() {
+        anyhow::bail!(
+            "{} frames could not be used ({} processed); the first, frame {index}: {first}",
+            report.bad_frames.len(),
+            report.frames
+        );
+    }
+    if report.estimate.is_empty() {
+        anyhow::bail!(
+            "tracked nothing: {} frames processed, {} lost, none tracked",
+            report.frames,
+            report.lost_frames
+        );
+    }
     Ok(())
 }
 

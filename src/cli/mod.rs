@@ -37,11 +37,16 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// Validate a configuration file and print the effective values.
+    /// Validate a configuration file, open every file it names (map,
+    /// relocalization database, iceoryx2 config, replay dataset) and print
+    /// the effective values.
     CheckConfig {
         /// The TOML file (default: /etc/star/star.toml).
         #[arg(default_value = "/etc/star/star.toml")]
         config: PathBuf,
+        /// Check the values only; do not open the files the config names.
+        #[arg(long)]
+        values_only: bool,
     },
     /// Benchmarks that print figures (tracker pairs, ...).
     #[command(subcommand)]
@@ -104,7 +109,10 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     init_tracing(cli.log.as_deref());
     let result = match cli.command {
-        Command::CheckConfig { config } => check_config::run(&config),
+        Command::CheckConfig {
+            config,
+            values_only,
+        } => check_config::run(&config, values_only),
         Command::Localize(args) => localize::run(&args),
         Command::Bench(cmd) => bench::run(&cmd),
         Command::Render(args) => render::run(&args),

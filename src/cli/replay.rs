@@ -56,6 +56,7 @@ fn to_loopback(args: &ReplayArgs, device: &std::path::Path) -> Result<()> {
     use crate::camera::{CameraError, FrameSource, SourceSettings};
     use crate::ipc::{Frame, FrameSlot};
 
+    crate::service::signals::install_shutdown_handler()?;
     let settings = SourceSettings {
         replay_speed: args.speed,
         replay_loop: args.looping,
@@ -70,7 +71,7 @@ fn to_loopback(args: &ReplayArgs, device: &std::path::Path) -> Result<()> {
     loop {
         match source.next_frame(&mut FrameSlot::from_frame(&mut frame)) {
             Ok(()) => {}
-            Err(CameraError::EndOfStream) => break,
+            Err(CameraError::EndOfStream | CameraError::Stopped) => break,
             Err(e) => return Err(e).context("replay"),
         }
         let view = frame.view().context("replayed frame")?;

@@ -5,6 +5,10 @@
 //! thread; when the camera thread ends (a replay without loop), the tracker
 //! finishes the frames in flight and stops. With a `replay:` source the
 //! calibration is the dataset's `camera.toml`.
+//!
+//! Exits non-zero when the camera source failed (a replay frame missing,
+//! truncated, of the wrong size or not a regular file) or when the run
+//! tracked nothing, after the trajectory is flushed and the summary printed.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -54,7 +58,14 @@ pub fn run(args: &RunArgs) -> Result<()> {
     }
     let hint = initial_pose(args.track.init_pose.as_deref(), &config)?;
     let mut stop = stop_when(&args.track)?;
-    let tracker = start(&config, hint, shutdown.clone())?;
+    let tracker = match start(&config, hint, shutdown.clone()) {
+        Ok(tracker) => tracker,
+        Err(e) if e.is::<crate::tracker::StoppedDuringStart>() => {
+            println!("track: {e}");
+            return Ok(());
+        }
+        Err(e) => return Err(e),
+    };
     let done = Arc::new(AtomicBool::new(false));
     let camera = {
         let (config, shutdown, done) = (config.clone(), shutdown.clone(), done.clone());
@@ -62,9 +73,11 @@ pub fn run(args: &RunArgs) -> Result<()> {
             .name("camera".into())
             .spawn(move || {
                 let _done = DoneFlag(done);
-                if let Err(e) = camera_thread(&config, &uri, &shutdown) {
+                let result = camera_thread(&config, &uri, &shutdown);
+                if let Err(e) = &result {
                     warn!(error = format!("{e:#}"), "camera thread failed");
                 }
+                result
             })
             .context("starting the camera thread")?
     };
@@ -72,8 +85,15 @@ pub fn run(args: &RunArgs) -> Result<()> {
     let summary = tracker.run(&mut stop);
     // Stop the camera too when the tracker ended first.
     shutdown.store(true, Ordering::Relaxed);
-    let _ = camera.join();
-    finish(&summary?, args.track.trajectory.as_deref())
+    let camera_result = match camera.join() {
+        Ok(result) => result,
+        Err(_) => Err(anyhow::anyhow!("the camera thread panicked")),
+    };
+    let summary = summary?;
+    let tracked = finish(&summary, args.track.trajectory.as_deref());
+    // The source's failure says more than "tracked nothing".
+    camera_result.context("the camera source failed")?;
+    tracked
 }
 
 fn camera_thread(config: &Config, uri: &SourceUri, shutdown: &AtomicBool) -> Result<()> {

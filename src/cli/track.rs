@@ -1,7 +1,11 @@
 //! `star track`: the tracker process. Loads the config and the map, renders
 //! the first keyframe at the initial pose, then tracks the frames the camera
 //! process publishes on iceoryx2 and sends the poses to the pose service and
-//! to the autopilot (MAVLink), until SIGTERM/SIGINT.
+//! to the autopilot (MAVLink), until a stop signal (SIGTERM, SIGINT, SIGHUP,
+//! SIGQUIT, SIGUSR1: all graceful, the trajectory flushed).
+//!
+//! Exits non-zero when the run tracked nothing (unless a signal stopped it
+//! before any frame arrived), with a line saying why.
 //!
 //! The initial pose comes from `--init-pose` or `tracker.init_pose`
 //! ([`initial_pose`]). With a relocalization database (`reloc.database` or
@@ -16,7 +20,7 @@ use crate::config::Config;
 use crate::dataset::TrajectoryWriter;
 use crate::geometry::Pose;
 use crate::service::signals;
-use crate::tracker::{start, StopWhen, TrackSummary};
+use crate::tracker::{start, StopReason, StopWhen, StoppedDuringStart, TrackSummary};
 
 use super::pose_arg::parse_pose;
 
@@ -127,7 +131,14 @@ pub fn run(args: &TrackArgs) -> Result<()> {
     let config = load_config(args)?;
     let hint = initial_pose(args.init_pose.as_deref(), &config)?;
     let mut stop = stop_when(args)?;
-    let tracker = start(&config, hint, shutdown)?;
+    let tracker = match start(&config, hint, shutdown) {
+        Ok(tracker) => tracker,
+        Err(e) if e.is::<StoppedDuringStart>() => {
+            println!("track: {e}");
+            return Ok(());
+        }
+        Err(e) => return Err(e),
+    };
     let summary = tracker.run(&mut stop)?;
     finish(&summary, args.trajectory.as_deref())
 }
@@ -174,5 +185,28 @@ pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
         ),
         None => println!("track: MAVLink disabled"),
     }
-    Ok(())
+    check_tracked(summary)
+}
+
+/// A run that tracked nothing failed, with one exception: a tracker stopped
+/// by a signal before any frame arrived (`systemctl stop` of an idle
+/// service) did nothing wrong.
+pub fn check_tracked(summary: &TrackSummary) -> Result<()> {
+    if summary.tracked > 0 {
+        return Ok(());
+    }
+    let frames_seen = summary.frames + summary.rejected;
+    if frames_seen == 0 && summary.stop_reason == Some(StopReason::Shutdown) {
+        println!("track: stopped by a signal before any frame arrived");
+        return Ok(());
+    }
+    if frames_seen == 0 {
+        bail!("tracked nothing: no frame arrived from the camera");
+    }
+    bail!(
+        "tracked nothing: {} frames processed ({} lost) and {} rejected, none tracked",
+        summary.frames,
+        summary.lost,
+        summary.rejected
+    )
 }

@@ -41,6 +41,15 @@ pub enum DatasetError {
         /// The file.
         path: PathBuf,
     },
+    /// The path exists but is not a regular file (a FIFO, a device, a
+    /// folder): reading it could block forever or never end.
+    #[error("{} is a {kind}, not a regular file", path.display())]
+    NotRegularFile {
+        /// The path.
+        path: PathBuf,
+        /// What it is instead (`FIFO`, `directory`, ...).
+        kind: &'static str,
+    },
     /// Reading or writing a file failed for another reason.
     #[error("cannot access {path}: {source}")]
     Io {
@@ -145,8 +154,66 @@ impl DatasetError {
     }
 }
 
+/// What a file type is called in errors.
+pub fn file_kind(file_type: std::fs::FileType) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    if file_type.is_file() {
+        "regular file"
+    } else if file_type.is_dir() {
+        "directory"
+    } else if file_type.is_fifo() {
+        "FIFO"
+    } else if file_type.is_socket() {
+        "socket"
+    } else if file_type.is_char_device() {
+        "character device"
+    } else if file_type.is_block_device() {
+        "block device"
+    } else {
+        "special file"
+    }
+}
+
+/// Opens `path` for reading only if it is a regular file. The file is opened
+/// non-blocking first (opening a FIFO without a writer would block forever),
+/// checked, then switched back to blocking reads; so a FIFO, a device or a
+/// folder is refused at once with an error naming it.
+pub fn open_regular_file(path: &Path) -> Result<std::fs::File, DatasetError> {
+    use std::os::fd::AsRawFd;
+    use std::os::unix::fs::OpenOptionsExt;
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(path)
+        .map_err(|e| DatasetError::io(path, e))?;
+    let file_type = file
+        .metadata()
+        .map_err(|e| DatasetError::io(path, e))?
+        .file_type();
+    if !file_type.is_file() {
+        return Err(DatasetError::NotRegularFile {
+            path: path.to_path_buf(),
+            kind: file_kind(file_type),
+        });
+    }
+    // SAFETY: fcntl on a descriptor this function owns; F_GETFL/F_SETFL
+    // only change the file status flags.
+    let cleared = unsafe {
+        let fd = file.as_raw_fd();
+        let flags = libc::fcntl(fd, libc::F_GETFL);
+        flags >= 0 && libc::fcntl(fd, libc::F_SETFL, flags & !libc::O_NONBLOCK) == 0
+    };
+    if !cleared {
+        return Err(DatasetError::io(path, std::io::Error::last_os_error()));
+    }
+    Ok(file)
+}
+
 pub(crate) fn read_text(path: &Path) -> Result<String, DatasetError> {
-    std::fs::read_to_string(path).map_err(|e| DatasetError::io(path, e))
+    let mut text = String::new();
+    std::io::Read::read_to_string(&mut open_regular_file(path)?, &mut text)
+        .map_err(|e| DatasetError::io(path, e))?;
+    Ok(text)
 }
 
 pub(crate) fn write_text(path: &Path, text: &str) -> Result<(), DatasetError> {

@@ -24,7 +24,7 @@ pub fn luma601(r: u8, g: u8, b: u8) -> u8 {
 }
 
 fn open_decoder(path: &Path) -> Result<PngDecoder<BufReader<File>>, DatasetError> {
-    let file = File::open(path).map_err(|e| DatasetError::io(path, e))?;
+    let file = super::open_regular_file(path)?;
     PngDecoder::new(BufReader::new(file)).map_err(|e| DatasetError::Decode {
         path: path.to_path_buf(),
         message: e.to_string(),

@@ -23,6 +23,16 @@ pub enum CameraError {
     },
 }
 
+/// Largest magnitude accepted for a radial coefficient (`k1`, `k2`, `k3`).
+/// Calibrations of real lenses in the OpenCV 5-coefficient model stay
+/// within a few units; beyond 100 the value is a typo or a unit mix-up.
+pub const MAX_RADIAL_COEFFICIENT: f64 = 100.0;
+/// Largest magnitude accepted for a tangential coefficient (`p1`, `p2`):
+/// real lenses stay below 0.01; 1 would be a lens tilted beyond use.
+pub const MAX_TANGENTIAL_COEFFICIENT: f64 = 1.0;
+const RADIAL_REASON: &str = "expected a finite radial coefficient within -100..=100";
+const TANGENTIAL_REASON: &str = "expected a finite tangential coefficient within -1..=1";
+
 /// Radial-tangential distortion coefficients in OpenCV order.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -157,15 +167,25 @@ impl PinholeCamera {
             }
         }
         let d = &self.distortion;
-        for (name, v) in [
-            ("distortion.k1", d.k1),
-            ("distortion.k2", d.k2),
-            ("distortion.p1", d.p1),
-            ("distortion.p2", d.p2),
-            ("distortion.k3", d.k3),
+        for (name, v, bound, reason) in [
+            ("distortion.k1", d.k1, MAX_RADIAL_COEFFICIENT, RADIAL_REASON),
+            ("distortion.k2", d.k2, MAX_RADIAL_COEFFICIENT, RADIAL_REASON),
+            (
+                "distortion.p1",
+                d.p1,
+                MAX_TANGENTIAL_COEFFICIENT,
+                TANGENTIAL_REASON,
+            ),
+            (
+                "distortion.p2",
+                d.p2,
+                MAX_TANGENTIAL_COEFFICIENT,
+                TANGENTIAL_REASON,
+            ),
+            ("distortion.k3", d.k3, MAX_RADIAL_COEFFICIENT, RADIAL_REASON),
         ] {
-            if !v.is_finite() {
-                return bad(name, v, "expected a finite coefficient");
+            if !(v.is_finite() && v.abs() <= bound) {
+                return bad(name, v, reason);
             }
         }
         Ok(())

@@ -16,6 +16,9 @@ pub mod look;
 pub mod se3;
 pub mod transform;
 
-pub use camera::{CameraError, Distortion, PinholeCamera, UndistortMap};
+pub use camera::{
+    CameraError, Distortion, PinholeCamera, UndistortMap, MAX_RADIAL_COEFFICIENT,
+    MAX_TANGENTIAL_COEFFICIENT,
+};
 pub use se3::{adjoint, exp_se3, hat, log_se3, renormalized, Pose};
 pub use transform::TransformConfig;

@@ -18,6 +18,7 @@
 //! wake it through the event.
 
 use std::ops::ControlFlow;
+use std::path::Path;
 use std::time::Duration;
 
 use iceoryx2::identifiers::UniquePublisherId;
@@ -26,13 +27,18 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::{CallbackProgression, PortFactory};
 use iceoryx2::sample::Sample;
 use iceoryx2::service::ipc;
 use iceoryx2_bb_posix::file_descriptor::FileDescriptorBased;
 use tracing::{debug, info, warn};
 
 use super::frame::{Frame, FrameError, FrameSlot, FrameView};
-use super::services::{open_event_service, open_frame_service, FRAME_EVENT_SERVICE, FRAME_SERVICE};
+use super::services::{
+    check_shm_space, frame_segment_bytes, open_event_service, open_existing_event_service,
+    open_existing_frame_service, open_frame_service, publisher_refused, FRAME_EVENT_SERVICE,
+    FRAME_MAX_LOANED, FRAME_SERVICE, SHM_DIR,
+};
 use super::IpcError;
 use crate::clock::monotonic_now_ns;
 
@@ -72,12 +78,20 @@ pub struct FramePublisher {
 impl FramePublisher {
     /// Opens the frame and event services on `node` and creates the ports.
     pub fn new(node: &Node<ipc::Service>) -> Result<Self, IpcError> {
+        check_shm_space(Path::new(SHM_DIR), FRAME_SERVICE, frame_segment_bytes())?;
         let service = open_frame_service(node)?;
         let publisher = service
             .publisher_builder()
-            .max_loaned_samples(1)
+            .max_loaned_samples(FRAME_MAX_LOANED)
             .create()
-            .map_err(|e| IpcError::iceoryx("create publisher", FRAME_SERVICE, e))?;
+            .map_err(|e| {
+                let mut holders = Vec::new();
+                service.dynamic_config().list_publishers(|p| {
+                    holders.push(p.node_id);
+                    CallbackProgression::Continue
+                });
+                publisher_refused(node, FRAME_SERVICE, &holders, e)
+            })?;
         let event = open_event_service(node, FRAME_EVENT_SERVICE)?;
         let notifier = event
             .notifier_builder()
@@ -190,6 +204,40 @@ pub enum RunEnd {
 struct Ports {
     subscriber: Subscriber<ipc::Service, Frame, ()>,
     listener: Listener<ipc::Service>,
+}
+
+impl Ports {
+    /// A subscriber on `service` and a listener on the frame event, and the
+    /// listener's socket.
+    fn open(
+        service: &iceoryx2::service::port_factory::publish_subscribe::PortFactory<
+            ipc::Service,
+            Frame,
+            (),
+        >,
+        event: &iceoryx2::service::port_factory::event::PortFactory<ipc::Service>,
+    ) -> Result<(Self, libc::c_int), IpcError> {
+        let subscriber = service
+            .subscriber_builder()
+            .buffer_size(1)
+            .create()
+            .map_err(|e| IpcError::iceoryx("create subscriber", FRAME_SERVICE, e))?;
+        let listener = event
+            .listener_builder()
+            .create()
+            .map_err(|e| IpcError::iceoryx("create listener", FRAME_EVENT_SERVICE, e))?;
+        // SAFETY: the descriptor is only used while `listener` (which owns
+        // it) is alive: both live in the `FrameSubscriber`, and the
+        // descriptor is replaced whenever the listener is.
+        let listener_fd = unsafe { listener.file_descriptor().native_handle() };
+        Ok((
+            Self {
+                subscriber,
+                listener,
+            },
+            listener_fd,
+        ))
+    }
 }
 
 #[derive(Default)]
@@ -328,28 +376,56 @@ impl FrameSubscriber {
     /// Opens the frame and event services on `node` and creates the ports.
     pub fn new(node: &Node<ipc::Service>) -> Result<Self, IpcError> {
         let service = open_frame_service(node)?;
-        let subscriber = service
-            .subscriber_builder()
-            .buffer_size(1)
-            .create()
-            .map_err(|e| IpcError::iceoryx("create subscriber", FRAME_SERVICE, e))?;
         let event = open_event_service(node, FRAME_EVENT_SERVICE)?;
-        let listener = event
-            .listener_builder()
-            .create()
-            .map_err(|e| IpcError::iceoryx("create listener", FRAME_EVENT_SERVICE, e))?;
-        // SAFETY: the descriptor is only used while `listener` (which owns
-        // it) is alive: both live in `Self`.
-        let listener_fd = unsafe { listener.file_descriptor().native_handle() };
+        let (ports, listener_fd) = Ports::open(&service, &event)?;
         Ok(Self {
-            ports: Ports {
-                subscriber,
-                listener,
-            },
+            ports,
             state: ReceiveState::default(),
             spin: Duration::ZERO,
             listener_fd,
         })
+    }
+
+    /// Checks that this subscriber is still attached to the frame service a
+    /// new camera would open. When the service's shared memory was deleted
+    /// (files removed from `/dev/shm`), the next camera recreates it
+    /// ([`super::services::remove_orphaned`]) and this subscriber, left on
+    /// the old one, re-attaches to the new one: new ports, counters kept.
+    /// Returns whether it re-attached. Opens a service, so it allocates:
+    /// call it while the camera is silent, not per frame.
+    pub fn reattach_if_orphaned(&mut self, node: &Node<ipc::Service>) -> Result<bool, IpcError> {
+        // Open only, never create: this node still holds the old ports, and
+        // iceoryx2 aborts when a node registers a service twice. The next
+        // camera recreates the services; until then there is nothing to
+        // attach to.
+        let Some(service) = open_existing_frame_service(node)? else {
+            return Ok(false);
+        };
+        let mine = self.ports.subscriber.id();
+        let mut attached = false;
+        service.dynamic_config().list_subscribers(|d| {
+            attached = d.subscriber_id == mine;
+            if attached {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        if attached {
+            return Ok(false);
+        }
+        let Some(event) = open_existing_event_service(node, FRAME_EVENT_SERVICE)? else {
+            return Ok(false);
+        };
+        warn!(
+            service = FRAME_SERVICE,
+            "the frame service was recreated (its shared memory had been deleted); re-attaching"
+        );
+        let (ports, listener_fd) = Ports::open(&service, &event)?;
+        self.ports = ports;
+        self.listener_fd = listener_fd;
+        self.state.predictor.reset();
+        Ok(true)
     }
 
     /// Polls for frames during `spin` either side of a frame's predicted

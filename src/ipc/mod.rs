@@ -9,7 +9,10 @@
 //! Subscribers block on an iceoryx2 event listener, not a sleep loop, and
 //! poll briefly around a periodic camera's predicted arrival.
 //! Each process calls [`services::create_node`] first, which removes the
-//! resources of crashed processes.
+//! resources of crashed processes. Each data service admits one publisher;
+//! `/dev/shm` space is checked before a publisher starts; a service whose
+//! shared memory was deleted is recreated, and the frame subscriber
+//! re-attaches to it ([`FrameSubscriber::reattach_if_orphaned`]).
 
 pub mod config;
 pub mod frame;
@@ -42,6 +45,35 @@ pub enum IpcError {
         /// The file.
         path: PathBuf,
         /// What was wrong.
+        reason: String,
+    },
+    /// A service's one publisher slot is taken: another camera (or tracker)
+    /// runs on the same iceoryx2 prefix.
+    #[error("iceoryx2 service `{service}` already has its publisher: {holder}; only one may publish on a service, so stop that process first (or give this one another iceoryx2 prefix)")]
+    PublisherTaken {
+        /// The service.
+        service: &'static str,
+        /// Who holds it: node name, pid and executable.
+        holder: String,
+    },
+    /// `/dev/shm` has less free space than a publisher's data segment needs.
+    #[error("{} has {free_bytes} bytes free but the data segment of iceoryx2 service `{service}` needs {needed_bytes} bytes; free space there (old segments of crashed runs?) or enlarge it", dir.display())]
+    ShmFull {
+        /// The shared-memory folder.
+        dir: PathBuf,
+        /// The service whose publisher needs the space.
+        service: String,
+        /// Bytes the segment needs.
+        needed_bytes: u64,
+        /// Bytes free.
+        free_bytes: u64,
+    },
+    /// The shared-memory folder could not be examined.
+    #[error("cannot check the free space of {}: {reason}", dir.display())]
+    SharedMemory {
+        /// The folder.
+        dir: PathBuf,
+        /// What failed.
         reason: String,
     },
     /// An iceoryx2 operation failed.

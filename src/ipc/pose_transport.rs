@@ -6,16 +6,20 @@
 //! so they are written into the loaned sample by value; the buffer keeps the
 //! last few and overwrites the oldest.
 
+use std::path::Path;
+
 use iceoryx2::node::Node;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::{CallbackProgression, PortFactory};
 use iceoryx2::service::ipc;
 
 use super::pose::PoseMsg;
 use super::services::{
-    open_event_service, open_pose_service, POSE_BUFFER, POSE_EVENT_SERVICE, POSE_SERVICE,
+    check_shm_space, open_event_service, open_pose_service, pose_segment_bytes, publisher_refused,
+    POSE_BUFFER, POSE_EVENT_SERVICE, POSE_SERVICE, SHM_DIR,
 };
 use super::IpcError;
 
@@ -28,10 +32,16 @@ pub struct PosePublisher {
 impl PosePublisher {
     /// Opens the pose and pose-event services on `node` and creates the ports.
     pub fn new(node: &Node<ipc::Service>) -> Result<Self, IpcError> {
-        let publisher = open_pose_service(node)?
-            .publisher_builder()
-            .create()
-            .map_err(|e| IpcError::iceoryx("create publisher", POSE_SERVICE, e))?;
+        check_shm_space(Path::new(SHM_DIR), POSE_SERVICE, pose_segment_bytes())?;
+        let service = open_pose_service(node)?;
+        let publisher = service.publisher_builder().create().map_err(|e| {
+            let mut holders = Vec::new();
+            service.dynamic_config().list_publishers(|p| {
+                holders.push(p.node_id);
+                CallbackProgression::Continue
+            });
+            publisher_refused(node, POSE_SERVICE, &holders, e)
+        })?;
         let notifier = open_event_service(node, POSE_EVENT_SERVICE)?
             .notifier_builder()
             .create()

@@ -170,6 +170,16 @@ pub enum MapError {
         /// The defect.
         problem: MeshProblem,
     },
+    /// Memory for the mesh could not be allocated.
+    #[error("map {path}: out of memory: {what} needs {needed_bytes} bytes and the allocation failed; use a smaller or decimated mesh, or a machine with more memory")]
+    OutOfMemory {
+        /// The map file.
+        path: PathBuf,
+        /// What was being allocated (`the OBJ text`, `vertex positions`, ...).
+        what: &'static str,
+        /// Bytes asked for.
+        needed_bytes: u64,
+    },
     /// A file could not be written.
     #[error("cannot write {path}: {source}")]
     Write {

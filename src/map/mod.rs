@@ -23,7 +23,7 @@ mod validate;
 
 pub use config::{MapConfig, MeshTransformConfig, MESH_SCALE_RANGE};
 pub use error::{MapError, MeshProblem, IN_MEMORY};
-pub use obj::{load_gray_texture, load_obj, luma601_255};
+pub use obj::{load_gray_texture, load_obj, luma601_255, MAX_VERTEX_COLOR, MAX_VERTEX_COORDINATE};
 pub use obj_write::write_obj;
 pub use subdivide::{subdivide, MAX_SUBDIVIDED_TRIANGLES};
 

@@ -14,6 +14,15 @@
 //! material has `map_Kd` (resolved relative to the MTL file's folder) are
 //! grouped by texture; the surface is then `texel * vertex_gray / 255`.
 //! OBJ `vt` v points up, so it is flipped (`1 - v`) to the image convention.
+//!
+//! Sane bounds, checked with line numbers before parsing: vertex coordinates
+//! within ±[`MAX_VERTEX_COORDINATE`] (file units), vertex colors within
+//! 0..=255. A `usemtl` naming a material no library defines, or a mesh with
+//! no color at all (no vertex colors, no `Kd`, no texture), loads with a
+//! warning: such surfaces render flat white, which gives the tracker nothing
+//! to align to. The text and the mesh's arrays are reserved with
+//! `try_reserve`, so a mesh too large for memory is a [`MapError::OutOfMemory`]
+//! naming the bytes, not an abort.
 
 use std::cell::RefCell;
 use std::collections::HashMap;
@@ -21,6 +30,57 @@ use std::path::{Path, PathBuf};
 
 use super::error::MapError;
 use super::{GrayTexture, Mesh, MeshGroup};
+
+/// Largest vertex coordinate magnitude accepted, in the file's units: a
+/// building in millimeters stays within 1e6 (a kilometer).
+pub const MAX_VERTEX_COORDINATE: f64 = 1e6;
+/// Largest vertex color component accepted (colors are 0..1 or 0..255).
+pub const MAX_VERTEX_COLOR: f64 = 255.0;
+
+/// Reserves `additional` more elements of `v`, or says how many bytes the
+/// map needed.
+fn reserve<T>(
+    v: &mut Vec<T>,
+    additional: usize,
+    path: &Path,
+    what: &'static str,
+) -> Result<(), MapError> {
+    v.try_reserve_exact(additional)
+        .map_err(|_| MapError::OutOfMemory {
+            path: path.to_path_buf(),
+            what,
+            needed_bytes: (additional as u64).saturating_mul(std::mem::size_of::<T>() as u64),
+        })
+}
+
+/// Reads the OBJ text, refusing what is not a regular file (a FIFO would
+/// block) and reserving the text's memory first.
+fn read_obj_text(path: &Path) -> Result<String, MapError> {
+    let read_err = |source| MapError::Read {
+        path: path.to_path_buf(),
+        source,
+    };
+    let meta = std::fs::metadata(path).map_err(read_err)?;
+    if !meta.is_file() {
+        return Err(read_err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file",
+        )));
+    }
+    let mut bytes: Vec<u8> = Vec::new();
+    let len = usize::try_from(meta.len()).unwrap_or(usize::MAX);
+    reserve(&mut bytes, len, path, "the OBJ text")?;
+    std::io::Read::read_to_end(
+        &mut std::fs::File::open(path).map_err(read_err)?,
+        &mut bytes,
+    )
+    .map_err(read_err)?;
+    String::from_utf8(bytes).map_err(|e| MapError::Parse {
+        path: path.to_path_buf(),
+        line: 0,
+        reason: format!("not UTF-8 text: {e}"),
+    })
+}
 
 /// Rec.601 luma of an RGB color in 0..1, scaled to 0..=255.
 #[inline]
@@ -30,11 +90,20 @@ pub fn luma601_255(rgb: [f32; 3]) -> f32 {
 
 /// Loads an OBJ mesh (see the module docs for how colors become gray).
 pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
-    let text = std::fs::read_to_string(path).map_err(|source| MapError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    prescan_obj(&text, path)?;
+    let text = read_obj_text(path)?;
+    let scan = prescan_obj(&text, path)?;
+    let mut mesh = Mesh::default();
+    // Triangulated and single-indexed, the mesh has at most one vertex per
+    // face corner and three indices per corner.
+    reserve(&mut mesh.positions, scan.corners, path, "vertex positions")?;
+    reserve(&mut mesh.gray, scan.corners, path, "vertex gray")?;
+    reserve(&mut mesh.uvs, scan.corners, path, "texture coordinates")?;
+    reserve(
+        &mut mesh.indices,
+        scan.corners.saturating_mul(3),
+        path,
+        "triangle indices",
+    )?;
     let obj_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
 
     // Material libraries: remember where each material came from (textures
@@ -75,7 +144,20 @@ pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
         .flat_map(|r| r.names.iter().map(move |n| (n.as_str(), r.dir.as_path())))
         .collect();
 
-    let mut mesh = Mesh::default();
+    let defined: std::collections::HashSet<&str> =
+        materials.iter().map(|m| m.name.as_str()).collect();
+    let mut warned: std::collections::HashSet<&str> = std::collections::HashSet::new();
+    for (line, name) in &scan.used_materials {
+        if !defined.contains(name.as_str()) && warned.insert(name.as_str()) {
+            tracing::warn!(
+                map = %path.display(),
+                line,
+                material = name.as_str(),
+                "material is not defined in the map's material libraries (mtllib): its triangles have no color and render flat white, which gives the tracker nothing to align to"
+            );
+        }
+    }
+    let mut any_color = false;
     let mut texture_of_path: HashMap<PathBuf, u32> = HashMap::new();
     // Triangle buckets by texture, in order of first appearance.
     let mut buckets: Vec<(Option<u32>, Vec<u32>)> = Vec::new();
@@ -104,6 +186,9 @@ pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
             .and_then(|mat| mat.diffuse)
             .map_or(255.0, luma601_255);
         let colors = (m.vertex_color.len() == vertex_count * 3).then_some(&m.vertex_color);
+        any_color |= colors.is_some()
+            || texture.is_some()
+            || material.is_some_and(|mat| mat.diffuse.is_some());
         let color_scale = match colors {
             Some(c) if c.iter().any(|&x| x > 1.0) => 1.0 / 255.0,
             _ => 1.0,
@@ -162,6 +247,12 @@ pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
         path: path.to_path_buf(),
         problem,
     })?;
+    if !any_color {
+        tracing::warn!(
+            map = %path.display(),
+            "the mesh has no colors (no vertex colors, no material Kd, no texture): every surface renders the same flat white, which gives the tracker nothing to align to"
+        );
+    }
     tracing::info!(
         path = %path.display(),
         triangles = mesh.triangle_count(),
@@ -188,6 +279,12 @@ fn load_mtl_checked(path: &Path) -> (tobj::MTLLoadResult, MtlRecord) {
         names: Vec::new(),
         error: None,
     };
+    // A FIFO would block the read forever.
+    let regular = std::fs::metadata(path).map(|m| m.is_file());
+    if let Ok(false) = regular {
+        record.error = Some("not a regular file".into());
+        return (Err(tobj::LoadError::OpenFileFailed), record);
+    }
     let text = match std::fs::read_to_string(path) {
         Ok(text) => text,
         Err(e) => {
@@ -272,7 +369,15 @@ pub fn load_gray_texture(path: &Path) -> Result<GrayTexture, MapError> {
 
 /// Checks what `tobj` does not check gracefully: face indices (zero, out of
 /// range, not integers) and vertex color consistency, with line numbers.
-fn prescan_obj(text: &str, path: &Path) -> Result<(), MapError> {
+/// What the pre-scan learned about an OBJ.
+struct Prescan {
+    /// Face corners in the file (a bound on the mesh's vertices).
+    corners: usize,
+    /// `usemtl` lines: 1-based line number and material name.
+    used_materials: Vec<(usize, String)>,
+}
+
+fn prescan_obj(text: &str, path: &Path) -> Result<Prescan, MapError> {
     let parse_err = |line: usize, reason: String| MapError::Parse {
         path: path.to_path_buf(),
         line,
@@ -280,12 +385,44 @@ fn prescan_obj(text: &str, path: &Path) -> Result<(), MapError> {
     };
     let (mut nv, mut nvt, mut nvn) = (0usize, 0usize, 0usize);
     let mut colored: Option<bool> = None;
+    let mut scan = Prescan {
+        corners: 0,
+        used_materials: Vec::new(),
+    };
     for (i, line) in text.lines().enumerate() {
         let line_no = i + 1;
         let mut words = line.split_whitespace();
         match words.next() {
             Some("v") => {
-                let n = words.count();
+                let mut n = 0;
+                for (k, word) in words.enumerate() {
+                    n += 1;
+                    let value: f64 = word.parse().map_err(|_| {
+                        parse_err(line_no, format!("vertex value '{word}' is not a number"))
+                    })?;
+                    let (what, ok, sane) = if k < 3 {
+                        (
+                            "coordinate",
+                            value.abs() <= MAX_VERTEX_COORDINATE,
+                            "-1e6..=1e6 (file units)",
+                        )
+                    } else {
+                        (
+                            "color",
+                            (0.0..=MAX_VERTEX_COLOR).contains(&value),
+                            "0..=1, or 0..=255",
+                        )
+                    };
+                    // `v x y z w`: w is a weight, not a color. A NaN or
+                    // infinity is left to the mesh check (`NotFinite`).
+                    let is_weight = k == 3 && line.split_whitespace().count() == 5;
+                    if !ok && !is_weight && value.is_finite() {
+                        return Err(parse_err(
+                            line_no,
+                            format!("vertex {what} {word} is outside the sane range {sane}"),
+                        ));
+                    }
+                }
                 if !matches!(n, 3 | 4 | 6) {
                     return Err(parse_err(
                         line_no,
@@ -306,8 +443,13 @@ fn prescan_obj(text: &str, path: &Path) -> Result<(), MapError> {
             }
             Some("vt") => nvt += 1,
             Some("vn") => nvn += 1,
+            Some("usemtl") => {
+                let name = words.collect::<Vec<_>>().join(" ");
+                scan.used_materials.push((line_no, name));
+            }
             Some("f") => {
                 for corner in words {
+                    scan.corners += 1;
                     for (k, field) in corner.split('/').enumerate() {
                         if field.is_empty() && k > 0 {
                             continue;
@@ -349,7 +491,7 @@ fn prescan_obj(text: &str, path: &Path) -> Result<(), MapError> {
             _ => {}
         }
     }
-    Ok(())
+    Ok(scan)
 }
 
 #[cfg(test)]

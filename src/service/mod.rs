@@ -1,5 +1,5 @@
 //! Running as a systemd service: readiness, the progress-gated watchdog,
-//! status lines, and clean shutdown on SIGTERM/SIGINT.
+//! status lines, and clean shutdown on SIGTERM/SIGINT/SIGHUP/SIGQUIT/SIGUSR1.
 //!
 //! Owns the `service` thread, which pings `WATCHDOG=1` every half
 //! `WatchdogSec` when (and only when) the tracking loop fed the [`Watchdog`]

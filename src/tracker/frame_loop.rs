@@ -37,6 +37,9 @@ use crate::service::{Service, ServiceState, StatusBoard, Watchdog};
 
 /// Longest wait on the frame event before the loop checks its flags again.
 const POLL: Duration = Duration::from_millis(100);
+/// How often a silent tracker checks that it is still attached to the
+/// frame service (its shared memory may have been deleted).
+const SERVICE_CHECK_PERIOD: Duration = Duration::from_secs(1);
 
 /// Everything the loop runs with, built by [`super::start`].
 pub struct Tracker {
@@ -58,8 +61,10 @@ pub struct Tracker {
     pub world_from_camera_start: Pose,
     /// The loop's state from one iteration to the next.
     pub(super) looping: LoopState,
-    /// The iceoryx2 node of the ports (dropped after them).
-    pub(crate) _node: iceoryx2::node::Node<iceoryx2::service::ipc::Service>,
+    /// The iceoryx2 node of the ports (dropped after them); also used to
+    /// re-attach to a frame service recreated after its shared memory was
+    /// deleted.
+    pub(crate) node: iceoryx2::node::Node<iceoryx2::service::ipc::Service>,
 }
 
 /// When the loop ends besides SIGTERM/SIGINT, and where the poses go.
@@ -102,6 +107,9 @@ pub struct TrackSummary {
     pub trajectory_poses: Option<u64>,
     /// The renderer in use.
     pub renderer: String,
+    /// Why the loop ended (`None` only for a summary not made by
+    /// [`Tracker::run`]).
+    pub stop_reason: Option<StopReason>,
 }
 
 /// What one iteration of the loop ([`Tracker::step`]) did.
@@ -125,7 +133,8 @@ pub enum Step {
 /// Why the loop ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum StopReason {
-    /// SIGTERM/SIGINT set the shutdown flag.
+    /// A stop signal (SIGTERM, SIGINT, SIGHUP, SIGQUIT, SIGUSR1) set the
+    /// shutdown flag.
     Shutdown,
     /// [`StopWhen::frames`] frames were processed, the last one in this step.
     FrameLimit,
@@ -154,6 +163,8 @@ pub(super) struct LoopState {
     /// clock starts with the loop, not with [`super::start`].
     last_frame_at: Option<Instant>,
     silent: bool,
+    /// When the silent loop last checked the frame service.
+    last_service_check: Option<Instant>,
 }
 
 impl LoopState {
@@ -174,6 +185,7 @@ impl LoopState {
             first_frame_at: None,
             last_frame_at: None,
             silent: false,
+            last_service_check: None,
         }
     }
 }
@@ -182,8 +194,14 @@ impl Tracker {
     /// Runs until SIGTERM/SIGINT or a `stop` condition: [`Tracker::step`]
     /// until it returns [`Step::Stop`], then [`Tracker::finish`].
     pub fn run(mut self, stop: &mut StopWhen) -> Result<TrackSummary> {
-        while !matches!(self.step(stop)?, Step::Stop(_)) {}
-        self.finish(stop)
+        let reason = loop {
+            if let Step::Stop(reason) = self.step(stop)? {
+                break reason;
+            }
+        };
+        let mut summary = self.finish(stop)?;
+        summary.stop_reason = Some(reason);
+        Ok(summary)
     }
 
     /// One iteration of the loop. Feeds the watchdog, then tracks the newest
@@ -249,6 +267,18 @@ impl Tracker {
             state.silent = true;
             state.status.set_state(ServiceState::Waiting);
             warn!(silence_ms = quiet.as_millis() as u64, "no camera frames");
+        }
+        // A silent camera may be one that cannot open the frame service
+        // because its shared memory was deleted: check once a second.
+        if state.silent
+            && state
+                .last_service_check
+                .is_none_or(|t| t.elapsed() >= SERVICE_CHECK_PERIOD)
+        {
+            state.last_service_check = Some(Instant::now());
+            if let Err(e) = self.subscriber.reattach_if_orphaned(&self.node) {
+                warn!(error = %e, "cannot check the frame service");
+            }
         }
         if state.first_frame_at.is_some() && stop.idle.is_some_and(|d| quiet >= d) {
             info!("no frames for the idle limit; stopping");

@@ -30,6 +30,19 @@ use crate::service::Service;
 
 pub use frame_loop::{Step, StopReason, StopWhen, TrackSummary, Tracker};
 
+/// A stop signal arrived while [`start`] loaded the map, the database or
+/// the renderer: the start was abandoned between two of those steps.
+#[derive(Debug, thiserror::Error)]
+#[error("stopped by a signal while starting")]
+pub struct StoppedDuringStart;
+
+fn stopped_during_start(shutdown: &AtomicBool) -> Result<(), StoppedDuringStart> {
+    if shutdown.load(std::sync::atomic::Ordering::Relaxed) {
+        return Err(StoppedDuringStart);
+    }
+    Ok(())
+}
+
 /// Opens the ports, loads the map, renders the first keyframe, starts the
 /// MAVLink link and tells systemd the service is ready.
 ///
@@ -38,6 +51,9 @@ pub use frame_loop::{Step, StopReason, StopWhen, TrackSummary, Tracker};
 /// `--init-pose` or `tracker.init_pose`) is tried first; with a database
 /// and no hint, the first frame is searched in the database (a cold
 /// start). Without a database a hint is required.
+///
+/// A stop signal during the start ends it between steps with
+/// [`StoppedDuringStart`] (which callers report as a clean stop).
 pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> Result<Tracker> {
     let iox =
         load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
@@ -54,6 +70,7 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
             .load_mesh()
             .with_context(|| format!("loading map {}", mesh.display()))?,
     );
+    stopped_during_start(&shutdown)?;
     let relocalizer = match &config.reloc.database {
         Some(path) => {
             let db = RelocDatabase::read(path)?;
@@ -78,6 +95,7 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
             "no initial pose and no relocalization database: set `tracker.init_pose` or pass --init-pose, or build a database (`star reloc build`) and set `reloc.database`"
         ),
     };
+    stopped_during_start(&shutdown)?;
     let kind = config.render.renderer;
     let renderer = crate::render::select::make_renderer(kind, mesh_data)
         .with_context(|| format!("starting the `{kind:?}` renderer"))?;
@@ -95,6 +113,7 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
             .set_relocalizer(r)
             .context("relocalization database")?;
     }
+    stopped_during_start(&shutdown)?;
     localizer.verify_start(&config.reloc, hint.is_some());
     let mavlink = if config.mavlink.enabled {
         Some(MavlinkLink::spawn(&config.mavlink, shutdown.clone()).context("MAVLink link")?)
@@ -118,6 +137,6 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
         silence: Duration::from_millis(config.ipc.silence_timeout_ms),
         world_from_camera_start,
         looping,
-        _node: node,
+        node,
     })
 }

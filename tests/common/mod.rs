@@ -13,6 +13,7 @@
 pub mod counting_alloc;
 pub mod reloc_fixture;
 pub mod room;
+pub mod star_cli;
 pub mod wall;
 
 use std::path::PathBuf;
