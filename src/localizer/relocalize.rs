@@ -209,8 +209,11 @@ impl Localizer {
             radius_m: reloc.radius_m(self.lost_s(capture_ns)),
         });
         // The landmark pose (features matched to the map's landmarks, then
-        // PnP) is tried first, in the first region that holds it; then the
-        // database views ranked by the whole-image descriptor.
+        // PnP) is tried first, wherever it is (one candidate, a few renders;
+        // on a scanned map it is the candidate that passes, and trying the
+        // nearby views first cost seconds of renders per attempt); then the
+        // database views ranked by the whole-image descriptor, nearby
+        // first. Every candidate passes the same gate.
         let landmark = reloc.landmark_candidate(pixels, w, h, stride, SearchRegion::Everywhere);
         if let Some((_, found)) = &landmark {
             tracing::debug!(
@@ -221,10 +224,13 @@ impl Localizer {
         }
         let mut tried = [u32::MAX; 2 * (MAX_TOP_K + 1)];
         let mut n_tried = 0usize;
-        for (region, pass) in [near, Some(SearchRegion::Everywhere)]
-            .into_iter()
-            .flatten()
-            .flat_map(|region| [(region, 0), (region, 1)])
+        for (region, pass) in [
+            (Some(SearchRegion::Everywhere), 0),
+            (near, 1),
+            (Some(SearchRegion::Everywhere), 1),
+        ]
+        .into_iter()
+        .filter_map(|(region, pass)| region.map(|r| (r, pass)))
         {
             let mut candidates = [Candidate::default(); MAX_TOP_K];
             let mut n = 0;
