@@ -4,8 +4,9 @@
 //! `groundtruth.txt` (every 10th of 500; each rendered `ROUNDS` times): median and p95, with the
 //! mesh size and the share of triangles in chunks that pass the frustum
 //! test (what the renderers set up and draw), mean and range over the
-//! poses. The CPU rasterizer is also timed with the chunk cull off (every
-//! triangle set up, as before the cull), for a comparison within one run.
+//! poses. Both renderers are also timed with the chunk cull off (every
+//! triangle set up and drawn, as before the cull), for a comparison within
+//! one run.
 //!
 //! Each argument is a dataset folder: its map is `star.toml`'s `[map]`
 //! where the folder has one (placed by `[map.world_from_mesh]`), else
@@ -142,11 +143,15 @@ fn bench_dataset(dir: &Path) {
     match GpuRenderer::new(Arc::clone(&mesh), AdapterPreference::Software) {
         Ok(mut gpu) => {
             let built_s = t.elapsed().as_secs_f64();
-            let (median, p95, n) = time_renders(&mut gpu, &camera, &poses);
-            println!(
-                "  {} (built in {built_s:.2} s): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
-                gpu.name()
-            );
+            println!("  {} (built in {built_s:.2} s)", gpu.name());
+            for cull in [true, false] {
+                gpu.set_frustum_cull(cull);
+                let (median, p95, n) = time_renders(&mut gpu, &camera, &poses);
+                println!(
+                    "  wgpu software (cull {}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
+                    if cull { "on" } else { "off" },
+                );
+            }
         }
         Err(e) => println!("  wgpu software: no adapter, skipped ({e})"),
     }

@@ -250,25 +250,34 @@ impl ChunkedMesh {
         self.source_triangle.len()
     }
 
-    /// Sets `visible[i]` for every chunk `i` (`visible` is resized to the
-    /// chunk count, without allocating after the first call): whether it
-    /// passes `frustum`, or true for every chunk when `frustum` is `None`.
+    /// See [`mark_visible`].
     pub fn mark_visible(&self, frustum: Option<&Frustum>, visible: &mut Vec<bool>) -> CullStats {
-        visible.resize(self.chunks.len(), true);
-        let mut stats = CullStats {
-            chunks: self.chunks.len(),
-            triangles: self.triangle_count(),
-            ..CullStats::default()
-        };
-        for (chunk, seen) in self.chunks.iter().zip(visible.iter_mut()) {
-            *seen = frustum.is_none_or(|f| f.intersects(&chunk.bounds));
-            if *seen {
-                stats.visible_chunks += 1;
-                stats.visible_triangles += chunk.triangle_count();
-            }
-        }
-        stats
+        mark_visible(&self.chunks, frustum, visible)
     }
+}
+
+/// Sets `visible[i]` for every chunk `i` (`visible` is resized to the chunk
+/// count, without allocating after the first call): whether it passes
+/// `frustum`, or true for every chunk when `frustum` is `None`.
+pub fn mark_visible(
+    chunks: &[MeshChunk],
+    frustum: Option<&Frustum>,
+    visible: &mut Vec<bool>,
+) -> CullStats {
+    visible.resize(chunks.len(), true);
+    let mut stats = CullStats {
+        chunks: chunks.len(),
+        ..CullStats::default()
+    };
+    for (chunk, seen) in chunks.iter().zip(visible.iter_mut()) {
+        stats.triangles += chunk.triangle_count();
+        *seen = frustum.is_none_or(|f| f.intersects(&chunk.bounds));
+        if *seen {
+            stats.visible_chunks += 1;
+            stats.visible_triangles += chunk.triangle_count();
+        }
+    }
+    stats
 }
 
 /// Splits `order[range]` at the median centroid on the longest axis of the
