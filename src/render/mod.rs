@@ -5,6 +5,8 @@
 //! and the reference the GPU output is tested against) and `gpu` (wgpu).
 //! `select` turns `render.renderer` from the config into a renderer that
 //! falls back down the chain (hardware GPU, software GPU, CPU) on failure.
+//! Both split the mesh into spatial chunks once (`chunks`) and draw only the
+//! chunks that meet the view frustum.
 //! Renderers take the mesh once at construction and render an ideal pinhole
 //! view (distortion is removed from camera frames instead). Pixel centers are
 //! at integer coordinates, as everywhere in `star`.
@@ -20,6 +22,7 @@
 use crate::geometry::{PinholeCamera, Pose};
 use crate::imgproc::ImageF32;
 
+pub mod chunks;
 pub mod cpu;
 pub mod gpu;
 pub mod select;

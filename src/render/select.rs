@@ -87,7 +87,7 @@ pub fn chain(kind: RendererKind) -> &'static [Stage] {
 #[derive(Debug)]
 enum Active {
     Gpu(Box<GpuRenderer>),
-    Cpu(CpuRenderer),
+    Cpu(Box<CpuRenderer>),
 }
 
 impl Active {
@@ -97,14 +97,14 @@ impl Active {
                 Arc::clone(mesh),
                 which,
             )?))),
-            Stage::Cpu => Ok(Active::Cpu(CpuRenderer::new(Arc::clone(mesh))?)),
+            Stage::Cpu => Ok(Active::Cpu(Box::new(CpuRenderer::new(Arc::clone(mesh))?))),
         }
     }
 
     fn renderer(&mut self) -> &mut dyn Renderer {
         match self {
             Active::Gpu(r) => r.as_mut(),
-            Active::Cpu(r) => r,
+            Active::Cpu(r) => r.as_mut(),
         }
     }
 }

@@ -7,20 +7,27 @@
 //! texel / 255 on textured groups) and metric depth (z in the camera optical
 //! frame), [`crate::render::NO_DEPTH`] and gray 0 where nothing is hit.
 //!
+//! At construction the mesh is split into spatial chunks
+//! ([`crate::render::chunks`]); a render sets up only the chunks whose box
+//! meets the view frustum, so its cost follows what is visible.
+//!
 //! Pipeline, each stage parallel over fixed work units (rayon):
-//! 1. [`view`]: vertices into the camera frame, outcodes, projection to
-//!    fixed-point pixels (8 fraction bits, pixel centers at integers);
-//! 2. [`setup`]: per chunk of [`setup::CHUNK_TRIS`] triangles, cull, clip
+//! 1. [`setup`], per visible chunk: its vertices into the camera frame
+//!    ([`view`]: outcodes, projection to fixed-point pixels, 8 fraction
+//!    bits, pixel centers at integers), then its triangles culled, clipped
 //!    against the near plane (`z = 0.05 m`) and the guard band ([`clip`]),
-//!    and bin into bands of [`setup::BAND_ROWS`] rows;
-//! 3. [`raster`]: per band, integer edge functions with a top-left rule,
+//!    and binned into bands of [`setup::BAND_ROWS`] rows;
+//! 2. [`raster`]: per band, integer edge functions with a top-left rule,
 //!    z-buffer on `1/z`, perspective-correct interpolation, shading.
 //!
-//! Each band is owned by one task and sees its triangles in mesh order, so
-//! the output is bit-identical for any thread count. No back-face culling.
-//! All scratch (camera-frame vertices, screen triangles, bins) lives in the
-//! renderer and keeps its capacity, so steady-state renders do not allocate
-//! beyond what rayon does to schedule tasks.
+//! Each band is owned by one task and sees its triangles in a fixed order;
+//! of two at equal depth on a pixel the one first in mesh order wins (a
+//! per-pixel triangle number breaks the tie), so the output is the same as
+//! drawing the whole mesh in mesh order, bit for bit, for any thread count
+//! and with or without the chunk cull. No back-face culling. All scratch
+//! (camera-frame vertices, screen triangles, bins) lives in the renderer and
+//! keeps its capacity, so steady-state renders do not allocate beyond what
+//! rayon does to schedule tasks.
 
 mod clip;
 mod raster;
@@ -31,32 +38,39 @@ mod view;
 #[cfg(test)]
 mod tests;
 #[cfg(test)]
+mod tests_cull;
+#[cfg(test)]
 mod tests_scenes;
 
 use std::sync::Arc;
 
 use rayon::prelude::*;
 
-use self::setup::{Chunk, BAND_ROWS, CHUNK_TRIS};
-use self::view::{CamVertex, View};
+use self::setup::{Chunk, BAND_ROWS, NO_TEXTURE};
+use self::view::{View, NEAR_M};
 use crate::geometry::{PinholeCamera, Pose};
-use crate::map::Mesh;
+use crate::map::{GrayTexture, Mesh};
+use crate::render::chunks::{ChunkedMesh, CullStats, Frustum};
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
-
-/// Vertices per task of the vertex stage.
-const VERTEX_CHUNK: usize = 8192;
 
 /// The tiled, multithreaded software rasterizer. See the module docs.
 pub struct CpuRenderer {
     mesh: Arc<Mesh>,
-    /// Texture index of each triangle (or `setup::NO_TEXTURE`).
-    tri_texture: Vec<u32>,
+    /// The mesh split into spatial chunks.
+    chunked: ChunkedMesh,
     /// Dedicated thread pool, or `None` for rayon's global pool.
     pool: Option<rayon::ThreadPool>,
-    /// Camera-frame vertices of the current render.
-    verts: Vec<CamVertex>,
-    /// Setup scratch, one per chunk of `CHUNK_TRIS` triangles.
+    /// Setup scratch, one per chunk of `chunked`.
     chunks: Vec<Chunk>,
+    /// Whether each chunk passed the frustum test in the current render.
+    visible: Vec<bool>,
+    /// Per pixel, the mesh number of the triangle drawn there (valid where
+    /// depth is set): the depth tie-break.
+    tri_order: Vec<u32>,
+    /// Whether chunks outside the frustum are skipped (on by default).
+    cull: bool,
+    /// Counts of the last render's frustum test.
+    stats: CullStats,
 }
 
 impl std::fmt::Debug for CpuRenderer {
@@ -72,16 +86,29 @@ impl CpuRenderer {
     /// A renderer of `mesh` on rayon's global thread pool. Fails when the
     /// mesh has non-finite values or out-of-range indices.
     pub fn new(mesh: Arc<Mesh>) -> Result<Self, RenderError> {
-        let tri_texture = validate::validate_mesh(&mesh)?;
-        let chunks = (0..tri_texture.len().div_ceil(CHUNK_TRIS))
-            .map(|_| Chunk::default())
+        validate::validate_mesh(&mesh)?;
+        let chunked = ChunkedMesh::build(&mesh)?;
+        let chunks = chunked
+            .chunks
+            .iter()
+            .map(|c| {
+                Chunk::new(
+                    mesh.groups
+                        .get(c.group as usize)
+                        .and_then(|g| g.texture)
+                        .unwrap_or(NO_TEXTURE),
+                )
+            })
             .collect();
         Ok(Self {
-            verts: vec![CamVertex::default(); mesh.positions.len()],
+            visible: vec![true; chunked.chunks.len()],
             mesh,
-            tri_texture,
+            chunked,
             pool: None,
             chunks,
+            tri_order: Vec::new(),
+            cull: true,
+            stats: CullStats::default(),
         })
     }
 
@@ -109,6 +136,18 @@ impl CpuRenderer {
     pub fn mesh(&self) -> &Arc<Mesh> {
         &self.mesh
     }
+
+    /// Turns the skipping of chunks outside the view frustum on (the
+    /// default) or off. The output is the same either way; off, every
+    /// triangle is set up (for tests and benchmarks).
+    pub fn set_frustum_cull(&mut self, on: bool) {
+        self.cull = on;
+    }
+
+    /// Chunk and triangle counts of the last render's frustum test.
+    pub fn cull_stats(&self) -> CullStats {
+        self.stats
+    }
 }
 
 impl Renderer for CpuRenderer {
@@ -125,14 +164,32 @@ impl Renderer for CpuRenderer {
         check_request(world_from_camera, camera)?;
         out.check_size(camera)?;
         let view = View::new(world_from_camera, camera);
+        let frustum = Frustum::new(world_from_camera, camera, f64::from(NEAR_M));
         let Self {
             mesh,
-            tri_texture,
+            chunked,
             pool,
-            verts,
             chunks,
+            visible,
+            tri_order,
+            cull,
+            stats,
+            ..
         } = self;
-        let mut work = || draw(mesh, tri_texture, verts, chunks, &view, out);
+        *stats = chunked.mark_visible(cull.then_some(&frustum), visible);
+        // Sized once per image size; no allocation in steady state.
+        tri_order.resize(view.width * view.height, 0);
+        let mut work = || {
+            draw(
+                chunked,
+                &mesh.textures,
+                visible,
+                chunks,
+                &view,
+                tri_order,
+                out,
+            )
+        };
         match pool {
             Some(pool) => pool.install(work),
             None => work(),
@@ -141,44 +198,38 @@ impl Renderer for CpuRenderer {
     }
 }
 
-/// Runs the three stages. `out` has been checked against `view`.
+/// Runs the two stages on the visible chunks. `out` has been checked
+/// against `view`; `tri_order` has one element per pixel.
 fn draw(
-    mesh: &Mesh,
-    tri_texture: &[u32],
-    verts: &mut [CamVertex],
+    mesh: &ChunkedMesh,
+    textures: &[GrayTexture],
+    visible: &[bool],
     chunks: &mut [Chunk],
     view: &View,
+    tri_order: &mut [u32],
     out: &mut RenderedView,
 ) {
-    verts
-        .par_chunks_mut(VERTEX_CHUNK)
-        .zip(mesh.positions.par_chunks(VERTEX_CHUNK))
-        .for_each(|(out_v, in_p)| {
-            for (v, p) in out_v.iter_mut().zip(in_p) {
-                *v = view.vertex(*p);
+    let bands = view.height.div_ceil(BAND_ROWS);
+    chunks
+        .par_iter_mut()
+        .zip(mesh.chunks.par_iter())
+        .zip(visible.par_iter())
+        .for_each(|((scratch, chunk), &visible)| {
+            if visible {
+                scratch.build(chunk, mesh, view, bands);
+            } else {
+                scratch.skip();
             }
         });
-    let verts = &*verts;
-    let bands = view.height.div_ceil(BAND_ROWS);
-    chunks.par_iter_mut().enumerate().for_each(|(i, chunk)| {
-        chunk.build(i * CHUNK_TRIS, mesh, tri_texture, verts, view, bands);
-    });
     let chunks = &*chunks;
     let band_len = view.width * BAND_ROWS;
     out.gray
         .data_mut()
         .par_chunks_mut(band_len)
         .zip(out.depth_m.data_mut().par_chunks_mut(band_len))
+        .zip(tri_order.par_chunks_mut(band_len))
         .enumerate()
-        .for_each(|(band, (gray, depth_m))| {
-            raster::draw_band(
-                band,
-                band * BAND_ROWS,
-                view.width,
-                chunks,
-                &mesh.textures,
-                gray,
-                depth_m,
-            );
+        .for_each(|(band, ((gray, depth_m), order))| {
+            raster::draw_band(band, view.width, chunks, textures, gray, depth_m, order);
         });
 }

@@ -1,41 +1,47 @@
 //! Rasterization and shading of one band of rows.
 //!
-//! Takes the binned [`ScreenTri`]s of a band (chunk by chunk, in mesh order)
-//! and the band's slices of the output images, and fills them: exact integer
-//! edge functions with a top-left fill rule, sampled at pixel centers
-//! (integer coordinates), a z-buffer on `1/z`, perspective-correct gray and
-//! texture coordinates, bilinear texture sampling with repeat addressing.
+//! Takes the binned [`ScreenTri`]s of a band (chunk by chunk, the chunks
+//! set up in this render only) and the band's slices of the output images,
+//! and fills them: exact integer edge functions with a top-left fill rule,
+//! sampled at pixel centers (integer coordinates), a z-buffer on `1/z` with
+//! ties won by the lower mesh triangle number (as drawing in mesh order
+//! would), perspective-correct gray and texture coordinates, bilinear
+//! texture sampling with repeat addressing.
 //!
 //! While a band is drawn, its depth slice holds `1/z` (0 = empty); the band
 //! is finished by turning it into metric depth.
 
-use super::setup::{Chunk, ScreenTri, NO_TEXTURE};
+use super::setup::{Chunk, ScreenTri, BAND_ROWS, NO_TEXTURE};
 use super::view::SUBPIXEL;
 use crate::map::GrayTexture;
 use crate::render::NO_DEPTH;
 
-/// Draws band `band` (rows `y0 .. y0 + rows`) of a `width`-wide image into
-/// `gray` and `depth_m` (the band's rows only).
+/// Draws band `band` (rows `band * BAND_ROWS ..`) of a `width`-wide image
+/// into `gray` and `depth_m` (the band's rows only), with `order` (as many
+/// pixels) as scratch for the depth tie-break.
 pub(super) fn draw_band(
     band: usize,
-    y0: usize,
     width: usize,
     chunks: &[Chunk],
     textures: &[GrayTexture],
     gray: &mut [f32],
     depth_m: &mut [f32],
+    order: &mut [u32],
 ) {
     gray.fill(0.0);
     depth_m.fill(0.0);
+    // With depth 0 (empty) no triangle number is below 0: no tie to win.
+    order.fill(0);
     let rows = gray.len() / width.max(1);
     let mut target = Band {
-        y0,
+        y0: band * BAND_ROWS,
         rows,
         width,
         gray,
         inv_z: depth_m,
+        order,
     };
-    for chunk in chunks {
+    for chunk in chunks.iter().filter(|c| c.drawn) {
         if let Some(bin) = chunk.bins.get(band) {
             for &t in bin {
                 if let Some(tri) = chunk.tris.get(t as usize) {
@@ -57,6 +63,8 @@ struct Band<'a> {
     gray: &'a mut [f32],
     /// `1/z` during drawing, 0 where empty.
     inv_z: &'a mut [f32],
+    /// Mesh triangle number of the triangle drawn at each pixel.
+    order: &'a mut [u32],
 }
 
 /// One edge function `E(p) = dx (py - ay) - dy (px - ax)` in fixed point.
@@ -104,20 +112,25 @@ impl Band<'_> {
         };
         let y_hi = self.y0 + self.rows - 1;
         let (y0, width) = (self.y0, self.width);
-        let (gray, inv_z_buf) = (&mut *self.gray, &mut *self.inv_z);
+        let (gray, inv_z_buf, order_buf) = (&mut *self.gray, &mut *self.inv_z, &mut *self.order);
+        let order = tri.order;
         for_each_span(tri, y0, y_hi, |span, dw1, dw2| {
             let start = (span.y - y0) * width + span.x_start;
             let end = (span.y - y0) * width + span.x_end;
-            let (Some(depth_run), Some(gray_run)) =
-                (inv_z_buf.get_mut(start..=end), gray.get_mut(start..=end))
-            else {
+            let (Some(depth_run), Some(gray_run), Some(order_run)) = (
+                inv_z_buf.get_mut(start..=end),
+                gray.get_mut(start..=end),
+                order_buf.get_mut(start..=end),
+            ) else {
                 return;
             };
             let (mut w1, mut w2) = (span.w1, span.w2);
-            for (d, g_out) in depth_run.iter_mut().zip(gray_run) {
+            for ((d, g_out), o) in depth_run.iter_mut().zip(gray_run).zip(order_run) {
                 let inv_z = iz.0 + w1 * iz.1 + w2 * iz.2;
-                if (inv_z as f32) > *d {
-                    *d = inv_z as f32;
+                let inv_z32 = inv_z as f32;
+                if inv_z32 > *d || (inv_z32 == *d && order < *o) {
+                    *d = inv_z32;
+                    *o = order;
                     let z = 1.0 / inv_z;
                     let mut g = (gz.0 + w1 * gz.1 + w2 * gz.2) * z;
                     if let Some(tex) = texture {
@@ -322,6 +335,7 @@ mod tests {
             u_z: [0.0; 3],
             v_z: [0.0; 3],
             texture: NO_TEXTURE,
+            order: 0,
             bbox: [lo(x), hi(x), lo(y), hi(y)],
         })
     }

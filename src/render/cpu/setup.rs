@@ -1,20 +1,19 @@
 //! Triangle setup and binning.
 //!
-//! Takes a fixed range of mesh triangles (a chunk) and the transformed
-//! vertices, culls the triangles that cannot cover a pixel center, clips
-//! those that cross the near plane or the guard band, and gives out
-//! screen-space triangles ([`ScreenTri`]) binned into horizontal bands of
-//! [`BAND_ROWS`] rows. Chunk boundaries do not depend on the thread count,
-//! so neither does the order in which a band sees its triangles.
+//! Takes one spatial chunk of the mesh ([`MeshChunk`]): transforms its own
+//! vertices into the camera frame, culls the triangles that cannot cover a
+//! pixel center, clips those that cross the near plane or the guard band,
+//! and gives out screen-space triangles ([`ScreenTri`]) binned into
+//! horizontal bands of [`BAND_ROWS`] rows. Chunks are fixed at renderer
+//! construction, so neither the work split nor the order in which a band
+//! sees its triangles depends on the thread count.
 
 use super::clip::{ClipVertex, Polygon, MAX_POLY};
 use super::view::{CamVertex, View, CLIP_MASK, CULL_MASK, OUT_INVALID, SUBPIXEL_BITS};
-use crate::map::Mesh;
+use crate::render::chunks::{ChunkedMesh, MeshChunk};
 
 /// Rows per band: the unit of work of the raster stage.
 pub(super) const BAND_ROWS: usize = 16;
-/// Mesh triangles per setup chunk: the unit of work of the setup stage.
-pub(super) const CHUNK_TRIS: usize = 4096;
 /// Texture index meaning "no texture".
 pub(super) const NO_TEXTURE: u32 = u32::MAX;
 
@@ -35,6 +34,9 @@ pub(super) struct ScreenTri {
     pub v_z: [f32; 3],
     /// Texture index, or [`NO_TEXTURE`].
     pub texture: u32,
+    /// Mesh triangle number: of two triangles at equal depth on a pixel,
+    /// the lower number wins, as if drawn in mesh order.
+    pub order: u32,
     /// Pixel-center bounds `[x_min, x_max, y_min, y_max]`, inclusive,
     /// clamped to the image.
     pub bbox: [u16; 4],
@@ -43,6 +45,13 @@ pub(super) struct ScreenTri {
 /// Scratch of one setup chunk, reused across renders.
 #[derive(Debug, Default)]
 pub(super) struct Chunk {
+    /// Texture index of the chunk's group, or [`NO_TEXTURE`].
+    texture: u32,
+    /// Whether the chunk was set up in the current render (false: it is
+    /// outside the view and `tris` and `bins` are stale).
+    pub drawn: bool,
+    /// The chunk's vertices in the camera frame.
+    verts: Vec<CamVertex>,
     /// The chunk's screen triangles.
     pub tris: Vec<ScreenTri>,
     /// Per band, the indices into `tris` of the triangles touching it.
@@ -60,17 +69,26 @@ struct Projected {
 }
 
 impl Chunk {
-    /// Sets up and bins mesh triangles `first..first + CHUNK_TRIS` (clamped
-    /// to the mesh) for `view`. `bands` is the number of bands of the image.
-    pub fn build(
-        &mut self,
-        first: usize,
-        mesh: &Mesh,
-        tri_texture: &[u32],
-        verts: &[CamVertex],
-        view: &View,
-        bands: usize,
-    ) {
+    /// Empty scratch for a chunk whose triangles sample `texture` (or
+    /// [`NO_TEXTURE`]).
+    pub fn new(texture: u32) -> Self {
+        Self {
+            texture,
+            ..Self::default()
+        }
+    }
+
+    /// Marks the chunk as not drawn in this render.
+    pub fn skip(&mut self) {
+        self.drawn = false;
+    }
+
+    /// Transforms the vertices of `chunk` (of `mesh`), then sets up and
+    /// bins its triangles for `view`. `bands` is the number of bands of
+    /// the image.
+    pub fn build(&mut self, chunk: &MeshChunk, mesh: &ChunkedMesh, view: &View, bands: usize) {
+        self.drawn = true;
+        let texture = self.texture;
         self.tris.clear();
         if self.bins.len() != bands {
             self.bins.resize_with(bands, Vec::new);
@@ -78,13 +96,24 @@ impl Chunk {
         for bin in &mut self.bins {
             bin.clear();
         }
-        let last = (first + CHUNK_TRIS).min(tri_texture.len());
+        let first_vertex = chunk.vertices.start as usize;
+        let positions = mesh
+            .positions
+            .get(first_vertex..chunk.vertices.end as usize)
+            .unwrap_or(&[]);
+        self.verts.clear();
+        self.verts.extend(positions.iter().map(|&p| view.vertex(p)));
+        // Taken out while `emit` borrows `self`; put back below.
+        let verts = std::mem::take(&mut self.verts);
         let uv_at = |i: usize| mesh.uvs.get(i).copied().unwrap_or([0.0, 0.0]);
-        let indices = mesh.indices.get(3 * first..3 * last).unwrap_or(&[]);
-        let textures = tri_texture.get(first..last).unwrap_or(&[]);
-        for (tri, &texture) in indices.chunks_exact(3).zip(textures) {
+        let (t0, t1) = (chunk.triangles.start as usize, chunk.triangles.end as usize);
+        let indices = mesh.indices.get(3 * t0..3 * t1).unwrap_or(&[]);
+        let orders = mesh.source_triangle.get(t0..t1).unwrap_or(&[]);
+        for (tri, &order) in indices.chunks_exact(3).zip(orders) {
             let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
-            let cv = [verts[idx[0]], verts[idx[1]], verts[idx[2]]];
+            // Every index of a chunk lies in its vertex range (ChunkedMesh).
+            let local = idx.map(|i| i - first_vertex);
+            let cv = [verts[local[0]], verts[local[1]], verts[local[2]]];
             let all = cv[0].code & cv[1].code & cv[2].code;
             let any = cv[0].code | cv[1].code | cv[2].code;
             if all & CULL_MASK != 0 || any & OUT_INVALID != 0 {
@@ -98,7 +127,7 @@ impl Chunk {
                     gray: mesh.gray[idx[k]],
                     uv: uv_at(idx[k]),
                 };
-                self.emit([p(0), p(1), p(2)], texture, view);
+                self.emit([p(0), p(1), p(2)], texture, order, view);
             } else {
                 let c = |k: usize| ClipVertex {
                     p: view.camera_point(mesh.positions[idx[k]]).into(),
@@ -122,16 +151,18 @@ impl Chunk {
                     };
                 }
                 for k in 1..poly.len - 1 {
-                    self.emit([proj[0], proj[k], proj[k + 1]], texture, view);
+                    self.emit([proj[0], proj[k], proj[k + 1]], texture, order, view);
                 }
             }
         }
+        // Keeps the capacity for the next render.
+        self.verts = verts;
     }
 
     /// Orients, bounds and bins one projected triangle; drops it when it is
     /// degenerate or covers no pixel center.
     #[inline]
-    fn emit(&mut self, mut v: [Projected; 3], texture: u32, view: &View) {
+    fn emit(&mut self, mut v: [Projected; 3], texture: u32, order: u32, view: &View) {
         let area2 = (i64::from(v[1].sx) - i64::from(v[0].sx))
             * (i64::from(v[2].sy) - i64::from(v[0].sy))
             - (i64::from(v[1].sy) - i64::from(v[0].sy)) * (i64::from(v[2].sx) - i64::from(v[0].sx));
@@ -163,6 +194,7 @@ impl Chunk {
             u_z: [0, 1, 2].map(|k| v[k].uv[0] * v[k].inv_z),
             v_z: [0, 1, 2].map(|k| v[k].uv[1] * v[k].inv_z),
             texture,
+            order,
             bbox: [x0 as u16, x1 as u16, y0 as u16, y1 as u16],
         });
         let (b0, b1) = (y0 as usize / BAND_ROWS, y1 as usize / BAND_ROWS);

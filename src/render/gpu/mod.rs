@@ -1,8 +1,10 @@
 //! The wgpu keyframe renderer (paper section II-B).
 //!
 //! Owns a wgpu device on one adapter (hardware, or Mesa's software
-//! lavapipe/llvmpipe), the mesh uploaded once (vertex and index buffers,
-//! gray textures sampled bilinearly with repeat addressing), the pipeline
+//! lavapipe/llvmpipe), the mesh split into spatial chunks and uploaded once
+//! (vertex and index buffers, gray textures sampled bilinearly with repeat
+//! addressing; each render draws only the chunks that meet the view
+//! frustum, adjacent ones merged into one draw call), the pipeline
 //! built from `shaders/mesh.wgsl`, and the
 //! offscreen targets: gray and linear metric depth (both `R32Float`, written
 //! by the shader) plus a `Depth32Float` z-buffer for occlusion. Takes a pose
@@ -51,6 +53,10 @@ pub enum GpuError {
     /// The mesh is not renderable (see [`crate::map::Mesh::validate`]).
     #[error("mesh rejected by the wgpu renderer: {0}")]
     Mesh(#[from] crate::map::MapError),
+    /// The mesh could not be split into chunks (too many vertices or
+    /// indices after the split).
+    #[error("mesh cannot be split into chunks: {0}")]
+    Chunks(String),
     /// A texture is larger than the adapter allows.
     #[error(
         "mesh texture {texture} is {width}x{height}, the adapter allows at most \

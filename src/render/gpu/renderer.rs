@@ -2,9 +2,12 @@
 //! render, copy and readback.
 //!
 //! Takes the mesh once and a pose plus intrinsics per render; gives out gray
-//! and metric depth. Per render it writes one uniform, records one render
-//! pass and two copies, and maps one staging buffer; every buffer and
-//! texture is allocated at construction or when the image size changes.
+//! and metric depth. Per render it tests the mesh chunks against the view
+//! frustum, writes one uniform, records one render pass (one draw call per
+//! run of adjacent visible chunks of one texture) and two copies, and maps
+//! one staging buffer; every buffer and texture is allocated at
+//! construction or when the image size changes, the draw list keeps its
+//! capacity.
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -13,10 +16,11 @@ use super::adapter::{self, AdapterClass, AdapterPreference};
 use super::frame::{FrameTargets, MapStatus};
 use super::pipeline;
 use super::projection::{ViewUniform, NEAR_M, VIEW_UNIFORM_BYTES};
-use super::upload::{self, GpuMesh, TextureFormat};
+use super::upload::{self, Draw, GpuMesh, TextureFormat};
 use super::GpuError;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
+use crate::render::chunks::{self, CullStats, Frustum};
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
 /// How long a render may take before it counts as a device failure.
@@ -53,6 +57,14 @@ pub struct GpuRenderer {
     view_uniform: wgpu::Buffer,
     view_group: wgpu::BindGroup,
     mesh: GpuMesh,
+    /// Whether each chunk passed the frustum test in the current render.
+    visible: Vec<bool>,
+    /// The current render's draw calls.
+    draws: Vec<Draw>,
+    /// Whether chunks outside the frustum are skipped (on by default).
+    cull: bool,
+    /// Counts of the last render's frustum test.
+    stats: CullStats,
     frame: Option<FrameTargets>,
     max_dimension: u32,
     fault: Fault,
@@ -154,7 +166,7 @@ impl GpuRenderer {
             TextureFormat::Float32 => wgpu::Features::FLOAT32_FILTERABLE,
             TextureFormat::Unorm8 => wgpu::Features::empty(),
         };
-        upload::validate(mesh, &limits)?;
+        let chunked = upload::validate(mesh, &limits)?;
         let device_error = |message: String| GpuError::Device {
             adapter: info.name.clone(),
             message,
@@ -194,7 +206,14 @@ impl GpuRenderer {
             }],
         });
         let pipeline = pipeline::create(&device, &view_layout, &texture_layout);
-        let gpu_mesh = upload::upload(&device, &queue, &texture_layout, texture_format, mesh);
+        let gpu_mesh = upload::upload(
+            &device,
+            &queue,
+            &texture_layout,
+            texture_format,
+            mesh,
+            chunked,
+        );
         if let Some(message) = fault.lock().unwrap_or_else(|p| p.into_inner()).take() {
             return Err(device_error(message));
         }
@@ -209,7 +228,11 @@ impl GpuRenderer {
             pipeline,
             view_uniform,
             view_group,
+            visible: Vec::with_capacity(gpu_mesh.chunks.len()),
+            draws: Vec::with_capacity(gpu_mesh.chunks.len()),
             mesh: gpu_mesh,
+            cull: true,
+            stats: CullStats::default(),
             frame: None,
             fault,
             renders: 0,
@@ -230,6 +253,42 @@ impl GpuRenderer {
     /// Whether the adapter is a hardware GPU or a software rasterizer.
     pub fn class(&self) -> AdapterClass {
         self.class
+    }
+
+    /// Turns the skipping of chunks outside the view frustum on (the
+    /// default) or off (every chunk drawn; for tests and benchmarks).
+    pub fn set_frustum_cull(&mut self, on: bool) {
+        self.cull = on;
+    }
+
+    /// Chunk and triangle counts of the last render's frustum test.
+    pub fn cull_stats(&self) -> CullStats {
+        self.stats
+    }
+
+    /// Fills `self.draws` with the chunks of the view of `camera` at
+    /// `world_from_camera`: adjacent chunks of one texture merged.
+    fn select_draws(&mut self, world_from_camera: &Pose, camera: &PinholeCamera) {
+        let frustum = Frustum::new(world_from_camera, camera, NEAR_M);
+        self.stats = chunks::mark_visible(
+            &self.mesh.chunks,
+            self.cull.then_some(&frustum),
+            &mut self.visible,
+        );
+        self.draws.clear();
+        let chunks = self.mesh.chunks.iter().zip(&self.mesh.chunk_texture);
+        for ((chunk, &texture), &visible) in chunks.zip(&self.visible) {
+            let (Some(texture), true) = (texture, visible) else {
+                continue;
+            };
+            let indices = chunk.index_range();
+            match self.draws.last_mut() {
+                Some(last) if last.texture == texture && last.indices.end == indices.start => {
+                    last.indices.end = indices.end;
+                }
+                _ => self.draws.push(Draw { indices, texture }),
+            }
+        }
     }
 
     /// Test hook: the next `n` renders succeed, every later one fails with
@@ -278,6 +337,7 @@ impl GpuRenderer {
                 max_dimension: self.max_dimension,
             });
         }
+        self.select_draws(world_from_camera, camera);
         let frame = match self.frame.take() {
             Some(f) if f.size() == (w, h) => f,
             Some(f) if f.any_busy() => {
@@ -327,7 +387,7 @@ impl GpuRenderer {
             pass.set_bind_group(0, &self.view_group, &[]);
             pass.set_vertex_buffer(0, self.mesh.vertices.slice(..));
             pass.set_index_buffer(self.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
-            for draw in &self.mesh.draws {
+            for draw in &self.draws {
                 if let Some(group) = self.mesh.texture_groups.get(draw.texture) {
                     pass.set_bind_group(1, group, &[]);
                     pass.draw_indexed(draw.indices.clone(), 0, 0..1);

@@ -1,11 +1,12 @@
 //! Mesh upload for the wgpu renderer: done once, at construction.
 //!
-//! Takes a [`Mesh`] and a device; checks that the mesh is safe to draw
-//! ([`Mesh::validate`], and sizes within the adapter's limits) and gives out [`GpuMesh`]: an
-//! interleaved vertex buffer, a `u32` index buffer, one texture (see
+//! Takes a [`Mesh`], its [`ChunkedMesh`] and a device; checks that the mesh
+//! is safe to draw ([`Mesh::validate`], and sizes within the adapter's
+//! limits) and gives out [`GpuMesh`]: the chunked mesh as an interleaved
+//! vertex buffer and a `u32` index buffer, one texture (see
 //! [`TextureFormat`]) and bind group per mesh texture, a bilinear repeat
-//! sampler, and the draw list (index range and bind
-//! group per group).
+//! sampler, and the chunks to draw (box, index range and bind group each),
+//! from which each render picks those in the view frustum.
 
 use std::ops::Range;
 
@@ -14,6 +15,7 @@ use wgpu::util::DeviceExt;
 
 use super::GpuError;
 use crate::map::Mesh;
+use crate::render::chunks::{ChunkedMesh, MeshChunk, NO_GROUP};
 
 /// One vertex as the shader reads it (`VertexIn` in `shaders/mesh.wgsl`).
 #[repr(C)]
@@ -35,7 +37,7 @@ pub const VERTEX_LAYOUT: wgpu::VertexBufferLayout<'static> = wgpu::VertexBufferL
 };
 
 /// One draw call: an index range and the texture bind group it samples.
-#[derive(Debug)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Draw {
     /// Indices into the index buffer.
     pub indices: Range<u32>,
@@ -53,8 +55,11 @@ pub struct GpuMesh {
     /// Bind groups (group 1): one per mesh texture, then a 1x1 white texel
     /// used by untextured groups.
     pub texture_groups: Vec<wgpu::BindGroup>,
-    /// What to draw, in mesh group order.
-    pub draws: Vec<Draw>,
+    /// The chunks, in index-buffer order (mesh group order).
+    pub chunks: Vec<MeshChunk>,
+    /// Per chunk, its bind group in `texture_groups`, or `None` when it is
+    /// not drawn (triangles outside every group of a mesh with groups).
+    pub chunk_texture: Vec<Option<usize>>,
     /// Kept alive for the bind groups.
     _textures: Vec<wgpu::Texture>,
 }
@@ -85,9 +90,11 @@ pub fn texture_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
 }
 
 /// Checks `mesh` with [`Mesh::validate`] (indices in range, attributes,
-/// groups, textures) and against the adapter's `limits`.
-pub fn validate(mesh: &Mesh, limits: &wgpu::Limits) -> Result<(), GpuError> {
+/// groups, textures) and splits it into chunks; fails when the chunked
+/// buffers exceed the adapter's `limits`.
+pub fn validate(mesh: &Mesh, limits: &wgpu::Limits) -> Result<ChunkedMesh, GpuError> {
     mesh.validate()?;
+    let chunked = ChunkedMesh::build(mesh).map_err(|e| GpuError::Chunks(e.to_string()))?;
     let max = limits.max_texture_dimension_2d;
     for (t, texture) in mesh.textures.iter().enumerate() {
         if texture.width > max || texture.height > max {
@@ -99,8 +106,8 @@ pub fn validate(mesh: &Mesh, limits: &wgpu::Limits) -> Result<(), GpuError> {
             });
         }
     }
-    let vertex_bytes = (mesh.positions.len() * std::mem::size_of::<GpuVertex>()) as u64;
-    let index_bytes = (mesh.indices.len() * 4) as u64;
+    let vertex_bytes = (chunked.positions.len() * std::mem::size_of::<GpuVertex>()) as u64;
+    let index_bytes = (chunked.indices.len() * 4) as u64;
     for bytes in [vertex_bytes, index_bytes] {
         if bytes > limits.max_buffer_size {
             return Err(GpuError::MeshTooLarge {
@@ -109,7 +116,7 @@ pub fn validate(mesh: &Mesh, limits: &wgpu::Limits) -> Result<(), GpuError> {
             });
         }
     }
-    Ok(())
+    Ok(chunked)
 }
 
 /// How mesh textures are stored. Both are sampled by the hardware sampler
@@ -201,23 +208,24 @@ fn upload_texture(
     texture
 }
 
-/// Uploads a mesh already checked by [`validate`].
+/// Uploads `mesh` as `chunked`, the chunks [`validate`] gave out.
 pub fn upload(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     layout: &wgpu::BindGroupLayout,
     format: TextureFormat,
     mesh: &Mesh,
+    chunked: ChunkedMesh,
 ) -> GpuMesh {
-    let vertices: Vec<GpuVertex> = mesh
+    let vertices: Vec<GpuVertex> = chunked
         .positions
         .iter()
-        .zip(&mesh.gray)
-        .zip(&mesh.uvs)
-        .map(|((&position_m, &gray), &uv)| GpuVertex {
+        .zip(&chunked.gray)
+        .enumerate()
+        .map(|(i, (&position_m, &gray))| GpuVertex {
             position_m,
             gray,
-            uv,
+            uv: chunked.uvs.get(i).copied().unwrap_or([0.0; 2]),
         })
         .collect();
     // wgpu buffers may not be empty: pad an empty mesh with one dummy element.
@@ -227,10 +235,10 @@ pub fn upload(
     } else {
         &vertices
     };
-    let index_data: &[u32] = if mesh.indices.is_empty() {
+    let index_data: &[u32] = if chunked.indices.is_empty() {
         &[0, 0, 0]
     } else {
-        &mesh.indices
+        &chunked.indices
     };
     let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some("star mesh vertices"),
@@ -280,28 +288,24 @@ pub fn upload(
         })
         .collect();
 
-    let draws = if mesh.groups.is_empty() {
-        // No groups: every triangle, untextured.
-        vec![Draw {
-            indices: 0..mesh.indices.len() as u32,
-            texture: white,
-        }]
-    } else {
-        mesh.groups
-            .iter()
-            .filter(|g| g.index_count > 0)
-            .map(|g| Draw {
-                indices: g.first_index..g.first_index + g.index_count,
-                texture: g.texture.map_or(white, |t| t as usize),
-            })
-            .collect()
-    };
+    // Without groups every triangle is drawn, untextured; with groups,
+    // only the grouped ones.
+    let chunk_texture = chunked
+        .chunks
+        .iter()
+        .map(|c| match mesh.groups.get(c.group as usize) {
+            Some(g) => Some(g.texture.map_or(white, |t| t as usize)),
+            None if mesh.groups.is_empty() && c.group == NO_GROUP => Some(white),
+            None => None,
+        })
+        .collect();
 
     GpuMesh {
         vertices: vertex_buffer,
         indices: index_buffer,
         texture_groups,
-        draws,
+        chunks: chunked.chunks,
+        chunk_texture,
         _textures: textures,
     }
 }

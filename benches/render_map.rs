@@ -1,0 +1,173 @@
+//! Milliseconds per 640x512 keyframe of the CPU rasterizer and the wgpu
+//! renderer (software adapter: lavapipe/llvmpipe; render plus readback) on
+//! the map of a dataset, at 50 poses evenly strided through its
+//! `groundtruth.txt` (every 10th of 500; each rendered `ROUNDS` times): median and p95, with the
+//! mesh size and the share of triangles in chunks that pass the frustum
+//! test (what the renderers set up and draw), mean and range over the
+//! poses. Both renderers are also timed with the chunk cull off (every
+//! triangle set up and drawn, as before the cull), for a comparison within
+//! one run.
+//!
+//! Each argument is a dataset folder: its map is `star.toml`'s `[map]`
+//! where the folder has one (placed by `[map.world_from_mesh]`), else
+//! `map/map.obj` as stored; the camera is its `camera.toml`.
+//!
+//! Run: `cargo bench --bench render_map -- /tmp/sc1 /tmp/rs1` (a TSDF map
+//! of `star synth --scanned`, and `star synth --preset realistic`).
+
+#![allow(clippy::expect_used, clippy::unwrap_used)]
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use star::config::Config;
+use star::dataset::{CameraFile, Trajectory};
+use star::geometry::{PinholeCamera, Pose};
+use star::map::Mesh;
+use star::render::cpu::CpuRenderer;
+use star::render::gpu::{AdapterPreference, GpuRenderer};
+use star::render::{RenderedView, Renderer};
+
+/// Renders of each pose.
+const ROUNDS: usize = 3;
+/// Poses rendered (fewer when the ground truth is shorter).
+const MAX_POSES: usize = 50;
+
+fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>) {
+    let config_path = dir.join("star.toml");
+    let mesh = if config_path.exists() {
+        Config::load(&config_path)
+            .expect("star.toml")
+            .map
+            .load_mesh()
+            .expect("map")
+    } else {
+        Config::default()
+            .map
+            .load_mesh_from(&dir.join("map/map.obj"))
+            .expect("map/map.obj")
+    };
+    let camera = CameraFile::read(&dir.join("camera.toml"))
+        .expect("camera.toml")
+        .camera
+        .pinhole();
+    let truth = Trajectory::read(&dir.join("groundtruth.txt")).expect("groundtruth.txt");
+    let poses = truth
+        .poses
+        .iter()
+        .step_by((truth.poses.len() / MAX_POSES).max(1))
+        .take(MAX_POSES)
+        .copied()
+        .collect();
+    (mesh, camera, poses)
+}
+
+/// Median and p95 of `samples_ms` (sorted in place).
+fn median_p95(samples_ms: &mut [f64]) -> (f64, f64) {
+    samples_ms.sort_by(f64::total_cmp);
+    let at = |q: f64| samples_ms[((samples_ms.len() - 1) as f64 * q).round() as usize];
+    (at(0.5), at(0.95))
+}
+
+/// Times `ROUNDS` renders of every pose after one warm-up render of each.
+fn time_renders(
+    renderer: &mut dyn Renderer,
+    camera: &PinholeCamera,
+    poses: &[Pose],
+) -> (f64, f64, usize) {
+    let mut out = RenderedView::for_camera(camera);
+    for p in poses {
+        renderer.render(p, camera, &mut out).expect("render");
+    }
+    let mut samples_ms = Vec::with_capacity(ROUNDS * poses.len());
+    for _ in 0..ROUNDS {
+        for p in poses {
+            let t = Instant::now();
+            renderer.render(p, camera, &mut out).expect("render");
+            samples_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let n = samples_ms.len();
+    let (median, p95) = median_p95(&mut samples_ms);
+    (median, p95, n)
+}
+
+fn bench_dataset(dir: &Path) {
+    let t = Instant::now();
+    let (mesh, camera, poses) = load(dir);
+    let triangles = mesh.triangle_count();
+    println!(
+        "{}: {} triangles, {} vertices, {} poses, {}x{} (loaded in {:.1} s)",
+        dir.display(),
+        triangles,
+        mesh.positions.len(),
+        poses.len(),
+        camera.width,
+        camera.height,
+        t.elapsed().as_secs_f64()
+    );
+    let mesh = Arc::new(mesh);
+
+    let t = Instant::now();
+    let mut cpu = CpuRenderer::new(Arc::clone(&mesh)).expect("valid mesh");
+    let built_s = t.elapsed().as_secs_f64();
+    let mut out = RenderedView::for_camera(&camera);
+    let fractions: Vec<f64> = poses
+        .iter()
+        .map(|p| {
+            cpu.render(p, &camera, &mut out).expect("render");
+            cpu.cull_stats().visible_fraction()
+        })
+        .collect();
+    let stats = cpu.cull_stats();
+    println!(
+        "  {} chunks (built in {built_s:.2} s); visible triangles: mean {:.1} %, min {:.1} %, max {:.1} %",
+        stats.chunks,
+        100.0 * fractions.iter().sum::<f64>() / fractions.len().max(1) as f64,
+        100.0 * fractions.iter().copied().fold(f64::INFINITY, f64::min),
+        100.0 * fractions.iter().copied().fold(0.0, f64::max),
+    );
+    for cull in [true, false] {
+        cpu.set_frustum_cull(cull);
+        let (median, p95, n) = time_renders(&mut cpu, &camera, &poses);
+        println!(
+            "  cpu ({} threads, cull {}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
+            cpu.threads(),
+            if cull { "on" } else { "off" },
+        );
+    }
+    drop(cpu);
+
+    let t = Instant::now();
+    match GpuRenderer::new(Arc::clone(&mesh), AdapterPreference::Software) {
+        Ok(mut gpu) => {
+            let built_s = t.elapsed().as_secs_f64();
+            println!("  {} (built in {built_s:.2} s)", gpu.name());
+            for cull in [true, false] {
+                gpu.set_frustum_cull(cull);
+                let (median, p95, n) = time_renders(&mut gpu, &camera, &poses);
+                println!(
+                    "  wgpu software (cull {}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
+                    if cull { "on" } else { "off" },
+                );
+            }
+        }
+        Err(e) => println!("  wgpu software: no adapter, skipped ({e})"),
+    }
+}
+
+fn main() {
+    let dirs: Vec<PathBuf> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .map(PathBuf::from)
+        .collect();
+    if dirs.is_empty() {
+        println!("render_map: no dataset given (cargo bench --bench render_map -- DATASET...)");
+        return;
+    }
+    for dir in &dirs {
+        bench_dataset(dir);
+    }
+}

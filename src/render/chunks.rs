@@ -1,0 +1,535 @@
+//! Spatial chunks of a mesh and the view-frustum test on them, shared by
+//! both renderers so that a render costs what is visible, not the map.
+//!
+//! Takes a validated [`Mesh`] once, at renderer construction, and gives out
+//! a [`ChunkedMesh`]: the triangles split into spatially compact
+//! [`MeshChunk`]s of at most [`MAX_CHUNK_TRIS`] (median splits on the longest
+//! axis of the triangle centroids), each a contiguous range of the reordered
+//! index buffer with a contiguous range of vertices of its own (a vertex
+//! shared by two chunks is copied into both, so a chunk can be transformed
+//! without the rest) and a world-frame [`Aabb`]. A chunk never mixes
+//! triangles of two mesh groups. Within a chunk triangles keep their mesh
+//! order; [`ChunkedMesh::source_triangle`] maps each back to its mesh index,
+//! which the CPU rasterizer uses to break depth ties exactly as in mesh
+//! order.
+//!
+//! Per render, a [`Frustum`] (near plane and the four image-side planes one
+//! pixel beyond the outermost pixel centers, as the CPU rasterizer's
+//! triangle cull) is tested against each chunk's box. The test is
+//! conservative: a chunk is culled only when its box, padded by a millimeter,
+//! lies wholly outside one plane, so every vertex of it would fail the
+//! rasterizer's own cull of that plane.
+
+use std::ops::Range;
+
+use nalgebra::Vector3;
+
+use crate::geometry::{PinholeCamera, Pose};
+use crate::map::Mesh;
+use crate::render::RenderError;
+
+/// Most triangles in one chunk: the CPU rasterizer's unit of setup work.
+pub const MAX_CHUNK_TRIS: usize = 4096;
+
+/// Group number of triangles outside every mesh group.
+pub const NO_GROUP: u32 = u32::MAX;
+
+/// Padding of the chunk boxes in the frustum test, meters, on top of a
+/// relative 1e-6 of the largest coordinate: far above the `f32` rounding of
+/// the renderers' vertex transforms.
+const BOX_PAD_M: f64 = 1e-3;
+
+/// Margin of the side planes beyond the outermost pixel centers, pixels.
+/// The CPU rasterizer culls at one pixel; the test adds one more.
+const SIDE_MARGIN_PX: f64 = 2.0;
+
+/// An axis-aligned box in the world frame, meters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Aabb {
+    /// Smallest coordinates.
+    pub min_m: [f32; 3],
+    /// Largest coordinates.
+    pub max_m: [f32; 3],
+}
+
+impl Aabb {
+    /// The box that contains nothing (grows from the first point added).
+    const EMPTY: Self = Self {
+        min_m: [f32::INFINITY; 3],
+        max_m: [f32::NEG_INFINITY; 3],
+    };
+
+    fn add(&mut self, p: [f32; 3]) {
+        for k in 0..3 {
+            self.min_m[k] = self.min_m[k].min(p[k]);
+            self.max_m[k] = self.max_m[k].max(p[k]);
+        }
+    }
+}
+
+/// One chunk: a contiguous run of triangles and of vertices.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshChunk {
+    /// Triangles (index `t` covers indices `3t..3t + 3`) of [`ChunkedMesh`].
+    pub triangles: Range<u32>,
+    /// The vertices these triangles use, and no others.
+    pub vertices: Range<u32>,
+    /// The mesh group of every triangle, or [`NO_GROUP`].
+    pub group: u32,
+    /// Bounds of the chunk's vertices.
+    pub bounds: Aabb,
+}
+
+impl MeshChunk {
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// Indices into [`ChunkedMesh::indices`].
+    pub fn index_range(&self) -> Range<u32> {
+        3 * self.triangles.start..3 * self.triangles.end
+    }
+}
+
+/// A mesh reordered into spatial chunks. See the module docs.
+#[derive(Debug, Clone, Default)]
+pub struct ChunkedMesh {
+    /// Vertex positions, world frame, meters (chunk by chunk).
+    pub positions: Vec<[f32; 3]>,
+    /// Vertex gray, 0..=255.
+    pub gray: Vec<f32>,
+    /// Texture coordinates; empty when the mesh has none.
+    pub uvs: Vec<[f32; 2]>,
+    /// Triangle indices into `positions`, chunk by chunk.
+    pub indices: Vec<u32>,
+    /// Mesh triangle number of each triangle here.
+    pub source_triangle: Vec<u32>,
+    /// The chunks, in index-buffer order: by group (mesh group order, then
+    /// the ungrouped triangles), each group in the order of its split tree.
+    pub chunks: Vec<MeshChunk>,
+}
+
+/// Per-render counts of the frustum test.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CullStats {
+    /// Chunks in the mesh.
+    pub chunks: usize,
+    /// Chunks that passed the test (drawn).
+    pub visible_chunks: usize,
+    /// Triangles in the mesh.
+    pub triangles: usize,
+    /// Triangles in the chunks that passed.
+    pub visible_triangles: usize,
+}
+
+impl CullStats {
+    /// The share of triangles drawn, 0..=1 (1 for an empty mesh).
+    pub fn visible_fraction(&self) -> f64 {
+        if self.triangles == 0 {
+            1.0
+        } else {
+            self.visible_triangles as f64 / self.triangles as f64
+        }
+    }
+}
+
+fn too_large(what: &str, count: usize) -> RenderError {
+    RenderError::InvalidMesh {
+        field: "indices",
+        index: count,
+        reason: format!("{what}: more than 2^32 after splitting into chunks"),
+    }
+}
+
+impl ChunkedMesh {
+    /// Splits `mesh` (already validated by the renderer: indices in range,
+    /// groups whole triangles) into chunks. Fails only when the copied
+    /// vertices or indices no longer fit `u32`.
+    pub fn build(mesh: &Mesh) -> Result<Self, RenderError> {
+        let triangles = mesh.indices.len() / 3;
+        if triangles > u32::MAX as usize / 3 {
+            return Err(too_large("triangles", triangles));
+        }
+        // Group of each triangle; group ranges were validated.
+        let mut tri_group = vec![NO_GROUP; triangles];
+        for (g, group) in mesh.groups.iter().enumerate() {
+            let first = group.first_index as usize / 3;
+            let last = first + group.index_count as usize / 3;
+            if let Some(slots) = tri_group.get_mut(first..last) {
+                slots.fill(g as u32);
+            }
+        }
+        let position = |v: u32| mesh.positions.get(v as usize).copied().unwrap_or([0.0; 3]);
+        let centroids: Vec<[f32; 3]> = mesh
+            .indices
+            .chunks_exact(3)
+            .map(|t| {
+                let (a, b, c) = (position(t[0]), position(t[1]), position(t[2]));
+                [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0)
+            })
+            .collect();
+        // Triangles grouped by group (in group order, ungrouped last), mesh
+        // order within each group, then each group split.
+        let mut order: Vec<u32> = (0..triangles as u32).collect();
+        order.sort_by_key(|&t| tri_group[t as usize]);
+        let mut leaves: Vec<(u32, Range<usize>)> = Vec::new();
+        let mut start = 0;
+        while start < order.len() {
+            let group = tri_group[order[start] as usize];
+            let end = start
+                + order[start..]
+                    .iter()
+                    .position(|&t| tri_group[t as usize] != group)
+                    .unwrap_or(order.len() - start);
+            split(&mut order, start..end, &centroids, &mut |range| {
+                leaves.push((group, range))
+            });
+            start = end;
+        }
+
+        let mut out = Self {
+            positions: Vec::with_capacity(mesh.positions.len() + mesh.positions.len() / 4),
+            gray: Vec::with_capacity(mesh.positions.len() + mesh.positions.len() / 4),
+            uvs: Vec::new(),
+            indices: Vec::with_capacity(mesh.indices.len()),
+            source_triangle: Vec::with_capacity(triangles),
+            chunks: Vec::with_capacity(leaves.len()),
+        };
+        let has_uvs = !mesh.uvs.is_empty();
+        // Local number of each mesh vertex in the chunk being built, valid
+        // where `stamp` holds that chunk's number.
+        let mut local = vec![0u32; mesh.positions.len()];
+        let mut stamp = vec![u32::MAX; mesh.positions.len()];
+        for (chunk_number, (group, range)) in leaves.into_iter().enumerate() {
+            let tris = &mut order[range];
+            tris.sort_unstable();
+            let first_tri = out.source_triangle.len() as u32;
+            let first_vertex = out.positions.len();
+            let mut bounds = Aabb::EMPTY;
+            for &t in tris.iter() {
+                let Some(tri) = mesh.indices.get(3 * t as usize..3 * t as usize + 3) else {
+                    continue;
+                };
+                for &v in tri {
+                    let v = v as usize;
+                    let (Some(slot), Some(seen)) = (local.get_mut(v), stamp.get_mut(v)) else {
+                        continue;
+                    };
+                    if *seen != chunk_number as u32 {
+                        *seen = chunk_number as u32;
+                        let n = out.positions.len();
+                        if n >= u32::MAX as usize {
+                            return Err(too_large("vertices", n));
+                        }
+                        *slot = n as u32;
+                        let p = mesh.positions.get(v).copied().unwrap_or([0.0; 3]);
+                        bounds.add(p);
+                        out.positions.push(p);
+                        out.gray.push(mesh.gray.get(v).copied().unwrap_or(0.0));
+                        if has_uvs {
+                            out.uvs.push(mesh.uvs.get(v).copied().unwrap_or([0.0; 2]));
+                        }
+                    }
+                    out.indices.push(*slot);
+                }
+                out.source_triangle.push(t);
+            }
+            out.chunks.push(MeshChunk {
+                triangles: first_tri..out.source_triangle.len() as u32,
+                vertices: first_vertex as u32..out.positions.len() as u32,
+                group,
+                bounds,
+            });
+        }
+        Ok(out)
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.source_triangle.len()
+    }
+
+    /// See [`mark_visible`].
+    pub fn mark_visible(&self, frustum: Option<&Frustum>, visible: &mut Vec<bool>) -> CullStats {
+        mark_visible(&self.chunks, frustum, visible)
+    }
+}
+
+/// Sets `visible[i]` for every chunk `i` (`visible` is resized to the chunk
+/// count, without allocating after the first call): whether it passes
+/// `frustum`, or true for every chunk when `frustum` is `None`.
+pub fn mark_visible(
+    chunks: &[MeshChunk],
+    frustum: Option<&Frustum>,
+    visible: &mut Vec<bool>,
+) -> CullStats {
+    visible.resize(chunks.len(), true);
+    let mut stats = CullStats {
+        chunks: chunks.len(),
+        ..CullStats::default()
+    };
+    for (chunk, seen) in chunks.iter().zip(visible.iter_mut()) {
+        stats.triangles += chunk.triangle_count();
+        *seen = frustum.is_none_or(|f| f.intersects(&chunk.bounds));
+        if *seen {
+            stats.visible_chunks += 1;
+            stats.visible_triangles += chunk.triangle_count();
+        }
+    }
+    stats
+}
+
+/// Splits `order[range]` at the median centroid on the longest axis of the
+/// centroids' bounds until every part holds at most [`MAX_CHUNK_TRIS`]
+/// triangles; calls `leaf` with each part, in tree order. Ties are broken by
+/// triangle number, so the split does not depend on the sort algorithm.
+fn split(
+    order: &mut [u32],
+    range: Range<usize>,
+    centroids: &[[f32; 3]],
+    leaf: &mut impl FnMut(Range<usize>),
+) {
+    let mut stack = vec![range];
+    while let Some(range) = stack.pop() {
+        if range.len() <= MAX_CHUNK_TRIS {
+            leaf(range);
+            continue;
+        }
+        let tris = &mut order[range.clone()];
+        let mut bounds = Aabb::EMPTY;
+        for &t in tris.iter() {
+            bounds.add(centroids[t as usize]);
+        }
+        let extent = [0, 1, 2].map(|k| bounds.max_m[k] - bounds.min_m[k]);
+        let axis = if extent[0] >= extent[1] && extent[0] >= extent[2] {
+            0
+        } else if extent[1] >= extent[2] {
+            1
+        } else {
+            2
+        };
+        let mid = tris.len() / 2;
+        tris.select_nth_unstable_by(mid, |&a, &b| {
+            centroids[a as usize][axis]
+                .total_cmp(&centroids[b as usize][axis])
+                .then(a.cmp(&b))
+        });
+        let split_at = range.start + mid;
+        // Popped in reverse: the low half first.
+        stack.push(split_at..range.end);
+        stack.push(range.start..split_at);
+    }
+}
+
+/// The view volume of one render as five world-frame half-spaces
+/// `n . p + d >= 0`: near, then left, right, top, bottom.
+#[derive(Debug, Clone, Copy)]
+pub struct Frustum {
+    planes: [[f64; 4]; 5],
+}
+
+impl Frustum {
+    /// The volume seen by `camera` (distortion ignored) at
+    /// `world_from_camera`, from `near_m` along the optical axis.
+    pub fn new(world_from_camera: &Pose, camera: &PinholeCamera, near_m: f64) -> Self {
+        let (fx, fy, cx, cy) = (camera.fx, camera.fy, camera.cx, camera.cy);
+        let m = SIDE_MARGIN_PX;
+        let (lo_u, hi_u) = (-m, f64::from(camera.width) - 1.0 + m);
+        let (lo_v, hi_v) = (-m, f64::from(camera.height) - 1.0 + m);
+        // Camera frame: u >= lo  <=>  fx x + (cx - lo) z >= 0 for z > 0, etc.
+        let camera_planes = [
+            [0.0, 0.0, 1.0, -near_m],
+            [fx, 0.0, cx - lo_u, 0.0],
+            [-fx, 0.0, hi_u - cx, 0.0],
+            [0.0, fy, cy - lo_v, 0.0],
+            [0.0, -fy, hi_v - cy, 0.0],
+        ];
+        // p_camera = R^T (p_world - t): n_c . p_camera = (R n_c) . (p_world - t).
+        let rotation = world_from_camera.rotation;
+        let t = world_from_camera.translation.vector;
+        let planes = camera_planes.map(|[a, b, c, d]| {
+            let n = rotation * Vector3::new(a, b, c);
+            [n.x, n.y, n.z, d - n.dot(&t)]
+        });
+        Self { planes }
+    }
+
+    /// False only when `bounds` (padded) lies wholly outside one plane.
+    pub fn intersects(&self, bounds: &Aabb) -> bool {
+        let lo = bounds.min_m.map(f64::from);
+        let hi = bounds.max_m.map(f64::from);
+        let largest = lo.iter().chain(&hi).fold(0.0f64, |m, v| m.max(v.abs()));
+        let pad = BOX_PAD_M + 1e-6 * largest;
+        let center = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+        let half = [0, 1, 2].map(|k| 0.5 * (hi[k] - lo[k]) + pad);
+        self.planes.iter().all(|[a, b, c, d]| {
+            let reach = a.abs() * half[0] + b.abs() * half[1] + c.abs() * half[2];
+            a * center[0] + b * center[1] + c * center[2] + d + reach >= 0.0
+        })
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::map::MeshGroup;
+
+    /// An `n x n` grid of quads on the plane z = `z`, spanning x, y in
+    /// `[-half, half]`.
+    fn grid(n: usize, half: f32, z: f32) -> Mesh {
+        let mut mesh = Mesh::default();
+        for j in 0..=n {
+            for i in 0..=n {
+                let s = |k: usize| -half + 2.0 * half * k as f32 / n as f32;
+                mesh.positions.push([s(i), s(j), z]);
+                mesh.gray.push((i + j) as f32);
+            }
+        }
+        let at = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+        for j in 0..n {
+            for i in 0..n {
+                mesh.indices
+                    .extend([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+                mesh.indices
+                    .extend([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+            }
+        }
+        mesh
+    }
+
+    #[test]
+    fn chunks_partition_the_triangles_and_keep_them_intact() {
+        let mut mesh = grid(100, 5.0, 2.0);
+        // Two groups, the first not starting at 0: a third kind, ungrouped.
+        let n = mesh.indices.len() as u32;
+        mesh.groups = vec![
+            MeshGroup {
+                first_index: 300,
+                index_count: n / 2 - 300 - (n / 2) % 3,
+                texture: None,
+            },
+            MeshGroup {
+                first_index: n / 2 - (n / 2) % 3,
+                index_count: n - (n / 2 - (n / 2) % 3),
+                texture: None,
+            },
+        ];
+        let chunked = ChunkedMesh::build(&mesh).unwrap();
+        let tris = mesh.indices.len() / 3;
+        assert_eq!(chunked.triangle_count(), tris);
+        let mut seen = vec![false; tris];
+        let mut next_tri = 0;
+        let mut next_vertex = 0;
+        for chunk in &chunked.chunks {
+            assert!(chunk.triangle_count() <= MAX_CHUNK_TRIS);
+            assert_eq!(chunk.triangles.start, next_tri);
+            assert_eq!(chunk.vertices.start, next_vertex);
+            next_tri = chunk.triangles.end;
+            next_vertex = chunk.vertices.end;
+            for t in chunk.triangles.clone() {
+                let src = chunked.source_triangle[t as usize] as usize;
+                assert!(!std::mem::replace(&mut seen[src], true));
+                let group = mesh
+                    .groups
+                    .iter()
+                    .position(|g| {
+                        let first = g.first_index as usize / 3;
+                        (first..first + g.index_count as usize / 3).contains(&src)
+                    })
+                    .map_or(NO_GROUP, |g| g as u32);
+                assert_eq!(chunk.group, group);
+                for k in 0..3 {
+                    let v = chunked.indices[3 * t as usize + k];
+                    assert!(chunk.vertices.contains(&v), "vertex outside its chunk");
+                    let p = chunked.positions[v as usize];
+                    let orig = mesh.indices[3 * src + k] as usize;
+                    assert_eq!(p, mesh.positions[orig]);
+                    assert_eq!(chunked.gray[v as usize], mesh.gray[orig]);
+                    for a in 0..3 {
+                        assert!(chunk.bounds.min_m[a] <= p[a] && p[a] <= chunk.bounds.max_m[a]);
+                    }
+                }
+            }
+        }
+        assert!(seen.iter().all(|&s| s));
+        // Groups in order, ungrouped last.
+        let groups: Vec<u32> = chunked.chunks.iter().map(|c| c.group).collect();
+        assert!(groups.windows(2).all(|w| w[0] <= w[1]), "{groups:?}");
+        assert_eq!(groups.last(), Some(&NO_GROUP));
+        // Compact: 20k triangles on 10 x 10 m give chunks well under the grid.
+        let widest = chunked
+            .chunks
+            .iter()
+            .map(|c| {
+                (c.bounds.max_m[0] - c.bounds.min_m[0]).max(c.bounds.max_m[1] - c.bounds.min_m[1])
+            })
+            .fold(0.0f32, f32::max);
+        assert!(widest < 6.0, "widest chunk {widest} m");
+    }
+
+    #[test]
+    fn frustum_keeps_boxes_in_view_and_drops_boxes_behind() {
+        let cam = PinholeCamera::new(64, 48, 50.0, 50.0, 31.5, 23.5);
+        let pose = Pose::identity();
+        let f = Frustum::new(&pose, &cam, 0.05);
+        let cube = |c: [f32; 3], h: f32| Aabb {
+            min_m: c.map(|v| v - h),
+            max_m: c.map(|v| v + h),
+        };
+        assert!(f.intersects(&cube([0.0, 0.0, 3.0], 0.1)));
+        // Straddling the near plane, or containing the camera.
+        assert!(f.intersects(&cube([0.0, 0.0, 0.0], 0.1)));
+        assert!(!f.intersects(&cube([0.0, 0.0, -3.0], 0.1)), "behind");
+        assert!(!f.intersects(&cube([10.0, 0.0, 3.0], 0.1)), "right");
+        assert!(!f.intersects(&cube([0.0, -10.0, 3.0], 0.1)), "above");
+        // A flat box at z = 3 m starting just right of the right plane
+        // (u = 63 + 2 px: x = (65 - 31.5) * 3 / 50 = 2.01 m) is kept
+        // within the padding, and culled beyond it.
+        let right_of = |x: f32| Aabb {
+            min_m: [x, -0.1, 3.0],
+            max_m: [x + 0.2, 0.1, 3.0],
+        };
+        assert!(f.intersects(&right_of(2.01 + 0.0005)));
+        assert!(!f.intersects(&right_of(2.01 + 0.01)));
+        // The same boxes seen from a moved, turned camera.
+        let moved = Pose::new(Vector3::new(1.0, 2.0, 3.0), Vector3::new(0.0, 0.0, 3.0));
+        let fm = Frustum::new(&moved, &cam, 0.05);
+        let at = |p: [f32; 3]| {
+            let q =
+                moved * nalgebra::Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+            [q.x as f32, q.y as f32, q.z as f32]
+        };
+        assert!(fm.intersects(&cube(at([0.0, 0.0, 3.0]), 0.1)));
+        assert!(!fm.intersects(&cube(at([0.0, 0.0, -3.0]), 0.1)));
+    }
+
+    #[test]
+    fn mark_visible_counts_chunks_and_triangles() {
+        let mut mesh = grid(60, 5.0, 2.0);
+        // Far enough behind that the first split separates the planes.
+        let behind = grid(60, 5.0, -20.0);
+        let base = mesh.positions.len() as u32;
+        mesh.positions.extend(&behind.positions);
+        mesh.gray.extend(&behind.gray);
+        mesh.indices.extend(behind.indices.iter().map(|i| i + base));
+        let chunked = ChunkedMesh::build(&mesh).unwrap();
+        let cam = PinholeCamera::new(64, 48, 50.0, 50.0, 31.5, 23.5);
+        let f = Frustum::new(&Pose::identity(), &cam, 0.05);
+        let mut visible = Vec::new();
+        let all = chunked.mark_visible(None, &mut visible);
+        assert_eq!(all.visible_chunks, all.chunks);
+        assert_eq!(all.visible_triangles, mesh.indices.len() / 3);
+        let stats = chunked.mark_visible(Some(&f), &mut visible);
+        assert_eq!(stats.chunks, chunked.chunks.len());
+        assert!(stats.visible_chunks > 0);
+        // The plane behind the camera is half the mesh: all of it culled.
+        assert!(stats.visible_fraction() <= 0.5, "{stats:?}");
+        for (chunk, &v) in chunked.chunks.iter().zip(&visible) {
+            if chunk.bounds.max_m[2] < 0.0 {
+                assert!(!v, "chunk behind the camera kept");
+            }
+        }
+    }
+}
