@@ -25,9 +25,10 @@
 //! per-pixel triangle number breaks the tie), so the output is the same as
 //! drawing the whole mesh in mesh order, bit for bit, for any thread count
 //! and with or without the chunk cull. No back-face culling. All scratch
-//! (camera-frame vertices, screen triangles, bins) lives in the renderer and
-//! keeps its capacity, so steady-state renders do not allocate beyond what
-//! rayon does to schedule tasks.
+//! (camera-frame vertices, sized at construction; screen triangles and bins,
+//! which grow per chunk to the most it has shown, as before the cull) lives
+//! in the renderer and keeps its capacity, so steady-state renders do not
+//! allocate beyond what rayon does to schedule tasks.
 
 mod clip;
 mod raster;
@@ -93,6 +94,7 @@ impl CpuRenderer {
             .iter()
             .map(|c| {
                 Chunk::new(
+                    c,
                     mesh.groups
                         .get(c.group as usize)
                         .and_then(|g| g.texture)
