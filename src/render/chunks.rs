@@ -13,12 +13,13 @@
 //! which the CPU rasterizer uses to break depth ties exactly as in mesh
 //! order.
 //!
-//! Per render, a [`Frustum`] (near plane and the four image-side planes one
-//! pixel beyond the outermost pixel centers, as the CPU rasterizer's
-//! triangle cull) is tested against each chunk's box. The test is
-//! conservative: a chunk is culled only when its box, padded by a millimeter,
-//! lies wholly outside one plane, so every vertex of it would fail the
-//! rasterizer's own cull of that plane.
+//! Per render, a [`Frustum`] (the near plane, and the four image-side planes
+//! two pixels beyond the outermost pixel centers: one more than the CPU
+//! rasterizer's own triangle cull) is tested against each chunk's box. The
+//! test is conservative: a chunk is culled only when its box, padded by a
+//! millimeter, lies wholly outside one plane, so every vertex of every
+//! triangle in it lies outside that plane and no triangle of it can cover a
+//! pixel center, in either renderer.
 
 use std::ops::Range;
 
