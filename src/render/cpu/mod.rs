@@ -51,7 +51,8 @@ use self::setup::{Chunk, BAND_ROWS, NO_TEXTURE};
 use self::view::{View, NEAR_M};
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::{GrayTexture, Mesh};
-use crate::render::chunks::{ChunkedMesh, CullStats, Frustum};
+use crate::render::chunks::{ChunkedMesh, CullStats};
+use crate::render::frustum::Frustum;
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
 /// The tiled, multithreaded software rasterizer. See the module docs.

@@ -9,7 +9,8 @@
 
 use std::ops::Range;
 
-use crate::render::chunks::{self, CullStats, Frustum, MeshChunk};
+use crate::render::chunks::{self, CullStats, MeshChunk};
+use crate::render::frustum::Frustum;
 
 /// One draw call: an index range and the texture bind group it samples.
 #[derive(Debug, Clone, PartialEq, Eq)]

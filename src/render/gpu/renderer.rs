@@ -21,7 +21,8 @@ use super::upload::{self, GpuMesh, TextureFormat};
 use super::GpuError;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
-use crate::render::chunks::{CullStats, Frustum};
+use crate::render::chunks::CullStats;
+use crate::render::frustum::Frustum;
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
 /// How long a render may take before it counts as a device failure.
