@@ -1,5 +1,5 @@
-//! Spatial chunks of a mesh and the view-frustum test on them, shared by
-//! both renderers so that a render costs what is visible, not the map.
+//! Spatial chunks of a mesh, shared by both renderers so that a render costs
+//! what is visible, not the map.
 //!
 //! Takes a validated [`Mesh`] once, at renderer construction, and gives out
 //! a [`ChunkedMesh`]: the triangles split into spatially compact
@@ -13,18 +13,12 @@
 //! which the CPU rasterizer uses to break depth ties exactly as in mesh
 //! order.
 //!
-//! Per render, a [`Frustum`] (near plane and the four image-side planes one
-//! pixel beyond the outermost pixel centers, as the CPU rasterizer's
-//! triangle cull) is tested against each chunk's box. The test is
-//! conservative: a chunk is culled only when its box, padded by a millimeter,
-//! lies wholly outside one plane, so every vertex of it would fail the
-//! rasterizer's own cull of that plane.
+//! Per render, each chunk's box is tested against the view [`Frustum`]
+//! ([`mark_visible`]).
 
 use std::ops::Range;
 
-use nalgebra::Vector3;
-
-use crate::geometry::{PinholeCamera, Pose};
+use super::frustum::Frustum;
 use crate::map::Mesh;
 use crate::render::RenderError;
 
@@ -33,15 +27,6 @@ pub const MAX_CHUNK_TRIS: usize = 4096;
 
 /// Group number of triangles outside every mesh group.
 pub const NO_GROUP: u32 = u32::MAX;
-
-/// Padding of the chunk boxes in the frustum test, meters, on top of a
-/// relative 1e-6 of the largest coordinate: far above the `f32` rounding of
-/// the renderers' vertex transforms.
-const BOX_PAD_M: f64 = 1e-3;
-
-/// Margin of the side planes beyond the outermost pixel centers, pixels.
-/// The CPU rasterizer culls at one pixel; the test adds one more.
-const SIDE_MARGIN_PX: f64 = 2.0;
 
 /// An axis-aligned box in the world frame, meters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -322,58 +307,11 @@ fn split(
     }
 }
 
-/// The view volume of one render as five world-frame half-spaces
-/// `n . p + d >= 0`: near, then left, right, top, bottom.
-#[derive(Debug, Clone, Copy)]
-pub struct Frustum {
-    planes: [[f64; 4]; 5],
-}
-
-impl Frustum {
-    /// The volume seen by `camera` (distortion ignored) at
-    /// `world_from_camera`, from `near_m` along the optical axis.
-    pub fn new(world_from_camera: &Pose, camera: &PinholeCamera, near_m: f64) -> Self {
-        let (fx, fy, cx, cy) = (camera.fx, camera.fy, camera.cx, camera.cy);
-        let m = SIDE_MARGIN_PX;
-        let (lo_u, hi_u) = (-m, f64::from(camera.width) - 1.0 + m);
-        let (lo_v, hi_v) = (-m, f64::from(camera.height) - 1.0 + m);
-        // Camera frame: u >= lo  <=>  fx x + (cx - lo) z >= 0 for z > 0, etc.
-        let camera_planes = [
-            [0.0, 0.0, 1.0, -near_m],
-            [fx, 0.0, cx - lo_u, 0.0],
-            [-fx, 0.0, hi_u - cx, 0.0],
-            [0.0, fy, cy - lo_v, 0.0],
-            [0.0, -fy, hi_v - cy, 0.0],
-        ];
-        // p_camera = R^T (p_world - t): n_c . p_camera = (R n_c) . (p_world - t).
-        let rotation = world_from_camera.rotation;
-        let t = world_from_camera.translation.vector;
-        let planes = camera_planes.map(|[a, b, c, d]| {
-            let n = rotation * Vector3::new(a, b, c);
-            [n.x, n.y, n.z, d - n.dot(&t)]
-        });
-        Self { planes }
-    }
-
-    /// False only when `bounds` (padded) lies wholly outside one plane.
-    pub fn intersects(&self, bounds: &Aabb) -> bool {
-        let lo = bounds.min_m.map(f64::from);
-        let hi = bounds.max_m.map(f64::from);
-        let largest = lo.iter().chain(&hi).fold(0.0f64, |m, v| m.max(v.abs()));
-        let pad = BOX_PAD_M + 1e-6 * largest;
-        let center = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
-        let half = [0, 1, 2].map(|k| 0.5 * (hi[k] - lo[k]) + pad);
-        self.planes.iter().all(|[a, b, c, d]| {
-            let reach = a.abs() * half[0] + b.abs() * half[1] + c.abs() * half[2];
-            a * center[0] + b * center[1] + c * center[2] + d + reach >= 0.0
-        })
-    }
-}
-
 #[cfg(test)]
 #[allow(clippy::expect_used, clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use crate::geometry::{PinholeCamera, Pose};
     use crate::map::MeshGroup;
 
     /// An `n x n` grid of quads on the plane z = `z`, spanning x, y in
@@ -467,42 +405,6 @@ mod tests {
             })
             .fold(0.0f32, f32::max);
         assert!(widest < 6.0, "widest chunk {widest} m");
-    }
-
-    #[test]
-    fn frustum_keeps_boxes_in_view_and_drops_boxes_behind() {
-        let cam = PinholeCamera::new(64, 48, 50.0, 50.0, 31.5, 23.5);
-        let pose = Pose::identity();
-        let f = Frustum::new(&pose, &cam, 0.05);
-        let cube = |c: [f32; 3], h: f32| Aabb {
-            min_m: c.map(|v| v - h),
-            max_m: c.map(|v| v + h),
-        };
-        assert!(f.intersects(&cube([0.0, 0.0, 3.0], 0.1)));
-        // Straddling the near plane, or containing the camera.
-        assert!(f.intersects(&cube([0.0, 0.0, 0.0], 0.1)));
-        assert!(!f.intersects(&cube([0.0, 0.0, -3.0], 0.1)), "behind");
-        assert!(!f.intersects(&cube([10.0, 0.0, 3.0], 0.1)), "right");
-        assert!(!f.intersects(&cube([0.0, -10.0, 3.0], 0.1)), "above");
-        // A flat box at z = 3 m starting just right of the right plane
-        // (u = 63 + 2 px: x = (65 - 31.5) * 3 / 50 = 2.01 m) is kept
-        // within the padding, and culled beyond it.
-        let right_of = |x: f32| Aabb {
-            min_m: [x, -0.1, 3.0],
-            max_m: [x + 0.2, 0.1, 3.0],
-        };
-        assert!(f.intersects(&right_of(2.01 + 0.0005)));
-        assert!(!f.intersects(&right_of(2.01 + 0.01)));
-        // The same boxes seen from a moved, turned camera.
-        let moved = Pose::new(Vector3::new(1.0, 2.0, 3.0), Vector3::new(0.0, 0.0, 3.0));
-        let fm = Frustum::new(&moved, &cam, 0.05);
-        let at = |p: [f32; 3]| {
-            let q =
-                moved * nalgebra::Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-            [q.x as f32, q.y as f32, q.z as f32]
-        };
-        assert!(fm.intersects(&cube(at([0.0, 0.0, 3.0]), 0.1)));
-        assert!(!fm.intersects(&cube(at([0.0, 0.0, -3.0]), 0.1)));
     }
 
     #[test]

@@ -6,7 +6,7 @@
 //! `select` turns `render.renderer` from the config into a renderer that
 //! falls back down the chain (hardware GPU, software GPU, CPU) on failure.
 //! Both split the mesh into spatial chunks once (`chunks`) and draw only the
-//! chunks that meet the view frustum.
+//! chunks that meet the view frustum (`frustum`).
 //! Renderers take the mesh once at construction and render an ideal pinhole
 //! view (distortion is removed from camera frames instead). Pixel centers are
 //! at integer coordinates, as everywhere in `star`.
@@ -24,6 +24,7 @@ use crate::imgproc::ImageF32;
 
 pub mod chunks;
 pub mod cpu;
+pub mod frustum;
 pub mod gpu;
 pub mod select;
 

@@ -25,9 +25,10 @@
 //! per-pixel triangle number breaks the tie), so the output is the same as
 //! drawing the whole mesh in mesh order, bit for bit, for any thread count
 //! and with or without the chunk cull. No back-face culling. All scratch
-//! (camera-frame vertices, screen triangles, bins) lives in the renderer and
-//! keeps its capacity, so steady-state renders do not allocate beyond what
-//! rayon does to schedule tasks.
+//! (camera-frame vertices, sized at construction; screen triangles and bins,
+//! which grow per chunk to the most it has shown, as before the cull) lives
+//! in the renderer and keeps its capacity, so steady-state renders do not
+//! allocate beyond what rayon does to schedule tasks.
 
 mod clip;
 mod raster;
@@ -50,7 +51,8 @@ use self::setup::{Chunk, BAND_ROWS, NO_TEXTURE};
 use self::view::{View, NEAR_M};
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::{GrayTexture, Mesh};
-use crate::render::chunks::{ChunkedMesh, CullStats, Frustum};
+use crate::render::chunks::{ChunkedMesh, CullStats};
+use crate::render::frustum::Frustum;
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
 /// The tiled, multithreaded software rasterizer. See the module docs.
@@ -93,6 +95,7 @@ impl CpuRenderer {
             .iter()
             .map(|c| {
                 Chunk::new(
+                    c,
                     mesh.groups
                         .get(c.group as usize)
                         .and_then(|g| g.texture)

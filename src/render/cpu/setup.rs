@@ -69,11 +69,14 @@ struct Projected {
 }
 
 impl Chunk {
-    /// Empty scratch for a chunk whose triangles sample `texture` (or
-    /// [`NO_TEXTURE`]).
-    pub fn new(texture: u32) -> Self {
+    /// Scratch for `chunk`, whose triangles sample `texture` (or
+    /// [`NO_TEXTURE`]), with room for its camera-frame vertices. (Screen
+    /// triangles and bins grow to what the chunk has shown so far, as the
+    /// first views of a part of the map are drawn.)
+    pub fn new(chunk: &MeshChunk, texture: u32) -> Self {
         Self {
             texture,
+            verts: Vec::with_capacity(chunk.vertices.len()),
             ..Self::default()
         }
     }

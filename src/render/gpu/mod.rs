@@ -24,6 +24,7 @@
 //! `render::select` then falls back to the next renderer.
 
 pub mod adapter;
+mod draws;
 mod frame;
 mod pipeline;
 pub mod projection;

@@ -13,14 +13,16 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::adapter::{self, AdapterClass, AdapterPreference};
+use super::draws::{self, Draw};
 use super::frame::{FrameTargets, MapStatus};
 use super::pipeline;
 use super::projection::{ViewUniform, NEAR_M, VIEW_UNIFORM_BYTES};
-use super::upload::{self, Draw, GpuMesh, TextureFormat};
+use super::upload::{self, GpuMesh, TextureFormat};
 use super::GpuError;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
-use crate::render::chunks::{self, CullStats, Frustum};
+use crate::render::chunks::CullStats;
+use crate::render::frustum::Frustum;
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
 /// How long a render may take before it counts as a device failure.
@@ -266,31 +268,6 @@ impl GpuRenderer {
         self.stats
     }
 
-    /// Fills `self.draws` with the chunks of the view of `camera` at
-    /// `world_from_camera`: adjacent chunks of one texture merged.
-    fn select_draws(&mut self, world_from_camera: &Pose, camera: &PinholeCamera) {
-        let frustum = Frustum::new(world_from_camera, camera, NEAR_M);
-        self.stats = chunks::mark_visible(
-            &self.mesh.chunks,
-            self.cull.then_some(&frustum),
-            &mut self.visible,
-        );
-        self.draws.clear();
-        let chunks = self.mesh.chunks.iter().zip(&self.mesh.chunk_texture);
-        for ((chunk, &texture), &visible) in chunks.zip(&self.visible) {
-            let (Some(texture), true) = (texture, visible) else {
-                continue;
-            };
-            let indices = chunk.index_range();
-            match self.draws.last_mut() {
-                Some(last) if last.texture == texture && last.indices.end == indices.start => {
-                    last.indices.end = indices.end;
-                }
-                _ => self.draws.push(Draw { indices, texture }),
-            }
-        }
-    }
-
     /// Test hook: the next `n` renders succeed, every later one fails with
     /// [`GpuError::Injected`], as a lost device would.
     #[doc(hidden)]
@@ -337,7 +314,14 @@ impl GpuRenderer {
                 max_dimension: self.max_dimension,
             });
         }
-        self.select_draws(world_from_camera, camera);
+        let frustum = Frustum::new(world_from_camera, camera, NEAR_M);
+        self.stats = draws::select(
+            &self.mesh.chunks,
+            &self.mesh.chunk_texture,
+            self.cull.then_some(&frustum),
+            &mut self.visible,
+            &mut self.draws,
+        );
         let frame = match self.frame.take() {
             Some(f) if f.size() == (w, h) => f,
             Some(f) if f.any_busy() => {

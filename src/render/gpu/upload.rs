@@ -8,8 +8,6 @@
 //! sampler, and the chunks to draw (box, index range and bind group each),
 //! from which each render picks those in the view frustum.
 
-use std::ops::Range;
-
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
@@ -35,15 +33,6 @@ pub const VERTEX_LAYOUT: wgpu::VertexBufferLayout<'static> = wgpu::VertexBufferL
     step_mode: wgpu::VertexStepMode::Vertex,
     attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32, 2 => Float32x2],
 };
-
-/// One draw call: an index range and the texture bind group it samples.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Draw {
-    /// Indices into the index buffer.
-    pub indices: Range<u32>,
-    /// Index of the bind group in [`GpuMesh::texture_groups`].
-    pub texture: usize,
-}
 
 /// The mesh as it lives on the device.
 #[derive(Debug)]
