@@ -136,6 +136,22 @@ fn iox_err(op: &'static str, name: &'static str) -> impl FnOnce(String) -> IpcEr
     }
 }
 
+/// The frame service's settings, the one place they are written: opening
+/// with other settings than the creator's fails.
+fn frame_service_builder(
+    node: &Node<ipc::Service>,
+    name: &ServiceName,
+) -> iceoryx2::service::builder::publish_subscribe::Builder<Frame, (), ipc::Service> {
+    node.service_builder(name)
+        .publish_subscribe::<Frame>()
+        .enable_safe_overflow(true)
+        .subscriber_max_buffer_size(1)
+        .subscriber_max_borrowed_samples(FRAME_MAX_BORROWED)
+        .history_size(0)
+        .max_publishers(MAX_PUBLISHERS)
+        .max_subscribers(FRAME_MAX_SUBSCRIBERS)
+}
+
 /// Opens (or creates) the frame service: one publisher, a buffer of one
 /// frame per subscriber with safe overflow, so a slow consumer always finds
 /// the newest frame and nothing queues up. A service whose shared memory
@@ -144,17 +160,7 @@ pub fn open_frame_service(
     node: &Node<ipc::Service>,
 ) -> Result<publish_subscribe::PortFactory<ipc::Service, Frame, ()>, IpcError> {
     let name = service_name(FRAME_SERVICE)?;
-    let open = || {
-        node.service_builder(&name)
-            .publish_subscribe::<Frame>()
-            .enable_safe_overflow(true)
-            .subscriber_max_buffer_size(1)
-            .subscriber_max_borrowed_samples(FRAME_MAX_BORROWED)
-            .history_size(0)
-            .max_publishers(MAX_PUBLISHERS)
-            .max_subscribers(FRAME_MAX_SUBSCRIBERS)
-            .open_or_create()
-    };
+    let open = || frame_service_builder(node, &name).open_or_create();
     match open() {
         Err(e) if pubsub_orphaned(&e) => {
             remove_orphaned(node, FRAME_SERVICE, MessagingPattern::PublishSubscribe);
@@ -200,16 +206,7 @@ pub fn open_pose_service(
 pub fn open_existing_frame_service(
     node: &Node<ipc::Service>,
 ) -> Result<Option<publish_subscribe::PortFactory<ipc::Service, Frame, ()>>, IpcError> {
-    let opened = node
-        .service_builder(&service_name(FRAME_SERVICE)?)
-        .publish_subscribe::<Frame>()
-        .enable_safe_overflow(true)
-        .subscriber_max_buffer_size(1)
-        .subscriber_max_borrowed_samples(FRAME_MAX_BORROWED)
-        .history_size(0)
-        .max_publishers(MAX_PUBLISHERS)
-        .max_subscribers(FRAME_MAX_SUBSCRIBERS)
-        .open();
+    let opened = frame_service_builder(node, &service_name(FRAME_SERVICE)?).open();
     match opened {
         Ok(factory) => Ok(Some(factory)),
         Err(
@@ -227,12 +224,7 @@ pub fn open_existing_event_service(
     node: &Node<ipc::Service>,
     name: &'static str,
 ) -> Result<Option<event::PortFactory<ipc::Service>>, IpcError> {
-    let opened = node
-        .service_builder(&service_name(name)?)
-        .event()
-        .max_notifiers(4)
-        .max_listeners(POSE_MAX_SUBSCRIBERS)
-        .open();
+    let opened = event_service_builder(node, &service_name(name)?).open();
     match opened {
         Ok(factory) => Ok(Some(factory)),
         Err(
@@ -292,6 +284,17 @@ pub fn remove_orphaned(node: &Node<ipc::Service>, name: &'static str, pattern: M
     }
 }
 
+/// An event service's settings, the one place they are written.
+fn event_service_builder(
+    node: &Node<ipc::Service>,
+    name: &ServiceName,
+) -> iceoryx2::service::builder::event::Builder<ipc::Service> {
+    node.service_builder(name)
+        .event()
+        .max_notifiers(4)
+        .max_listeners(POSE_MAX_SUBSCRIBERS)
+}
+
 /// Opens (or creates) an event service used to wake subscribers (recreated
 /// like the frame service when its shared memory was deleted).
 pub fn open_event_service(
@@ -299,13 +302,7 @@ pub fn open_event_service(
     name: &'static str,
 ) -> Result<event::PortFactory<ipc::Service>, IpcError> {
     let service = service_name(name)?;
-    let open = || {
-        node.service_builder(&service)
-            .event()
-            .max_notifiers(4)
-            .max_listeners(POSE_MAX_SUBSCRIBERS)
-            .open_or_create()
-    };
+    let open = || event_service_builder(node, &service).open_or_create();
     match open() {
         Err(e) if event_orphaned(&e) => {
             remove_orphaned(node, name, MessagingPattern::Event);

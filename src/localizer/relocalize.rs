@@ -224,29 +224,34 @@ impl Localizer {
         }
         let mut tried = [u32::MAX; 2 * (MAX_TOP_K + 1)];
         let mut n_tried = 0usize;
-        for (region, pass) in [
-            (Some(SearchRegion::Everywhere), 0),
-            (near, 1),
-            (Some(SearchRegion::Everywhere), 1),
-        ]
-        .into_iter()
-        .filter_map(|(region, pass)| region.map(|r| (r, pass)))
-        {
+        /// Where the candidates of one step come from.
+        enum Source {
+            Landmark,
+            Views(SearchRegion),
+        }
+        let steps = [
+            Some(Source::Landmark),
+            near.map(Source::Views),
+            Some(Source::Views(SearchRegion::Everywhere)),
+        ];
+        for source in steps.into_iter().flatten() {
             let mut candidates = [Candidate::default(); MAX_TOP_K];
-            let mut n = 0;
-            if pass == 0 {
-                if let Some((c, _)) = landmark
-                    .filter(|(c, _)| region.contains(&c.world_from_camera.translation.vector))
-                {
-                    candidates[0] = c;
-                    n = 1;
+            let n = match source {
+                Source::Landmark => match landmark {
+                    Some((c, _)) => {
+                        candidates[0] = c;
+                        1
+                    }
+                    None => 0,
+                },
+                Source::Views(region) => {
+                    let found =
+                        reloc.search_ranked(&query, region, &mut self.reloc_aligner, &self.pyramid);
+                    let n = found.len().min(MAX_TOP_K);
+                    candidates[..n].copy_from_slice(&found[..n]);
+                    n
                 }
-            } else {
-                let found =
-                    reloc.search_ranked(&query, region, &mut self.reloc_aligner, &self.pyramid);
-                n = found.len().min(MAX_TOP_K);
-                candidates[..n].copy_from_slice(&found[..n]);
-            }
+            };
             for candidate in &candidates[..n] {
                 let c = candidate.ranked.index;
                 if tried[..n_tried].contains(&c) || n_tried >= tried.len() {
