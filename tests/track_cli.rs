@@ -12,16 +12,11 @@ use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::mpsc;
-use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
-const STAR: &str = env!("CARGO_BIN_EXE_star");
-
-fn star(args: &[&str]) -> Output {
-    Command::new(STAR).args(args).output().expect("run star")
-}
+use common::star_cli::{dataset, spawn_logged as spawn, star, STAR};
 
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
@@ -68,74 +63,10 @@ fn invalid_config_and_missing_map_are_named() {
     assert!(stderr(&o).contains("tracker.init_pose"), "{}", stderr(&o));
 }
 
-/// A 60-frame synthetic sequence, made once per test process.
-fn dataset() -> &'static Path {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("star_track_cli_{}", std::process::id()));
-        let o = star(&[
-            "--log",
-            "warn",
-            "synth",
-            "--preset",
-            "realistic",
-            dir.to_str().unwrap(),
-            "--frames",
-            "60",
-            "--seed",
-            "3",
-            "--no-depth",
-        ]);
-        assert!(o.status.success(), "synth: {}", stderr(&o));
-        dir
-    })
-}
-
-/// Star config for `dataset()` with an isolated iceoryx2 prefix.
+/// Star config for [`dataset`] with an isolated iceoryx2 prefix and
+/// `mavlink` as its `[mavlink]` section.
 fn configs(dir: &Path, tag: &str, mavlink: &str) -> PathBuf {
-    let ds = dataset();
-    let cam = std::fs::read_to_string(ds.join("camera.toml")).unwrap();
-    let cam: String = cam
-        .lines()
-        .filter(|l| !l.starts_with("depth_scale"))
-        .map(|l| l.replace("[distortion]", "[camera.intrinsics.distortion]") + "\n")
-        .collect();
-    let init = first_pose(ds);
-    let extra = format!(
-        "[map]\nmesh = \"{}\"\n[mavlink]\n{mavlink}\n[tracker]\ninit_pose = {init:?}\n[camera.intrinsics]\n{cam}",
-        ds.join("map/map.obj").display()
-    );
-    common::write_isolated_configs(dir, tag, &extra)
-}
-
-fn first_pose(ds: &Path) -> Vec<f64> {
-    let gt = std::fs::read_to_string(ds.join("groundtruth.txt")).unwrap();
-    let line = gt.lines().find(|l| !l.starts_with('#')).unwrap();
-    line.split_whitespace()
-        .skip(1)
-        .map(|v| v.parse().unwrap())
-        .collect()
-}
-
-/// Spawns `star ARGS` and forwards its stderr lines to a channel.
-fn spawn(args: &[&str]) -> (Child, mpsc::Receiver<String>) {
-    let mut child = Command::new(STAR)
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .env("NO_COLOR", "1")
-        .spawn()
-        .expect("spawn star");
-    let (tx, rx) = mpsc::channel();
-    let err = child.stderr.take().unwrap();
-    std::thread::spawn(move || {
-        for line in BufReader::new(err).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
-            }
-        }
-    });
-    (child, rx)
+    common::star_cli::config_with_mavlink(dir, tag, "", mavlink)
 }
 
 fn wait_for(rx: &mpsc::Receiver<String>, needle: &str, timeout: Duration) -> bool {

@@ -87,6 +87,11 @@ pub fn dataset_copy(dir: &Path, stamp: impl Fn(usize, f64) -> f64) -> (PathBuf, 
 /// A star config in `dir` that tracks [`dataset`] (first ground-truth pose
 /// as the hint, MAVLink off) on the iceoryx2 prefix of `tag`, plus `extra`.
 pub fn config(dir: &Path, tag: &str, extra: &str) -> PathBuf {
+    config_with_mavlink(dir, tag, extra, "enabled = false")
+}
+
+/// [`config`] with `mavlink` as the body of its `[mavlink]` section.
+pub fn config_with_mavlink(dir: &Path, tag: &str, extra: &str, mavlink: &str) -> PathBuf {
     let ds = dataset();
     let cam = std::fs::read_to_string(ds.join("camera.toml")).unwrap();
     let cam: String = cam
@@ -102,7 +107,7 @@ pub fn config(dir: &Path, tag: &str, extra: &str) -> PathBuf {
         .map(|v| v.parse().unwrap())
         .collect();
     let text = format!(
-        "{extra}\n[map]\nmesh = \"{}\"\n[mavlink]\nenabled = false\n[tracker]\ninit_pose = {init:?}\n[camera.intrinsics]\n{cam}",
+        "{extra}\n[map]\nmesh = \"{}\"\n[mavlink]\n{mavlink}\n[tracker]\ninit_pose = {init:?}\n[camera.intrinsics]\n{cam}",
         ds.join("map/map.obj").display()
     );
     super::write_isolated_configs(dir, tag, &text)
@@ -120,6 +125,17 @@ pub struct Running {
 
 /// Spawns `star ARGS`, stdout piped, stderr forwarded to [`Running::log`].
 pub fn spawn(args: &[&str]) -> Running {
+    let (child, log) = spawn_logged(args);
+    Running {
+        child,
+        log,
+        seen: Vec::new(),
+    }
+}
+
+/// Spawns `star ARGS`, stdout piped, its stderr lines sent to the receiver
+/// (the caller owns the process).
+pub fn spawn_logged(args: &[&str]) -> (Child, mpsc::Receiver<String>) {
     let mut child = Command::new(STAR)
         .args(args)
         .stdout(Stdio::piped())
@@ -136,11 +152,7 @@ pub fn spawn(args: &[&str]) -> Running {
             }
         }
     });
-    Running {
-        child,
-        log: rx,
-        seen: Vec::new(),
-    }
+    (child, rx)
 }
 
 impl Running {
