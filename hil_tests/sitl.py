@@ -284,6 +284,16 @@ class Sitl:
             return None
 
 
+def stop_all(sitl, rig, *closers):
+    """Tears one start down: each closer that was made (a Tap, a Gcs), then
+    star's rig, then SITL."""
+    for closer in closers:
+        if closer is not None:
+            closer.close()
+    rig.cleanup()
+    sitl.stop()
+
+
 def yaw_of(fields):
     if "yaw" in fields:
         return fields["yaw"]

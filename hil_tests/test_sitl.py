@@ -35,7 +35,7 @@ import time
 import pytest
 
 from conftest import Rig, write_subset
-from sitl import SKIP, Gcs, Sitl, Tap, angle_deg, free_instance, yaw_of
+from sitl import SKIP, Gcs, Sitl, Tap, angle_deg, free_instance, stop_all, yaw_of
 
 STARTS = int(os.environ.get("STAR_SITL_STARTS", "5"))
 # Frames of the still sequence star replays (50 Hz): 6 s of poses.
@@ -112,11 +112,7 @@ def one_start(star_bin, still, tmp, message="vision_position_estimate"):
             "texts": [x for _, x in gcs.texts],
         }
     finally:
-        for closer in (tap, gcs):
-            if closer is not None:
-                closer.close()
-        rig.cleanup()
-        sitl.stop()
+        stop_all(sitl, rig, tap, gcs)
     visp = sitl.vision_log()
     if visp:
         # How old EKF3 dated each sample (its time at logging minus the

@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 
 from conftest import Rig, read_tum, write_subset
-from sitl import SKIP, Gcs, Sitl, Tap, free_instance
+from sitl import SKIP, Gcs, Sitl, Tap, free_instance, stop_all
 
 pytestmark = SKIP
 
@@ -152,11 +152,7 @@ def test_link_blackouts(star_bin, long_still, tmp_path):
         assert run.returncode == 0, run.log_path.read_text()[-3000:]
         time.sleep(0.3)
     finally:
-        for closer in (tap, gcs):
-            if closer is not None:
-                closer.close()
-        rig.cleanup()
-        sitl.stop()
+        stop_all(sitl, rig, tap, gcs)
 
     poses = tap.of_type("VISION_POSITION_ESTIMATE")
     texts = gcs.texts
@@ -225,11 +221,7 @@ def test_relocalization_jump_follows_reset_counter(star_bin, dataset, teleport, 
         assert run.returncode == 0, run.log_path.read_text()[-3000:]
         time.sleep(0.3)
     finally:
-        for closer in (tap, gcs):
-            if closer is not None:
-                closer.close()
-        rig.cleanup()
-        sitl.stop()
+        stop_all(sitl, rig, tap, gcs)
 
     poses = tap.of_type("VISION_POSITION_ESTIMATE")
     counters = [f["reset_counter"] for _, f in poses]

@@ -18,7 +18,7 @@ import time
 import pytest
 
 from conftest import Rig, write_subset
-from sitl import SKIP, SOCAT, Gcs, PtyPair, Sitl, dataflash, free_instance
+from sitl import SKIP, SOCAT, Gcs, PtyPair, Sitl, dataflash, free_instance, stop_all
 
 pytestmark = [
     SKIP,
@@ -53,10 +53,7 @@ def test_serial_link_fused(star_bin, still, tmp_path):
         run_end = time.monotonic()
         time.sleep(0.3)
     finally:
-        if gcs is not None:
-            gcs.close()
-        rig.cleanup()
-        sitl.stop()
+        stop_all(sitl, rig, gcs)
         pty.close()
 
     visp, msgs = dataflash(sitl.dir)

@@ -24,7 +24,7 @@ import time
 import pytest
 
 from conftest import Rig, write_subset
-from sitl import SKIP, SOCAT, Gcs, PtyPair, Sitl, Tap, dataflash, free_instance
+from sitl import SKIP, SOCAT, Gcs, PtyPair, Sitl, Tap, dataflash, free_instance, stop_all
 
 
 pytestmark = SKIP
@@ -93,11 +93,7 @@ def test_signed_poses_fused_unsigned_refused(star_bin, stills, tmp_path):
         time.sleep(0.3)
         poses = tap.of_type("VISION_POSITION_ESTIMATE")
     finally:
-        for closer in (tap, gcs):
-            if closer is not None:
-                closer.close()
-        rig.cleanup()
-        sitl.stop()
+        stop_all(sitl, rig, tap, gcs)
 
     fused = [t for t, text in gcs.texts if FUSED in text]
     dropped = [line for line in log.splitlines() if "MAVLink frame dropped" in line]
@@ -147,10 +143,7 @@ def test_signed_serial_link_fused(star_bin, stills, tmp_path):
         assert run.returncode == 0, run.log_path.read_text()[-3000:]
         log = run.log_path.read_text()
     finally:
-        if gcs is not None:
-            gcs.close()
-        rig.cleanup()
-        sitl.stop()
+        stop_all(sitl, rig, gcs)
         pty.close()
     visp, msgs = dataflash(sitl.dir)
     assert len(visp) > 0.8 * SIGNED_FRAMES, f"SITL logged {len(visp)} vision samples over the signed serial link"
