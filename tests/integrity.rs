@@ -2,8 +2,8 @@
 //! the truth, counted without alignment by `star::offline::integrity`), under
 //! the faults that broke the closed world: a cold start without a pose, a
 //! wrong initial hint 1-3 m off (with and without a database), a covered
-//! lens, and frames from a different place. Where recovery is possible it
-//! must happen; where it is not, nothing is sent.
+//! lens, frames from a different place, and a view that jumps. Where
+//! recovery is possible it must happen; where it is not, nothing is sent.
 
 #![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 
@@ -171,4 +171,56 @@ fn covered_lens_and_a_look_alike_room_send_nothing() {
         sent_elsewhere, 0,
         "poses sent for frames of the look-alike room"
     );
+}
+
+#[test]
+fn a_view_that_jumps_is_not_sent() {
+    // From FAULT_START on, the frames run 6 frames (0.12 s) ahead: between
+    // two frames 20 ms apart the view jumps about 8 cm, more than a vehicle
+    // moves, as when an unmapped object drags the alignment off. The
+    // alignment does not follow such a jump; it settles near the
+    // prediction, degrees wrong, with some inliers by chance. The lost test
+    // must refuse that frame (its correlation falls far below its running
+    // mean; with the old test, 0.2 absolute and a 0.3 m jump, the run
+    // without a database sent 5 poses up to 0.9 m wrong). Tracking resumes
+    // only through the relocalization gate.
+    const AHEAD: usize = 6;
+    let fx = fixture();
+    let moved_m = (fx.gt.poses[FAULT_START + AHEAD].translation.vector
+        - fx.gt.poses[FAULT_START - 1].translation.vector)
+        .norm();
+    assert!(
+        (0.05..0.3).contains(&moved_m),
+        "the fixture's jump is {moved_m} m: past the jump limit, within the old 0.3 m"
+    );
+    let tmp = tempfile::tempdir().expect("tmp");
+    let ds = common::reloc_fixture::spliced(&fx, &tmp.path().join("ahead"), |i| {
+        if i < FAULT_START {
+            Some(i)
+        } else {
+            Some(i + AHEAD).filter(|&j| j < FRAMES)
+        }
+    });
+    for database in [true, false] {
+        let what = format!("a view jumping {moved_m:.3} m, database: {database}");
+        let report = run_with(&fx, &ds, OfflineOptions::default(), database);
+        integrity(&report, &what);
+        let tracked: Vec<bool> = report.tracked.iter().map(|t| t.1).collect();
+        assert!(
+            tracked[FAULT_START - 1],
+            "{what}: not tracking before the jump"
+        );
+        assert!(
+            !tracked[FAULT_START],
+            "{what}: the frame after the jump was sent"
+        );
+        if database {
+            let resumed = (FAULT_START..FRAMES - AHEAD).find(|&i| tracked[i]);
+            let resumed = resumed.unwrap_or_else(|| panic!("{what}: never resumed"));
+            assert!(
+                resumed <= FAULT_START + 50,
+                "{what}: resumed only at frame {resumed}"
+            );
+        }
+    }
 }

@@ -23,11 +23,23 @@ pub struct KeyframeConfig {
     pub lost_inlier_ratio: f32,
     /// Tracking is lost when fewer than this fraction of keyframe points are visible.
     pub lost_visible_ratio: f32,
-    /// Tracking is lost when the estimate jumps this far from the prediction in one frame, meters.
+    /// Tracking is lost when the estimate lands farther than this from the
+    /// constant-velocity prediction, meters per 20 ms predicted (the limit
+    /// grows in proportion over longer gaps between tracked frames). An
+    /// unmapped object dragging the alignment away shows here first: a
+    /// drone cannot leave its predicted path by centimeters in one frame.
     pub lost_max_jump_m: f32,
+    /// ... or turns farther than this from the prediction, degrees per 20 ms.
+    pub lost_max_jump_deg: f32,
     /// Tracking is lost when the normalized cross-correlation between the
     /// keyframe points and the aligned frame drops below this.
     pub lost_min_correlation: f32,
+    /// Tracking is lost when the correlation falls below this fraction of
+    /// its running mean over the last frames tracked (about ten): the same
+    /// scene 20 ms later against the same keyframe does not lose a third of
+    /// its correlation unless the alignment failed to follow (a view that
+    /// jumped, an unmapped object dragging it).
+    pub lost_correlation_drop: f32,
 }
 
 impl Default for KeyframeConfig {
@@ -40,8 +52,10 @@ impl Default for KeyframeConfig {
             max_interval_s: 1.0,
             lost_inlier_ratio: 0.35,
             lost_visible_ratio: 0.15,
-            lost_max_jump_m: 0.3,
+            lost_max_jump_m: 0.05,
+            lost_max_jump_deg: 2.0,
             lost_min_correlation: 0.2,
+            lost_correlation_drop: 0.6,
         }
     }
 }
@@ -52,7 +66,7 @@ impl KeyframeConfig {
         let k = self;
         let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
         let positive = |v: f32| v.is_finite() && v > 0.0;
-        let checks: [(&str, bool, f32); 9] = [
+        let checks: [(&str, bool, f32); 11] = [
             ("min_visible", unit(k.min_visible), k.min_visible),
             (
                 "max_baseline_ratio",
@@ -90,9 +104,19 @@ impl KeyframeConfig {
                 k.lost_max_jump_m,
             ),
             (
+                "lost_max_jump_deg",
+                positive(k.lost_max_jump_deg) && k.lost_max_jump_deg < 180.0,
+                k.lost_max_jump_deg,
+            ),
+            (
                 "lost_min_correlation",
                 unit(k.lost_min_correlation),
                 k.lost_min_correlation,
+            ),
+            (
+                "lost_correlation_drop",
+                unit(k.lost_correlation_drop),
+                k.lost_correlation_drop,
             ),
         ];
         match checks.into_iter().find(|(_, ok, _)| !ok) {
@@ -103,4 +127,30 @@ impl KeyframeConfig {
             None => Ok(()),
         }
     }
+
+    /// The lost test's limits on the distance and the angle between the
+    /// estimate and the constant-velocity prediction over `dt_s` since the
+    /// last tracked frame. `motion_known`: the velocity was measured over
+    /// the last two tracked frames; without it (the frames after a start or
+    /// a resume predict with zero or decayed velocity) the limits are
+    /// [`UNKNOWN_MOTION_JUMP_FACTOR`] times wider.
+    pub fn jump_limits(&self, dt_s: f64, motion_known: bool) -> (f64, f64) {
+        let mut scale = (dt_s / JUMP_REFERENCE_S).max(1.0);
+        if !motion_known {
+            scale *= UNKNOWN_MOTION_JUMP_FACTOR;
+        }
+        (
+            self.lost_max_jump_m as f64 * scale,
+            self.lost_max_jump_deg as f64 * scale,
+        )
+    }
 }
+
+/// The prediction interval that `lost_max_jump_m` and `lost_max_jump_deg`
+/// are given for: one frame at 50 Hz.
+pub const JUMP_REFERENCE_S: f64 = 0.02;
+
+/// How much wider the jump limits are while the velocity is not measured:
+/// 30 cm and 12 degrees per 20 ms with the defaults, about what a vehicle at
+/// 1.5 m/s and 200 deg/s covers in 0.1 s.
+pub const UNKNOWN_MOTION_JUMP_FACTOR: f64 = 6.0;

@@ -151,6 +151,13 @@ pub struct Localizer {
     last: Option<(u64, Pose)>,
     /// Velocity as a twist per second, in the camera frame (right perturbation).
     velocity: nalgebra::Vector6<f64>,
+    /// Consecutive tracked frames up to the previous one: the velocity is
+    /// measured (not zero, decayed or from across a gap) from 2 on.
+    tracked_run: u32,
+    /// Running mean of the correlation over the frames tracked since the
+    /// last loss (`None` right after one): the reference of the lost
+    /// test's correlation drop.
+    correlation_mean: Option<f32>,
     state: TrackState,
     reset_counter: u8,
     stats: LoopStats,
@@ -215,6 +222,8 @@ impl Localizer {
             previous_ns: None,
             last: None,
             velocity: nalgebra::Vector6::zeros(),
+            tracked_run: 0,
+            correlation_mean: None,
             state: TrackState::Tracking,
             reset_counter: 0,
             stats: LoopStats {
@@ -249,6 +258,7 @@ impl Localizer {
     /// over the gap would be wrong.
     pub fn forget_motion(&mut self) {
         self.velocity = nalgebra::Vector6::zeros();
+        self.tracked_run = 0;
     }
 
     /// The keyframe currently tracked against.
@@ -321,28 +331,46 @@ impl Localizer {
                 a
             }
         };
-        let max_jump_m = if verifying {
-            f64::INFINITY // bounded by the search (two grid spacings)
+        let (max_jump_m, max_jump_deg) = if verifying {
+            (f64::INFINITY, f64::INFINITY) // bounded by the search (two grid spacings)
         } else {
-            self.policy.lost_max_jump_m as f64
+            self.policy.jump_limits(dt_s, self.tracked_run >= 2)
         };
         let world_from_camera =
             self.keyframe.world_from_keyframe * result.camera_from_keyframe.inverse();
-        let jump_m = (world_from_camera_predicted.inverse() * world_from_camera)
-            .translation
-            .vector
-            .norm();
+        let predicted_from_camera = world_from_camera_predicted.inverse() * world_from_camera;
+        let jump_m = predicted_from_camera.translation.vector.norm();
+        let jump_deg = predicted_from_camera.rotation.angle().to_degrees();
         let q = result.quality;
         let tracking = result.valid
             && pose_is_finite(&world_from_camera)
             && q.inlier_ratio >= self.policy.lost_inlier_ratio
             && q.visible_ratio >= self.policy.lost_visible_ratio
             && q.correlation >= self.policy.lost_min_correlation
+            && self
+                .correlation_mean
+                .is_none_or(|mean| q.correlation >= self.policy.lost_correlation_drop * mean)
             && jump_m <= max_jump_m
-            && self.may_resume(capture_ns, &q)
+            && jump_deg <= max_jump_deg
+            && self.may_resume(capture_ns, &result)
             && self.correlation_ok(&result.camera_from_keyframe);
 
         let keyframe_age_s = capture_ns.saturating_sub(self.keyframe.requested_at_ns) as f64 * 1e-9;
+        tracing::trace!(
+            capture_ns,
+            valid = result.valid,
+            inliers = q.inlier_ratio,
+            visible = q.visible_ratio,
+            residual = q.residual_rms,
+            correlation = q.correlation,
+            iterations = q.iterations,
+            jump_m,
+            jump_deg,
+            dt_s,
+            keyframe_age_s,
+            stale = self.pending,
+            "frame aligned"
+        );
         self.stats.frames += 1;
         self.stats.max_keyframe_age_s = self.stats.max_keyframe_age_s.max(keyframe_age_s);
         if self.pending {
@@ -367,7 +395,9 @@ impl Localizer {
                     inliers = q.inlier_ratio,
                     visible = q.visible_ratio,
                     correlation = q.correlation,
+                    correlation_mean = self.correlation_mean,
                     jump_m,
+                    jump_deg,
                     "tracking lost"
                 );
                 self.lost_since_ns = Some(self.last.map_or(capture_ns, |(t, _)| t));
@@ -396,8 +426,14 @@ impl Localizer {
             }
             self.state = TrackState::Lost;
             self.stats.lost_frames += 1;
-            // Keep predicting from the last good pose; the velocity decays.
-            self.velocity *= 0.5;
+            // Keep predicting from the last good pose. The vehicle moves on
+            // as it did for a short loss (a frame refused by the jump test,
+            // an occluder passing); over a longer one the velocity decays.
+            if self.lost_s(capture_ns) > SHORT_LOSS_S {
+                self.velocity *= 0.5;
+            }
+            self.tracked_run = 0;
+            self.correlation_mean = None;
             if self.reloc.is_some() && self.reloc_due(capture_ns) {
                 self.relocalize(pixels, stride, capture_ns);
                 out.reset_counter = self.reset_counter;
@@ -409,6 +445,10 @@ impl Localizer {
             let step = log_se3(&(world_from_camera_prev.inverse() * world_from_camera));
             self.velocity = step / dt_s;
         }
+        self.tracked_run = self.tracked_run.saturating_add(1);
+        self.correlation_mean = Some(self.correlation_mean.map_or(q.correlation, |mean| {
+            mean + CORRELATION_MEAN_WEIGHT * (q.correlation - mean)
+        }));
         self.last = Some((capture_ns, world_from_camera));
         if self.verify_left > 0 {
             // Confirming a relocalization: no pose until it is confirmed.
@@ -465,6 +505,13 @@ impl Localizer {
         }
     }
 }
+
+/// Weight of each tracked frame in the running mean of the correlation
+/// (about the last ten frames count).
+const CORRELATION_MEAN_WEIGHT: f32 = 0.1;
+
+/// A loss shorter than this keeps predicting at the last velocity.
+const SHORT_LOSS_S: f64 = 0.2;
 
 fn pose_is_finite(p: &Pose) -> bool {
     p.translation.vector.iter().all(|v| v.is_finite())

@@ -18,12 +18,11 @@
 
 use crate::geometry::Pose;
 use crate::reloc::RelocConfig;
-use crate::reloc::{passes_gate, start_yaws_rad, Candidate, MAX_TOP_K};
+use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict,
 };
 use crate::track::correlation::correlation;
-use crate::track::AlignQuality;
 
 use super::worker::RenderRequest;
 use super::{Localizer, TrackState};
@@ -73,20 +72,23 @@ impl Localizer {
     /// Whether a frame that passed the ordinary lost test may be output:
     /// while tracking, yes; while verifying, when it passes the gate; while
     /// lost, only within `resume_window_s` of the loss and through the gate.
-    pub(super) fn may_resume(&self, capture_ns: u64, q: &AlignQuality) -> bool {
+    pub(super) fn may_resume(&self, capture_ns: u64, a: &crate::track::Alignment) -> bool {
         let Some(config) = gate_config(&self.reloc, &self.start_gate) else {
             return true;
         };
         if self.verify_left > 0 {
-            return passes_gate(q, config);
+            return passes_gate(&a.quality, config);
         }
         if self.state == TrackState::Tracking {
             return true;
         }
         // Resuming on its own after a short loss: the frame must also pass
-        // the relocalization gate (the lost test's thresholds are for
-        // noticing a loss, not for trusting a pose again).
-        self.lost_s(capture_ns) <= config.resume_window_s && passes_gate(q, config)
+        // the whole relocalization gate, correlations included (the lost
+        // test's thresholds are for noticing a loss, not for trusting a
+        // pose again: an occluder dragging the alignment off can keep the
+        // inlier ratio high).
+        self.lost_s(capture_ns) <= config.resume_window_s
+            && passes_whole_gate(&self.keyframe, &self.pyramid, &self.camera, a, config).is_some()
     }
 
     /// With a gate (a database, a verified start, or [`Self::use_gate`]),
@@ -167,7 +169,7 @@ impl Localizer {
             .is_some_and(|r| self.lost_s(capture_ns) > r.config().resume_window_s)
     }
 
-    fn lost_s(&self, capture_ns: u64) -> f64 {
+    pub(super) fn lost_s(&self, capture_ns: u64) -> f64 {
         self.lost_since_ns
             .map_or(0.0, |t| capture_ns.saturating_sub(t) as f64 * 1e-9)
     }
@@ -313,6 +315,7 @@ impl Localizer {
                 self.stats.keyframes += 1;
                 self.last = Some((capture_ns, v.world_from_camera));
                 self.velocity = nalgebra::Vector6::zeros();
+                self.tracked_run = 0;
                 self.verify_left = reloc.config().verify_frames;
                 if self.verify_left == 0 {
                     self.confirm_relocalization();

@@ -44,4 +44,7 @@ pub use region::SearchRegion;
 pub use search::{
     Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K,
 };
-pub use verify::{passes_gate, start_yaws_rad, try_candidate, verify_candidate, Verdict, Verified};
+pub use verify::{
+    passes_gate, passes_whole_gate, start_yaws_rad, try_candidate, verify_candidate, Verdict,
+    Verified,
+};

@@ -12,7 +12,7 @@
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
 use crate::geometry::{PinholeCamera, Pose};
-use crate::track::correlation::{correlation, min_correlations};
+use crate::track::correlation::{correlation, min_correlations, Correlations};
 use crate::track::{AlignQuality, Aligner, Alignment, Keyframe, Pyramid};
 
 use super::config::RelocConfig;
@@ -39,6 +39,25 @@ pub fn passes_gate(q: &AlignQuality, config: &RelocConfig) -> bool {
         && q.visible_ratio >= config.min_visible_ratio
         && q.residual_rms <= config.max_residual_gray
         && q.residual_rms.is_finite()
+}
+
+/// The whole gate for an alignment `a` of `frame` against `keyframe`: the
+/// cheap figures ([`passes_gate`]), the gain range, and both correlations
+/// over levels 0 to 2. Gives the correlations when it passes. The
+/// correlations (five passes over the finest points) run only where the
+/// cheaper tests pass.
+pub fn passes_whole_gate(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    a: &Alignment,
+    config: &RelocConfig,
+) -> Option<Correlations> {
+    let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
+    (passes_gate(&a.quality, config) && gain_ok)
+        .then(|| min_correlations(keyframe, frame, camera, &a.camera_from_keyframe))
+        .flatten()
+        .filter(|c| c.all >= config.min_correlation && c.trimmed >= config.min_trimmed_correlation)
 }
 
 /// Initial yaw offsets tried per candidate, radians: the yaw the search
@@ -186,15 +205,7 @@ pub fn verify_candidate(
         // look-alike place elsewhere in the map matched the texture at 0.73
         // but the layout only at 0.52, another 0.9 m off reached 0.6 only
         // at level 0's 0.59, where correct poses measured at least 0.58.
-        let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
-        // The correlations (five passes over the finest points) only where
-        // the cheaper tests pass.
-        let accepted = (passes_gate(q, config) && gain_ok)
-            .then(|| min_correlations(keyframe, frame, camera, &a.camera_from_keyframe))
-            .flatten()
-            .filter(|c| {
-                c.all >= config.min_correlation && c.trimmed >= config.min_trimmed_correlation
-            });
+        let accepted = passes_whole_gate(keyframe, frame, camera, &a, config);
         tracing::debug!(
             inliers = q.inlier_ratio,
             visible = q.visible_ratio,
