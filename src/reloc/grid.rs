@@ -14,6 +14,14 @@
 //! descriptor needs and keeps the build fast. Landmarks come from a second,
 //! sparser grid (`landmark_spacing_m`, `landmark_heights_m`,
 //! `landmark_yaw_steps`) of full-resolution views.
+//!
+//! A trajectory (`star reloc build --poses`: the scanning run, an earlier
+//! flight) adds views where the vehicle will fly, at the heights, pitches
+//! and rolls it flew with, which the grid does not sample: poses taken
+//! along it every [`AlongTrajectory::spacing_m`] (or turn of half a grid
+//! yaw step), each also turned half a yaw step either way and moved half a
+//! spacing to either side ([`trajectory_views`]), and full-resolution
+//! landmark views every `landmark_spacing_m` along it.
 
 use nalgebra::{Translation3, Vector3};
 
@@ -131,6 +139,61 @@ pub fn views_per_position(config: &RelocConfig) -> usize {
     config.yaw_steps as usize * config.pitches_deg.len()
 }
 
+/// Views along a trajectory to add to a database build.
+#[derive(Debug, Clone, Default)]
+pub struct AlongTrajectory {
+    /// `world_from_camera` poses of the trajectory, in time order.
+    pub poses: Vec<Pose>,
+    /// Distance between sampled poses, meters.
+    pub spacing_m: f64,
+}
+
+/// The poses sampled along `poses`: the first, then each one at least
+/// `spacing_m` from, or turned at least `turn_rad` from, the last one taken.
+pub fn sample_along(poses: &[Pose], spacing_m: f64, turn_rad: f64) -> Vec<Pose> {
+    let mut out: Vec<Pose> = Vec::new();
+    for p in poses {
+        let take = out.last().is_none_or(|last| {
+            (p.translation.vector - last.translation.vector).norm() >= spacing_m
+                || last.rotation.angle_to(&p.rotation) >= turn_rad
+        });
+        if take {
+            out.push(*p);
+        }
+    }
+    out
+}
+
+/// The database views of one sampled trajectory pose: the pose itself,
+/// turned `half_yaw_rad` either way about the world vertical, and moved
+/// `half_spacing_m` either way along its horizontal right axis (the
+/// vehicle's path is not flown twice the same).
+pub fn trajectory_views(pose: &Pose, half_yaw_rad: f64, half_spacing_m: f64) -> [Pose; 5] {
+    let turned = |yaw: f64| {
+        Pose::from_parts(
+            pose.translation,
+            nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw) * pose.rotation,
+        )
+    };
+    let right = pose.rotation * Vector3::x();
+    let right_level = Vector3::new(right.x, right.y, 0.0)
+        .try_normalize(1e-9)
+        .unwrap_or_else(Vector3::x);
+    let moved = |d: f64| {
+        Pose::from_parts(
+            Translation3::from(pose.translation.vector + right_level * d),
+            pose.rotation,
+        )
+    };
+    [
+        *pose,
+        turned(half_yaw_rad),
+        turned(-half_yaw_rad),
+        moved(half_spacing_m),
+        moved(-half_spacing_m),
+    ]
+}
+
 /// Builds the database for `mesh` seen by `camera`, rendering through
 /// `renderer` (which must draw `mesh`). `progress` gets the number of
 /// positions done and the total.
@@ -154,10 +217,35 @@ pub fn build_database_in(
     region: Option<([f32; 3], [f32; 3])>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RelocDatabase, BuildError> {
+    let along = AlongTrajectory::default();
+    build_database_along(mesh, camera, renderer, config, region, &along, progress)
+}
+
+/// [`build_database_in`] with views along a trajectory added (see the
+/// module docs). `progress` counts grid positions, landmark positions and
+/// sampled trajectory poses.
+pub fn build_database_along(
+    mesh: &Mesh,
+    camera: &PinholeCamera,
+    renderer: &mut dyn Renderer,
+    config: &RelocConfig,
+    region: Option<([f32; 3], [f32; 3])>,
+    along: &AlongTrajectory,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<RelocDatabase, BuildError> {
     let config = &above_floor(mesh, config)?;
     let positions = grid_positions(mesh, config, region)?;
-    let landmark_positions = landmark_positions(mesh, config, region);
-    let total = positions.len() + landmark_positions.len();
+    let half_yaw_rad = std::f64::consts::PI / config.yaw_steps.max(1) as f64;
+    let samples = sample_along(&along.poses, along.spacing_m, half_yaw_rad);
+    let mut landmark_poses = landmark_grid_poses(config, &landmark_positions(mesh, config, region));
+    if config.landmark_spacing_m > 0.0 {
+        landmark_poses.extend(sample_along(
+            &along.poses,
+            config.landmark_spacing_m,
+            std::f64::consts::TAU / config.landmark_yaw_steps.max(1) as f64,
+        ));
+    }
+    let total = positions.len() + samples.len() + landmark_poses.len();
     let render_camera = thumb_render_camera(camera);
     let mut view = RenderedView::for_camera(&render_camera);
     let mut thumbnailer = Thumbnailer::new();
@@ -177,25 +265,12 @@ pub fn build_database_in(
                     Translation3::from(*p),
                     camera_rotation(yaw_rad, pitch_deg.to_radians(), 0.0),
                 );
-                renderer
-                    .render(&world_from_camera, &render_camera, &mut view)
-                    .map_err(|source| BuildError::Render {
-                        position_m: [p.x, p.y, p.z],
-                        source,
-                    })?;
-                let mut hits = 0usize;
-                let mut nearest_m = f32::INFINITY;
-                for &d in view.depth_m.data() {
-                    if RenderedView::is_hit(d) {
-                        hits += 1;
-                        nearest_m = nearest_m.min(d);
-                    }
-                }
-                if (nearest_m as f64) < config.min_depth_m {
+                let seen = render_view(renderer, &world_from_camera, &render_camera, &mut view)?;
+                if (seen.nearest_m as f64) < config.min_depth_m {
                     free = false;
                     break 'views;
                 }
-                if (hits as f64) < config.min_valid_fraction * n_pixels {
+                if (seen.hits as f64) < config.min_valid_fraction * n_pixels {
                     continue;
                 }
                 let (w, h) = (view.gray.width(), view.gray.height());
@@ -223,10 +298,37 @@ pub fn build_database_in(
         }
         progress(done + 1, total);
     }
-    let landmarks =
-        collect_landmarks(camera, renderer, config, &landmark_positions, &mut |done| {
-            progress(positions.len() + done, total)
-        })?;
+    for (done, sample) in samples.iter().enumerate() {
+        for world_from_camera in trajectory_views(sample, half_yaw_rad, 0.5 * along.spacing_m) {
+            let seen = render_view(renderer, &world_from_camera, &render_camera, &mut view)?;
+            if (seen.nearest_m as f64) < config.min_depth_m
+                || (seen.hits as f64) < config.min_valid_fraction * n_pixels
+            {
+                continue;
+            }
+            let (w, h) = (view.gray.width(), view.gray.height());
+            if let Some(descriptor) = thumbnailer.describe_f32(
+                view.gray.data(),
+                Some(view.depth_m.data()),
+                w,
+                h,
+                config.min_contrast_gray,
+            ) {
+                let coarse_start = coarse_points.len() as u32;
+                let coarse_len = coarse.extract(&view, &mut coarse_points) as u32;
+                entries.push(RelocEntry {
+                    world_from_camera,
+                    descriptor,
+                    coarse_start,
+                    coarse_len,
+                });
+            }
+        }
+        progress(positions.len() + done + 1, total);
+    }
+    let landmarks = collect_landmarks(camera, renderer, config, &landmark_poses, &mut |done| {
+        progress(positions.len() + samples.len() + done, total)
+    })?;
     Ok(RelocDatabase {
         camera: *camera,
         map_fingerprint: map_fingerprint(mesh),
@@ -283,17 +385,72 @@ fn landmark_positions(
     })
 }
 
-/// Renders the landmark views at full resolution (pinhole `camera`) and
-/// collects their landmarks; views with geometry nearer than `min_depth_m`
-/// are skipped. `progress` gets the number of positions done.
+/// What a database view saw of the map.
+struct Seen {
+    /// Pixels that hit the map.
+    hits: usize,
+    /// Nearest depth, meters (infinite when nothing was hit).
+    nearest_m: f32,
+}
+
+/// Renders `view` at `world_from_camera` and counts what it saw.
+fn render_view(
+    renderer: &mut dyn Renderer,
+    world_from_camera: &Pose,
+    camera: &PinholeCamera,
+    view: &mut RenderedView,
+) -> Result<Seen, BuildError> {
+    renderer
+        .render(world_from_camera, camera, view)
+        .map_err(|source| {
+            let p = world_from_camera.translation.vector;
+            BuildError::Render {
+                position_m: [p.x, p.y, p.z],
+                source,
+            }
+        })?;
+    let mut seen = Seen {
+        hits: 0,
+        nearest_m: f32::INFINITY,
+    };
+    for &d in view.depth_m.data() {
+        if RenderedView::is_hit(d) {
+            seen.hits += 1;
+            seen.nearest_m = seen.nearest_m.min(d);
+        }
+    }
+    Ok(seen)
+}
+
+/// The landmark views of the grid: `landmark_yaw_steps` yaws at the mean
+/// pitch, per position.
+fn landmark_grid_poses(config: &RelocConfig, positions: &[Vector3<f64>]) -> Vec<Pose> {
+    let pitches = &config.pitches_deg;
+    let pitch_rad = (pitches.iter().sum::<f64>() / pitches.len().max(1) as f64).to_radians();
+    positions
+        .iter()
+        .flat_map(|p| {
+            config.landmark_yaws_rad().map(move |yaw_rad| {
+                Pose::from_parts(
+                    Translation3::from(*p),
+                    camera_rotation(yaw_rad, pitch_rad, 0.0),
+                )
+            })
+        })
+        .collect()
+}
+
+/// Renders the landmark views `poses` at full resolution (pinhole `camera`)
+/// and collects their landmarks; views with geometry nearer than
+/// `min_depth_m` are skipped. `progress` gets the number of views done.
 fn collect_landmarks(
     camera: &PinholeCamera,
     renderer: &mut dyn Renderer,
     config: &RelocConfig,
-    positions: &[Vector3<f64>],
+    poses: &[Pose],
     progress: &mut dyn FnMut(usize),
 ) -> Result<Vec<Landmark>, BuildError> {
-    if positions.is_empty() {
+    if poses.is_empty() {
         return Ok(Vec::new());
     }
     let pinhole = PinholeCamera {
@@ -302,30 +459,10 @@ fn collect_landmarks(
     };
     let mut view = RenderedView::for_camera(&pinhole);
     let mut collector = LandmarkCollector::new(&pinhole, config);
-    let pitches = &config.pitches_deg;
-    let pitch_rad = (pitches.iter().sum::<f64>() / pitches.len().max(1) as f64).to_radians();
-    for (done, p) in positions.iter().enumerate() {
-        for yaw_rad in config.landmark_yaws_rad() {
-            let world_from_camera = Pose::from_parts(
-                Translation3::from(*p),
-                camera_rotation(yaw_rad, pitch_rad, 0.0),
-            );
-            renderer
-                .render(&world_from_camera, &pinhole, &mut view)
-                .map_err(|source| BuildError::Render {
-                    position_m: [p.x, p.y, p.z],
-                    source,
-                })?;
-            let nearest_m = view
-                .depth_m
-                .data()
-                .iter()
-                .filter(|&&d| RenderedView::is_hit(d))
-                .fold(f32::INFINITY, |a, &d| a.min(d));
-            if (nearest_m as f64) < config.min_depth_m {
-                continue;
-            }
-            collector.add_view(&view, &pinhole, &world_from_camera);
+    for (done, world_from_camera) in poses.iter().enumerate() {
+        let seen = render_view(renderer, world_from_camera, &pinhole, &mut view)?;
+        if seen.nearest_m as f64 >= config.min_depth_m {
+            collector.add_view(&view, &pinhole, world_from_camera);
         }
         progress(done + 1);
     }

@@ -39,7 +39,10 @@ mod database_tests;
 pub use config::RelocConfig;
 pub use database::{map_fingerprint, RelocDatabase, RelocDbError, RelocEntry};
 pub use descriptor::{Descriptor, Thumbnailer, THUMB_H, THUMB_W};
-pub use grid::{above_floor, build_database, build_database_in, BuildError};
+pub use grid::{
+    above_floor, build_database, build_database_along, build_database_in, AlongTrajectory,
+    BuildError,
+};
 pub use region::SearchRegion;
 pub use search::{
     Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K,
