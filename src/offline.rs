@@ -213,6 +213,11 @@ pub fn localize_dataset(
     )?;
     if let Some(r) = &options.relocalizer {
         localizer.set_relocalizer(r.clone())?;
+        if !options.realtime {
+            // Unpaced, search time costs no camera time; a budget would
+            // only make the run depend on the machine's speed.
+            localizer.set_attempt_budget_s(0.0);
+        }
     }
     match options.start {
         StartMode::Trusted => localizer.use_gate(&config.reloc),

@@ -21,7 +21,7 @@ use crate::dataset::{Dataset, Trajectory};
 use crate::geometry::Pose;
 use crate::map::Mesh;
 use crate::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport, StartMode};
-use crate::reloc::{build_database_in, RelocDatabase, Relocalizer};
+use crate::reloc::{build_database_along, AlongTrajectory, RelocDatabase, Relocalizer};
 use crate::render::cpu::CpuRenderer;
 use crate::rng::SplitMix64;
 use crate::synth::preset::Preset;
@@ -48,6 +48,9 @@ pub struct IntegrityOptions {
     pub dataset: Option<PathBuf>,
     /// Read the database from this file when it exists, else write it there.
     pub database: Option<PathBuf>,
+    /// Add views along the scanning run (`scan_groundtruth.txt`) to the
+    /// database.
+    pub scan_views: bool,
 }
 
 /// One trial's outcome.
@@ -80,6 +83,22 @@ pub fn run(options: &IntegrityOptions) -> Result<()> {
         .clone()
         .context("the synthetic sequence has ground truth")?;
     let mesh = Arc::new(map_of(&root)?);
+    let along = match options.scan_views {
+        true => {
+            let path = root.join("scan_groundtruth.txt");
+            let scan = Trajectory::read(&path).with_context(|| {
+                format!(
+                    "reading the scanning run {} (--scan-views needs a scanned dataset)",
+                    path.display()
+                )
+            })?;
+            AlongTrajectory {
+                poses: scan.poses,
+                spacing_m: 0.5 * options.config.reloc.grid_spacing_m,
+            }
+        }
+        false => AlongTrajectory::default(),
+    };
     let db = match &options.database {
         Some(path) if path.exists() => {
             let db = RelocDatabase::read(path)
@@ -93,12 +112,12 @@ pub fn run(options: &IntegrityOptions) -> Result<()> {
             db
         }
         Some(path) => {
-            let db = database(&mesh, &dataset, &truth, &options.config)?;
+            let db = database(&mesh, &dataset, &truth, &options.config, &along)?;
             db.write(path)
                 .with_context(|| format!("writing the database {}", path.display()))?;
             db
         }
-        None => database(&mesh, &dataset, &truth, &options.config)?,
+        None => database(&mesh, &dataset, &truth, &options.config, &along)?,
     };
     println!(
         "integrity: {} seed {}: {} frames, map {} triangles; database {} views, {} landmarks over the flown region",
@@ -190,12 +209,14 @@ fn sequence(root: &Path, options: &IntegrityOptions) -> Result<Dataset> {
 }
 
 /// The database over the region the sequence flies through, 0.5 m around
-/// it, at the sequence's mean height (the flight's height band).
+/// it, at the sequence's mean height (the flight's height band), with the
+/// views `along` a trajectory.
 fn database(
     mesh: &Mesh,
     dataset: &Dataset,
     truth: &Trajectory,
     config: &Config,
+    along: &AlongTrajectory,
 ) -> Result<RelocDatabase> {
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
@@ -220,12 +241,13 @@ fn database(
     );
     let mut renderer = CpuRenderer::new(Arc::new(mesh.clone())).context("CPU renderer")?;
     let bar = indicatif::ProgressBar::new(0);
-    let db = build_database_in(
+    let db = build_database_along(
         mesh,
         dataset.camera(),
         &mut renderer,
         &reloc,
         Some(region),
+        along,
         &mut |done, total| {
             bar.set_length(total as u64);
             bar.set_position(done as u64);

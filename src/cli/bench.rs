@@ -84,6 +84,11 @@ pub enum BenchCommand {
         /// written there (a heavy map's database takes minutes).
         #[arg(long)]
         database: Option<PathBuf>,
+        /// Add views along the scanning run to the database (`star reloc
+        /// build --poses`), from the scanned dataset's
+        /// `scan_groundtruth.txt`.
+        #[arg(long)]
+        scan_views: bool,
     },
     /// Relocalization on the synthetic realistic scene: success rate,
     /// retrieval distance, search and recovery time.
@@ -117,6 +122,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             scanned,
             dataset,
             database,
+            scan_views,
         } => {
             let config = match config {
                 Some(p) => crate::config::Config::load(p)
@@ -133,6 +139,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
                 scanned: *scanned,
                 dataset: dataset.clone(),
                 database: database.clone(),
+                scan_views: *scan_views,
             })
         }
         BenchCommand::Reloc {

@@ -167,6 +167,9 @@ pub struct Localizer {
     lost_since_ns: Option<u64>,
     /// Frames still to verify after an accepted relocalization.
     verify_left: u32,
+    /// How long one relocalization attempt may try new candidates, seconds
+    /// (0: no limit).
+    attempt_budget_s: f64,
     /// Gate settings for a verified start without a database
     /// ([`Localizer::verify_start`]).
     start_gate: Option<crate::reloc::RelocConfig>,
@@ -234,6 +237,7 @@ impl Localizer {
             lost_since_ns: None,
             verify_left: 0,
             start_gate: None,
+            attempt_budget_s: 0.0,
         })
     }
 

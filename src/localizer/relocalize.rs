@@ -38,8 +38,16 @@ impl Localizer {
             top_k = relocalizer.config().top_k,
             "relocalization enabled"
         );
+        self.attempt_budget_s = relocalizer.config().attempt_budget_s;
         self.reloc = Some(Box::new(relocalizer));
         Ok(())
+    }
+
+    /// Sets how long one relocalization attempt may go on trying new
+    /// candidates, seconds (0: no limit); `[reloc] attempt_budget_s` by
+    /// default.
+    pub fn set_attempt_budget_s(&mut self, budget_s: f64) {
+        self.attempt_budget_s = budget_s;
     }
 
     /// True when a relocalization database is set.
@@ -198,6 +206,7 @@ impl Localizer {
             return;
         };
         self.stats.reloc_attempts += 1;
+        let started = std::time::Instant::now();
         // The render thread must be idle: take (and drop) a pending keyframe.
         if self.pending {
             match self.worker.wait_result() {
@@ -255,6 +264,16 @@ impl Localizer {
                 }
             };
             for candidate in &candidates[..n] {
+                let spent_s = started.elapsed().as_secs_f64();
+                if n_tried > 0 && self.attempt_budget_s > 0.0 && spent_s > self.attempt_budget_s {
+                    tracing::debug!(
+                        candidates = n_tried,
+                        spent_s,
+                        "relocalization attempt out of time; the next frame starts a new one"
+                    );
+                    self.reloc = Some(reloc);
+                    return;
+                }
                 let c = candidate.ranked.index;
                 if tried[..n_tried].contains(&c) || n_tried >= tried.len() {
                     continue;

@@ -111,6 +111,12 @@ pub struct RelocConfig {
     /// Within this time of the failure, ordinary tracking may resume on its
     /// own; afterwards only an accepted relocalization restarts it, seconds.
     pub resume_window_s: f64,
+    /// A relocalization attempt tries no new candidate after this long,
+    /// seconds (0: no limit): by then its frame is stale, and the next
+    /// attempt starts from a fresh one. The landmark pose is always tried.
+    /// Offline runs without `--realtime` do not limit it (the result would
+    /// depend on the machine's speed).
+    pub attempt_budget_s: f64,
     /// Landmarks (`star reloc build`): full-resolution views on a horizontal
     /// grid this far apart (meters; 0: no landmarks), ...
     pub landmark_spacing_m: f64,
@@ -159,6 +165,7 @@ impl Default for RelocConfig {
             track_min_correlation: 0.3,
             verify_frames: 1,
             resume_window_s: 0.2,
+            attempt_budget_s: 0.5,
             landmark_spacing_m: 0.5,
             landmark_heights_m: vec![1.4],
             landmark_yaw_steps: 8,
@@ -214,7 +221,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 26] = [
+        let checks: [(&'static str, bool, String); 27] = [
             (
                 "yaw_steps",
                 (1..=360).contains(&self.yaw_steps),
@@ -352,6 +359,14 @@ impl RelocConfig {
                 "max_residual_gray",
                 self.max_residual_gray.is_finite() && self.max_residual_gray > 0.0,
                 format!("expected > 0, found {}", self.max_residual_gray),
+            ),
+            (
+                "attempt_budget_s",
+                self.attempt_budget_s.is_finite() && self.attempt_budget_s >= 0.0,
+                format!(
+                    "expected >= 0 (0: no limit), found {}",
+                    self.attempt_budget_s
+                ),
             ),
             (
                 "resume_window_s",
