@@ -114,7 +114,7 @@ impl ReplaySource {
             return Err(CameraError::Unsupported {
                 device: format!("replay:{}", dir.display()),
                 reason: format!(
-                    "speed must be within {}..={}, found {}",
+                    "speed must be within {}..={}, found {:?}",
                     super::MIN_REPLAY_SPEED,
                     super::MAX_REPLAY_SPEED,
                     settings.replay_speed

@@ -54,7 +54,7 @@ pub fn run(args: &CameraArgs) -> Result<()> {
     if let Some(speed) = args.speed {
         anyhow::ensure!(
             crate::camera::replay_speed_is_sane(speed),
-            "--speed must be within {}..={}, found {speed}",
+            "--speed must be within {}..={}, found {speed:?}",
             crate::camera::MIN_REPLAY_SPEED,
             crate::camera::MAX_REPLAY_SPEED
         );

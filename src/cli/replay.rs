@@ -33,7 +33,7 @@ pub struct ReplayArgs {
 pub fn run(args: &ReplayArgs) -> Result<()> {
     anyhow::ensure!(
         crate::camera::replay_speed_is_sane(args.speed),
-        "--speed must be within {}..={}, found {}",
+        "--speed must be within {}..={}, found {:?}",
         crate::camera::MIN_REPLAY_SPEED,
         crate::camera::MAX_REPLAY_SPEED,
         args.speed

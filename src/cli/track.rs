@@ -101,7 +101,7 @@ pub fn load_config(args: &TrackArgs) -> Result<Config> {
         // A day: beyond it the option means "never", and a huge value would
         // not fit a Duration.
         if !(s > 0.0 && s <= 86_400.0) {
-            bail!("--idle-exit-s must be within 0 < s <= 86400, found {s}");
+            bail!("--idle-exit-s must be within 0 < s <= 86400, found {s:?}");
         }
     }
     Ok(config)
