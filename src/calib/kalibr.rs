@@ -8,8 +8,10 @@
 
 use serde_yaml_ng::{Mapping, Value};
 
+use super::model::{self, SourceKeys};
 use super::yaml::{self, Node};
-use super::{Calibration, Ctx, Distortion, ImportError, PinholeCamera, SourceKeys};
+use super::{Calibration, Ctx, ImportError};
+use crate::geometry::{Distortion, PinholeCamera};
 
 /// The camera names (`camN` keys with a mapping value) of a camchain, in
 /// file order.
@@ -153,7 +155,7 @@ pub(super) fn from_yaml(
         ..PinholeCamera::new(width, height, fu, fv, pu, pv)
     };
     Ok(Calibration {
-        camera: super::checked(ctx, camera_model, &keys)?,
+        camera: model::checked(ctx, camera_model, &keys)?,
         format: ctx.format,
         camera_name: Some(camera.to_string()),
     })

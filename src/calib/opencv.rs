@@ -8,8 +8,9 @@ use std::path::Path;
 
 use serde_yaml_ng::Value;
 
+use super::model::{self, Matrix};
 use super::yaml::Node;
-use super::{Calibration, Ctx, ImportError, Matrix};
+use super::{Calibration, Ctx, ImportError};
 
 /// The distortion vector lengths `calibrateCamera` writes.
 const DISTORTION_COUNTS: [usize; 5] = [4, 5, 8, 12, 14];
@@ -57,7 +58,7 @@ fn build(
     k: &Matrix,
     d: &Matrix,
 ) -> Result<Calibration, ImportError> {
-    let camera = super::opencv_camera(
+    let camera = model::opencv_camera(
         ctx,
         (width, height),
         ("image_width", "image_height"),

@@ -11,7 +11,7 @@
 use serde_yaml_ng::Value;
 
 use super::yaml::Node;
-use super::{Calibration, Ctx, ImportError};
+use super::{model, Calibration, Ctx, ImportError};
 
 /// Reads a camera_info document.
 pub(super) fn from_yaml(ctx: Ctx<'_>, value: &Value) -> Result<Calibration, ImportError> {
@@ -42,7 +42,7 @@ pub(super) fn from_yaml(ctx: Ctx<'_>, value: &Value) -> Result<Calibration, Impo
         }
     };
     let d = root.get("distortion_coefficients")?.matrix()?;
-    let camera = super::opencv_camera(
+    let camera = model::opencv_camera(
         ctx,
         (width, height),
         ("image_width", "image_height"),

@@ -6,7 +6,8 @@ use std::path::Path;
 
 use serde_yaml_ng::{Mapping, Value};
 
-use super::{Ctx, ImportError, Matrix};
+use super::model::Matrix;
+use super::{Ctx, ImportError};
 
 /// Parses `text`. OpenCV writes `%YAML:1.0` (a colon where YAML wants a
 /// space), which YAML parsers refuse: that first line becomes `%YAML 1.1`,
