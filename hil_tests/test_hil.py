@@ -328,4 +328,6 @@ def test_wrong_size_frames_are_rejected_and_counted(rig):
     assert "tracked nothing" in track.log_path.read_text(), track.log_path.read_text()[-2000:]
     rejected = int(out.split("rejected ")[1].split()[0])
     assert rejected >= 10, out
+    wrong_size = int(out.split("(wrong size ")[1].split(")")[0])
+    assert wrong_size == rejected, out
     assert "frames processed 0" in out, out

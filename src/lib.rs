@@ -6,6 +6,7 @@
 //! from the map, and the pose goes to the autopilot over MAVLink.
 
 pub mod bench;
+pub mod calib;
 pub mod camera;
 pub mod cli;
 pub mod clock;

@@ -19,8 +19,9 @@ const LAYERS: &[&[&str]] = &[
     // Drivers and data formats.
     &["render", "ipc", "mavlink_io", "dataset", "service"],
     // Built on one of those: the tracker core on the renderer, the camera
-    // sources on the frame transport, the metrics on the trajectory format.
-    &["track", "camera", "eval"],
+    // sources on the frame transport, the metrics on the trajectory format,
+    // calibration import on the camera model and the frame capacity.
+    &["track", "camera", "eval", "calib"],
     &["reloc"],
     // The STAR loop; the test-data generator (flight code never imports it).
     &["localizer", "synth"],

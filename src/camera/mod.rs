@@ -11,6 +11,7 @@
 
 pub mod config;
 pub mod convert;
+pub mod frame_size;
 #[cfg(feature = "v4l2")]
 pub mod loopback;
 pub mod pattern;
@@ -24,6 +25,7 @@ pub mod v4l2;
 pub mod aravis;
 
 pub use config::{replay_speed_is_sane, CameraConfig, MAX_REPLAY_SPEED, MIN_REPLAY_SPEED};
+pub use frame_size::{known_frame_sizes, KnownSize};
 pub use runner::{run_camera, RunError, RunSummary, RunnerSettings};
 pub use uri::SourceUri;
 

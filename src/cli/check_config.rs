@@ -8,12 +8,17 @@
 //! a `replay:` source's dataset. `--values-only` skips the files, for a
 //! config written before the map exists (the install step checks the
 //! shipped config that way).
+//!
+//! It warns (`# warning:`, exit status still 0) when the source is known
+//! to deliver frames of another size than `[camera.intrinsics]`: a
+//! `pattern:WxH` source, a replay dataset's `camera.toml` or first frame
+//! ([`known_frame_sizes`]). The tracker refuses such frames.
 
 use std::path::Path;
 
 use anyhow::{Context, Result};
 
-use crate::camera::SourceUri;
+use crate::camera::{known_frame_sizes, SourceUri};
 use crate::config::Config;
 use crate::reloc::{map_fingerprint, RelocDatabase};
 
@@ -24,8 +29,33 @@ pub fn run(path: &Path, values_only: bool) -> Result<()> {
     if !values_only {
         check_files(&config).with_context(|| format!("{} names a bad file", path.display()))?;
     }
+    warn_frame_size(&config, !values_only)
+        .with_context(|| format!("{}: camera.source", path.display()))?;
     let text = toml::to_string_pretty(&config)?;
     println!("# {} is valid; effective values:\n{text}", path.display());
+    Ok(())
+}
+
+/// Prints a warning for each size the source is known to deliver that is
+/// not the calibration's.
+fn warn_frame_size(config: &Config, open_files: bool) -> Result<()> {
+    let uri = SourceUri::parse(&config.camera.source)?;
+    let c = &config.camera.intrinsics;
+    if let SourceUri::V4l2(_) | SourceUri::Aravis(_) = uri {
+        println!(
+            "# camera.source {uri}: the camera is asked for {}x{} (the calibration's size); one that delivers another size is warned about by `star camera`, and its frames are refused by `star track`",
+            c.width, c.height
+        );
+    }
+    for known in known_frame_sizes(&uri, open_files)? {
+        let (w, h) = (known.width, known.height);
+        if (w, h) != (c.width, c.height) {
+            println!(
+                "# warning: {} is {w}x{h} but [camera.intrinsics] is {}x{}: star track refuses frames of another size than the calibration; calibrate at {w}x{h} (`star calib import`) or change the source",
+                known.origin, c.width, c.height
+            );
+        }
+    }
     Ok(())
 }
 

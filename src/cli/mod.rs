@@ -9,6 +9,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod bench;
+mod calib;
 mod camera;
 mod check_config;
 mod doctor;
@@ -69,6 +70,10 @@ pub enum Command {
         #[arg(long, default_value_t = crate::eval::DEFAULT_MAX_DT_S)]
         max_dt: f64,
     },
+    /// Camera calibration import (`star calib import FILE`: OpenCV, Kalibr
+    /// or ROS to `[camera.intrinsics]`).
+    #[command(subcommand)]
+    Calib(calib::CalibCommand),
     /// Relocalization database (`star reloc build --map MESH -o DB`).
     #[command(subcommand)]
     Reloc(reloc::RelocCommand),
@@ -124,6 +129,7 @@ pub fn main() -> ExitCode {
         } => eval::run(&gt, &est, delta, max_dt),
         Command::Synth(args) => synth::run(&args),
         Command::Reloc(cmd) => reloc::run(&cmd),
+        Command::Calib(cmd) => calib::run(&cmd),
         Command::Camera(args) => camera::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Doctor { config } => doctor::run(config.as_deref()),

@@ -159,11 +159,12 @@ pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
         0.0
     };
     println!(
-        "track: frames processed {}  tracked {} ({rate:.1} %)  lost {}  rejected {}  dropped {}  camera restarts {}  keyframes {}  {fps:.1} fps  renderer {}",
+        "track: frames processed {}  tracked {} ({rate:.1} %)  lost {}  rejected {} (wrong size {})  dropped {}  camera restarts {}  keyframes {}  {fps:.1} fps  renderer {}",
         summary.frames,
         summary.tracked,
         summary.lost,
         summary.rejected,
+        summary.wrong_size.frames,
         summary.dropped,
         summary.publisher_changes,
         summary.keyframes,
@@ -202,6 +203,13 @@ pub fn check_tracked(summary: &TrackSummary) -> Result<()> {
     }
     if frames_seen == 0 {
         bail!("tracked nothing: no frame arrived from the camera");
+    }
+    let wrong = &summary.wrong_size;
+    if let (0, Some((w, h)), Some((cw, ch))) = (summary.frames, wrong.found, wrong.calibrated) {
+        bail!(
+            "tracked nothing: {} frames refused because they are {w}x{h} and the calibration ([camera.intrinsics]) is {cw}x{ch}; calibrate the camera at the size it delivers (`star calib import`) or make it deliver {cw}x{ch}",
+            wrong.frames
+        );
     }
     bail!(
         "tracked nothing: {} frames processed ({} lost) and {} rejected, none tracked",

@@ -30,7 +30,7 @@ use crate::geometry::Pose;
 use crate::ipc::{
     FrameSubscriber, FrameView, PoseMsg, PosePublisher, TrackingState, NO_DATASET_STAMP,
 };
-use crate::localizer::{FrameOutput, Localizer, TrackState};
+use crate::localizer::{FrameOutput, Localizer, LocalizerError, TrackState};
 use crate::mavlink_io::frames::{twist_covariance_world_from_camera, upper_triangle};
 use crate::mavlink_io::{LinkStats, MavlinkHandle, PoseSample};
 use crate::service::{Service, ServiceState, StatusBoard, Watchdog};
@@ -93,6 +93,9 @@ pub struct TrackSummary {
     pub lost: u64,
     /// Frames rejected (inconsistent header, wrong size, timestamp order).
     pub rejected: u64,
+    /// Of the rejected frames, those whose size is not the calibration's
+    /// (`[camera.intrinsics]` width x height).
+    pub wrong_size: WrongSize,
     /// Frames the camera published that the tracker never saw.
     pub dropped: u64,
     /// Times a new camera publisher appeared.
@@ -110,6 +113,21 @@ pub struct TrackSummary {
     /// Why the loop ended (`None` only for a summary not made by
     /// [`Tracker::run`]).
     pub stop_reason: Option<StopReason>,
+}
+
+/// Frames refused because their size is not the calibration's: a camera
+/// that delivers another size than `[camera.intrinsics]` asks for (a V4L2
+/// driver that picked the nearest size it offers, a replayed dataset of
+/// another resolution). The first is logged at warn, and again whenever the
+/// size found changes; each is counted.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct WrongSize {
+    /// Frames refused.
+    pub frames: u64,
+    /// The size of the last one refused, pixels (width, height).
+    pub found: Option<(usize, usize)>,
+    /// The calibrated size, pixels (width, height).
+    pub calibrated: Option<(u32, u32)>,
 }
 
 /// What one iteration of the loop ([`Tracker::step`]) did.
@@ -156,6 +174,7 @@ pub(super) struct LoopState {
     previous: Option<TrackState>,
     keyframe_id: u64,
     localizer_rejects: u64,
+    wrong_size: WrongSize,
     publisher_changes: u64,
     trajectory_errors: u64,
     first_frame_at: Option<Instant>,
@@ -180,6 +199,7 @@ impl LoopState {
             previous: None,
             keyframe_id: 0,
             localizer_rejects: 0,
+            wrong_size: WrongSize::default(),
             publisher_changes: 0,
             trajectory_errors: 0,
             first_frame_at: None,
@@ -312,6 +332,7 @@ impl Tracker {
         }
         let sub = self.subscriber.stats();
         summary.rejected = sub.rejected + state.localizer_rejects;
+        summary.wrong_size = state.wrong_size;
         summary.dropped = sub.dropped;
         summary.publisher_changes = sub.publisher_changes;
         summary.keyframes = self.localizer.stats().keyframes;
@@ -339,6 +360,29 @@ impl Tracker {
             header.capture_ns,
         ) {
             Ok(out) => out,
+            Err(LocalizerError::FrameSize {
+                found_w,
+                found_h,
+                want_w,
+                want_h,
+                ..
+            }) => {
+                state.localizer_rejects += 1;
+                let wrong = &mut state.wrong_size;
+                wrong.frames += 1;
+                let found = Some((found_w, found_h));
+                if wrong.found != found {
+                    warn!(
+                        found = %format!("{found_w}x{found_h}"),
+                        calibrated = %format!("{want_w}x{want_h}"),
+                        refused_so_far = wrong.frames,
+                        "camera frames are not the calibrated size ([camera.intrinsics]); they are refused and counted in the summary"
+                    );
+                }
+                wrong.found = found;
+                wrong.calibrated = Some((want_w, want_h));
+                return Step::Rejected;
+            }
             Err(e) => {
                 state.localizer_rejects += 1;
                 if state.localizer_rejects.is_power_of_two() {

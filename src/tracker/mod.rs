@@ -28,7 +28,7 @@ use crate::mavlink_io::MavlinkLink;
 use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 use crate::service::Service;
 
-pub use frame_loop::{Step, StopReason, StopWhen, TrackSummary, Tracker};
+pub use frame_loop::{Step, StopReason, StopWhen, TrackSummary, Tracker, WrongSize};
 
 /// A stop signal arrived while [`start`] loaded the map, the database or
 /// the renderer: the start was abandoned between two of those steps.
