@@ -82,8 +82,11 @@ pub struct RelocConfig {
     pub min_trimmed_correlation: f32,
     /// Acceptance gate: range of the photometric gain (camera / map) of the
     /// candidate alignment. A wrong pose on a look-alike surface fits by
-    /// crushing the contrast (gains of 0.3-0.5 seen); correct ones on the
-    /// `realistic` preset (gain drift +-30 %, vignetting) ranged 0.58-1.55.
+    /// crushing the contrast (gains of 0.3-0.5 seen before the correlation
+    /// gates existed); correct ones on the `realistic` preset (gain drift
+    /// +-30 %, vignetting) ranged 0.58-1.55, on `scanned` (auto-exposure
+    /// against baked light) down to 0.38: hence 0.25..4, with the
+    /// correlations doing the rejecting.
     pub min_gain: f32,
     /// Upper end of that range.
     pub max_gain: f32,
@@ -156,8 +159,8 @@ impl Default for RelocConfig {
             max_residual_gray: 12.0,
             min_correlation: 0.5,
             min_trimmed_correlation: 0.75,
-            min_gain: 0.5,
-            max_gain: 2.0,
+            min_gain: 0.25,
+            max_gain: 4.0,
             refine_min_inlier_ratio: 0.4,
             refine_renders: 2,
             confirm_max_m: 0.03,
