@@ -150,6 +150,7 @@ fn load_image(
                 path: label,
                 source,
             })
+            .map_err(|e| malformed(path, format!("material {material}: {e}")))
     };
     match image.source() {
         gltf::image::Source::View { view, .. } => {
@@ -173,12 +174,16 @@ fn load_image(
                 let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
                 let file = relative_file(&dir, uri);
                 if !file.is_file() {
-                    return Err(MapError::MissingTexture {
-                        path: file,
-                        material: material.to_string(),
-                    });
+                    return Err(malformed(
+                        path,
+                        format!(
+                            "image {i} of material {material}: texture {} does not exist",
+                            file.display()
+                        ),
+                    ));
                 }
                 super::load_gray_texture(&file)
+                    .map_err(|e| malformed(path, format!("image {i} of material {material}: {e}")))
             }
         },
     }
@@ -259,7 +264,9 @@ impl Builder<'_> {
         let material = primitive.material();
         let material_name = material
             .name()
-            .map_or_else(|| format!("{:?}", material.index()), str::to_string);
+            .map(|n| format!("'{n}'"))
+            .or_else(|| material.index().map(|i| i.to_string()))
+            .unwrap_or_else(|| "(default)".into());
         let pbr = material.pbr_metallic_roughness();
         let factor = pbr.base_color_factor();
         let colors: Option<Vec<[f32; 3]>> = match primitive.get(&gltf::Semantic::Colors(0)) {

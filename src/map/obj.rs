@@ -453,6 +453,15 @@ fn prescan_obj(text: &str, path: &Path) -> Result<Prescan, MapError> {
                 scan.used_materials.push((line_no, name));
             }
             Some("f") => {
+                let corners = line.split_whitespace().count() - 1;
+                if corners < 3 {
+                    return Err(parse_err(
+                        line_no,
+                        format!(
+                            "face has {corners} corners: at least 3 are needed (a truncated file?)"
+                        ),
+                    ));
+                }
                 for corner in words {
                     scan.corners += 1;
                     for (k, field) in corner.split('/').enumerate() {
