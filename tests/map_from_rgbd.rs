@@ -2,7 +2,8 @@
 //! room (the `aggressive` flight, with its distorted images and depth)
 //! fused into a PLY map (written by Open3D), and another flight of the same
 //! room (`realistic`, same seed, so the same scene) localized against that
-//! map: every frame tracked, ATE under 2 cm.
+//! map: every frame tracked, ATE under 2 cm. The fused PLY converted to GLB
+//! by Open3D loads to the same mesh.
 //!
 //! Needs Python with open3d and OpenCV (see `common::open3d_python`).
 
@@ -12,6 +13,8 @@ mod common;
 
 use std::path::Path;
 use std::process::{Command, Output};
+
+use star::map::load_mesh;
 
 fn ok(output: Output, what: &str) -> String {
     assert!(
@@ -86,6 +89,35 @@ fn a_map_fused_from_one_flight_tracks_another_within_2_cm() {
     assert_eq!(stats["frames"], 50, "{stats}");
     assert_eq!(stats["undistorted"], true, "{stats}");
     assert!(stats["triangles"].as_u64().unwrap() > 10_000, "{stats}");
+
+    // The same mesh as GLB, written by Open3D (another writer than star's),
+    // loads to the same vertices, gray and triangles.
+    let glb = dir.path().join("fused.glb");
+    ok(
+        Command::new(&python)
+            .args([
+                "-c",
+                "import sys, open3d as o3d; m = o3d.io.read_triangle_mesh(sys.argv[1]); \
+                 sys.exit(0 if o3d.io.write_triangle_mesh(sys.argv[2], m) else 1)",
+            ])
+            .arg(&fused)
+            .arg(&glb)
+            .output()
+            .expect("run open3d"),
+        "open3d PLY to GLB",
+    );
+    let (from_ply, from_glb) = (load_mesh(&fused).unwrap(), load_mesh(&glb).unwrap());
+    assert_eq!(from_ply.indices, from_glb.indices);
+    assert_eq!(from_ply.positions.len(), from_glb.positions.len());
+    for (a, b) in from_ply.positions.iter().zip(&from_glb.positions) {
+        assert!(
+            a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-5),
+            "{a:?} {b:?}"
+        );
+    }
+    for (a, b) in from_ply.gray.iter().zip(&from_glb.gray) {
+        assert!((a - b).abs() < 1.0, "gray {a} from PLY, {b} from GLB");
+    }
 
     let config = dir.path().join("star.toml");
     std::fs::write(&config, "[render]\nrenderer = \"cpu\"\n").unwrap();

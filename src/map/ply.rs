@@ -374,7 +374,6 @@ pub fn load_ply(path: &Path) -> Result<Mesh, MapError> {
     let mut line = String::new();
     let mut face_corners: Vec<i64> = Vec::new();
     let mut max_color = 0.0f64;
-    let mut vertices_read = false;
     for def in header.elements.values() {
         match def.name.as_str() {
             "vertex" => {
@@ -413,7 +412,6 @@ pub fn load_ply(path: &Path) -> Result<Mesh, MapError> {
                     };
                     mesh.gray.push(gray);
                 }
-                vertices_read = true;
             }
             "face" => {
                 let parser = Parser::<PlyFace>::new();
@@ -459,7 +457,6 @@ pub fn load_ply(path: &Path) -> Result<Mesh, MapError> {
             }
         }
     }
-    debug_assert!(vertices_read);
     if scale == Some(1.0) && max_color > 1.0 {
         // Float colors written as 0..255: luma is linear.
         for g in &mut mesh.gray {
