@@ -1,5 +1,8 @@
 #!/usr/bin/env python3
-"""TSDF fusion of a synthetic RGB-D scan into a vertex-colored mesh, tile by tile.
+"""TSDF fusion of an RGB-D scan into a vertex-colored mesh, tile by tile.
+
+`fuse()` does the work; `scripts/map_from_rgbd.py` imports it for a user's
+TUM-layout sequence.
 
 `star synth --preset scanned` renders a scanning run (noisy depth, colors under
 the scan's light) and calls this script (a copy of it is embedded in the
@@ -85,8 +88,8 @@ class FrameCache:
     """The last `capacity` frames as Open3D RGBD images (tiles next to each
     other share most of their frames)."""
 
-    def __init__(self, gray, depth, job, capacity):
-        self.gray, self.depth, self.job = gray, depth, job
+    def __init__(self, color, depth, job, capacity):
+        self.color, self.depth, self.job = color, depth, job
         self.capacity = capacity
         self.images = {}
         self.hits = 0
@@ -96,7 +99,10 @@ class FrameCache:
         image = self.images.pop(i, None)
         if image is None:
             self.misses += 1
-            color = np.ascontiguousarray(np.repeat(np.asarray(self.gray[i])[:, :, None], 3, axis=2))
+            frame = np.asarray(self.color[i])
+            if frame.ndim == 2:  # gray: the same in R, G and B
+                frame = np.repeat(frame[:, :, None], 3, axis=2)
+            color = np.ascontiguousarray(frame)
             image = o3d.geometry.RGBDImage.create_from_color_and_depth(
                 o3d.geometry.Image(color),
                 o3d.geometry.Image(np.ascontiguousarray(self.depth[i]).astype(np.uint16)),
@@ -122,17 +128,17 @@ def to_toml(table):
     return "\n".join(lines) + "\n"
 
 
-def main():
-    if len(sys.argv) != 2:
-        print(__doc__, file=sys.stderr)
-        return 2
+def fuse(job, color, depth, poses):
+    """Fuses the frames into one mesh, tile by tile (see the module docs).
+
+    job: the job's camera, TSDF and tile keys (width ... assign_min_points;
+    frames, paths and poses are not read from it); color: frames of uint8,
+    (n, h, w) gray or (n, h, w, 3) RGB; depth: (n, h, w) uint16 in units of
+    depth_scale per meter, 0 = none; poses: (n, 4, 4) mesh_from_camera.
+    Returns (vertices float32 (V, 3), colors float32 (V, 3) in 0..1,
+    triangles uint32 (T, 3), stats dict)."""
     t_start = time.monotonic()
-    with open(sys.argv[1], "rb") as f:
-        job = tomllib.load(f)
-    w, h, n = job["width"], job["height"], job["frames"]
-    gray = np.memmap(job["gray_path"], dtype=np.uint8, mode="r", shape=(n, h, w))
-    depth = np.memmap(job["depth_path"], dtype="<u2", mode="r", shape=(n, h, w))
-    poses = np.asarray(job["mesh_from_camera"], dtype=np.float64).reshape(n, 4, 4)
+    w, h, n = job["width"], job["height"], len(poses)
     intrinsic = o3d.camera.PinholeCameraIntrinsic(w, h, job["fx"], job["fy"], job["cx"], job["cy"])
     voxel = float(job["voxel_m"])
     trunc = float(job["sdf_trunc_m"])
@@ -153,7 +159,7 @@ def main():
                 frames_of_tile.setdefault(key, []).append(i)
     t_assign = time.monotonic() - t0
 
-    cache = FrameCache(gray, depth, job, int(job.get("cache_frames", 48)))
+    cache = FrameCache(color, depth, job, int(job.get("cache_frames", 48)))
     res = tile_vox + 2 * overlap_vox
     length = res * voxel
     vertices, colors, triangles = [], [], []
@@ -191,13 +197,10 @@ def main():
         triangles.append((inverse.reshape(-1, 3) + n_vertices).astype(np.uint32))
         n_vertices += used.size
 
-    prefix = job["out_prefix"]
     empty3 = np.zeros((0, 3), dtype=np.float32)
-    np.concatenate(vertices or [empty3]).astype("<f4").tofile(prefix + ".vertices.f32")
-    np.concatenate(colors or [empty3]).astype("<f4").tofile(prefix + ".colors.f32")
-    np.concatenate(triangles or [np.zeros((0, 3), dtype=np.uint32)]).astype("<u4").tofile(
-        prefix + ".triangles.u32"
-    )
+    vertices = np.concatenate(vertices or [empty3])
+    colors = np.concatenate(colors or [empty3])
+    triangles = np.concatenate(triangles or [np.zeros((0, 3), dtype=np.uint32)])
     stats = {
         "open3d": o3d.__version__,
         "tiles": len(frames_of_tile),
@@ -208,13 +211,31 @@ def main():
         "frame_cache_hits": cache.hits,
         "frame_cache_misses": cache.misses,
         "vertices": int(n_vertices),
-        "triangles": int(sum(t.shape[0] for t in triangles)),
+        "triangles": int(triangles.shape[0]),
         "assign_s": t_assign,
         "integrate_s": t_integrate,
         "extract_s": t_extract,
         "total_s": time.monotonic() - t_start,
         "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }
+    return vertices, colors, triangles, stats
+
+
+def main():
+    if len(sys.argv) != 2:
+        print(__doc__, file=sys.stderr)
+        return 2
+    with open(sys.argv[1], "rb") as f:
+        job = tomllib.load(f)
+    w, h, n = job["width"], job["height"], job["frames"]
+    gray = np.memmap(job["gray_path"], dtype=np.uint8, mode="r", shape=(n, h, w))
+    depth = np.memmap(job["depth_path"], dtype="<u2", mode="r", shape=(n, h, w))
+    poses = np.asarray(job["mesh_from_camera"], dtype=np.float64).reshape(n, 4, 4)
+    vertices, colors, triangles, stats = fuse(job, gray, depth, poses)
+    prefix = job["out_prefix"]
+    vertices.astype("<f4").tofile(prefix + ".vertices.f32")
+    colors.astype("<f4").tofile(prefix + ".colors.f32")
+    triangles.astype("<u4").tofile(prefix + ".triangles.u32")
     with open(prefix + ".stats.toml", "w", encoding="utf-8") as f:
         f.write(to_toml(stats))
     print(json.dumps(stats))

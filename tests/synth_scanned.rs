@@ -21,7 +21,7 @@
 mod common;
 
 use std::collections::HashSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::sync::Arc;
 
@@ -33,32 +33,6 @@ use star::render::{RenderedView, Renderer};
 use star::synth::preset::Preset;
 use star::synth::scene::Scene;
 use star::synth::sequence::scene_with_trajectory;
-
-/// The venv's python when it has open3d; `None` (after a SKIP message)
-/// when it does not and the venv is not required.
-fn open3d_python() -> Option<PathBuf> {
-    let python = common::venv_tool("python")?;
-    let ok = Command::new(&python)
-        .args(["-c", "import open3d"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if ok {
-        return Some(python);
-    }
-    let required =
-        std::env::var_os("CI").is_some() || std::env::var_os("STAR_REQUIRE_VENV").is_some();
-    assert!(
-        !required,
-        "{} cannot import open3d and CI/STAR_REQUIRE_VENV is set; pip install -r hil_tests/requirements.txt",
-        python.display()
-    );
-    eprintln!(
-        "\n**********\nSKIP: {} has no open3d (pip install -r hil_tests/requirements.txt); \
-         this test did not run\n**********\n",
-        python.display()
-    );
-    None
-}
 
 /// Runs `star synth` with `args` into `out`; returns stdout.
 fn synth(python: &Path, out: &Path, args: &[&str]) -> String {
@@ -135,7 +109,7 @@ fn near_vertex(cells: &HashSet<[i64; 3]>, cell_m: f64, p: &Vector3<f64>) -> bool
 
 #[test]
 fn the_scanned_map_is_a_scan_in_the_scanner_frame_with_holes_and_baked_light() {
-    let Some(python) = open3d_python() else {
+    let Some(python) = common::open3d_python() else {
         return;
     };
     let tmp = tempfile::tempdir().expect("tmp");
@@ -349,7 +323,7 @@ fn the_scanned_map_is_a_scan_in_the_scanner_frame_with_holes_and_baked_light() {
 
 #[test]
 fn same_seed_same_map_and_frames() {
-    let Some(python) = open3d_python() else {
+    let Some(python) = common::open3d_python() else {
         return;
     };
     let tmp = tempfile::tempdir().expect("tmp");

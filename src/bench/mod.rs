@@ -6,7 +6,10 @@
 //! - [`reloc`]: relocalization success, wrong accepts and timings.
 //! - [`integrity`]: wrong poses sent under faults, cold-start time, kidnap
 //!   recovery, wrong hints.
+//! - [`map_survey`]: a user's map's holes, render times and memory, for
+//!   `star map info`.
 
 pub mod integrity;
+pub mod map_survey;
 pub mod pairs;
 pub mod reloc;

@@ -15,6 +15,7 @@ mod check_config;
 mod doctor;
 mod eval;
 pub mod localize;
+mod map;
 mod pose_arg;
 mod reloc;
 mod render;
@@ -54,6 +55,10 @@ pub enum Command {
     Bench(bench::BenchCommand),
     /// Localize a recorded dataset against its map and write the trajectory.
     Localize(localize::LocalizeArgs),
+    /// The map: `info` (size, floor, holes, render times, memory) and
+    /// `align` (the `[map.world_from_mesh]` that makes it z-up).
+    #[command(subcommand)]
+    Map(map::MapCommand),
     /// Render the map at a pose (CPU rasterizer) to a gray PNG and a depth PNG.
     Render(render::RenderArgs),
     /// Absolute trajectory error (no alignment) and relative pose error of
@@ -120,6 +125,7 @@ pub fn main() -> ExitCode {
         } => check_config::run(&config, values_only),
         Command::Localize(args) => localize::run(&args),
         Command::Bench(cmd) => bench::run(&cmd),
+        Command::Map(cmd) => map::run(&cmd),
         Command::Render(args) => render::run(&args),
         Command::Eval {
             gt,

@@ -22,7 +22,7 @@ pub enum RelocCommand {
 /// Arguments of `star reloc build`.
 #[derive(Debug, clap::Args)]
 pub struct BuildArgs {
-    /// Map mesh (OBJ); default: the config's `map.mesh`.
+    /// Map mesh (.obj, .ply, .gltf or .glb); default: the config's `map.mesh`.
     #[arg(long)]
     pub map: Option<PathBuf>,
     /// Output database file.

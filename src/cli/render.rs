@@ -1,7 +1,7 @@
 //! `star render`: draw the map at one pose with the CPU rasterizer and write
 //! the gray image (8-bit PNG) and optionally the depth (16-bit PNG, mm).
 //!
-//! Takes a mesh (OBJ), a pose (`tx ty tz qx qy qz qw`, TUM order,
+//! Takes a mesh (OBJ, PLY, glTF or GLB), a pose (`tx ty tz qx qy qz qw`, TUM order,
 //! world_from_camera) and a camera from `camera.toml`, from `star.toml`
 //! (`[camera.intrinsics]`), or the default, each intrinsic overridable on
 //! the command line. Distortion is ignored: the output is the ideal pinhole
@@ -24,7 +24,7 @@ use super::pose_arg::parse_pose;
 /// Arguments of `star render`.
 #[derive(Debug, clap::Args)]
 pub struct RenderArgs {
-    /// Map mesh (OBJ); default: `[map].mesh` of `--config`.
+    /// Map mesh (.obj, .ply, .gltf or .glb); default: `[map].mesh` of `--config`.
     #[arg(long)]
     pub map: Option<PathBuf>,
     /// Camera pose "tx ty tz qx qy qz qw" (TUM order, world_from_camera).
@@ -124,7 +124,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let map_path = match (&args.map, &config) {
         (Some(p), _) => p.clone(),
         (None, Some(c)) => c.map.mesh.clone(),
-        (None, None) => bail!("no map: give --map MESH.obj or --config with [map].mesh"),
+        (None, None) => bail!("no map: give --map MESH or --config with [map].mesh"),
     };
     let placement = config.as_ref().map(|c| c.map.clone()).unwrap_or_default();
     let mesh = placement

@@ -22,7 +22,9 @@ pub const MESH_SCALE_RANGE: (f64, f64) = (1e-6, 1e6);
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MapConfig {
-    /// OBJ mesh of the building.
+    /// Mesh of the building: `.obj` (+ MTL, textures), `.ply` (vertex
+    /// colors, ASCII or binary), `.gltf` or `.glb` (vertex colors or
+    /// base-color textures); the extension names the format.
     pub mesh: PathBuf,
     /// The mesh file's frame in the world: `p_world = world_from_mesh *
     /// (scale * p_mesh)`. Identity by default (the mesh is z-up, meters).
@@ -113,7 +115,7 @@ impl MapConfig {
 
     /// Loads the mesh at `path` (a `--map` override) into the world frame.
     pub fn load_mesh_from(&self, path: &Path) -> Result<Mesh, MapError> {
-        let mut mesh = super::load_obj(path)?;
+        let mut mesh = super::load_mesh(path)?;
         if !self.world_from_mesh.is_identity() {
             mesh.transform(
                 self.world_from_mesh.scale,

@@ -180,6 +180,35 @@ pub enum MapError {
         /// Bytes asked for.
         needed_bytes: u64,
     },
+    /// The file's extension names no map format star reads.
+    #[error("{path}: unknown map format '{extension}': expected .obj, .ply, .gltf or .glb")]
+    UnknownFormat {
+        /// The map file.
+        path: PathBuf,
+        /// Its extension (empty when it has none).
+        extension: String,
+    },
+    /// The content is not what the extension says.
+    #[error("{path}: the extension says {expected} but the content {found}")]
+    FormatMismatch {
+        /// The map file.
+        path: PathBuf,
+        /// The format the extension names.
+        expected: &'static str,
+        /// What the first bytes look like.
+        found: String,
+    },
+    /// A PLY or glTF file breaks its format: truncated, a missing element
+    /// or attribute, an index out of range, a bad header or accessor.
+    #[error("{path}: bad {format} file: {reason}")]
+    Malformed {
+        /// The map file.
+        path: PathBuf,
+        /// `PLY`, `glTF` or `GLB`.
+        format: &'static str,
+        /// What was expected and what was found.
+        reason: String,
+    },
     /// A file could not be written.
     #[error("cannot write {path}: {source}")]
     Write {

@@ -1,30 +1,50 @@
 //! The map: a gray-intensity triangle mesh of the building, in the world
 //! frame, in meters.
 //!
-//! Owns mesh loading (OBJ through `tobj`, with per-vertex colors or MTL
-//! diffuse textures), validation, and bounds. Gives out a [`Mesh`] that every
-//! renderer consumes as-is: positions, per-vertex gray, per-vertex texture
-//! coordinates, triangle indices grouped by texture, and gray textures.
+//! Owns mesh loading (OBJ through `tobj`, PLY through `ply-rs-bw`, glTF and
+//! GLB through `gltf`; the format from the extension, checked against the
+//! content), validation, bounds, and finding the floor. Gives out a
+//! [`Mesh`] that every renderer consumes as-is: positions, per-vertex gray,
+//! per-vertex texture coordinates, triangle indices grouped by texture, and
+//! gray textures.
 //!
-//! - [`load_obj`] / [`write_obj`]: Wavefront OBJ + MTL + textures, to gray.
+//! - [`load_mesh`]: any supported format, by extension ([`MapFormat`]);
+//!   [`load_obj`], [`load_ply`], [`load_gltf`] for one format.
+//! - [`write_obj`], [`write_ply`], [`write_glb`]: the inverse, for tests,
+//!   tools and conversions.
 //! - [`Mesh::validate`]: the structural checks every loader and renderer
 //!   relies on, with [`MapError`] / [`MeshProblem`] naming the defect.
 //! - [`subdivide`]: 1-to-4 subdivision for large benchmark meshes.
-//! - [`floor::find_floor`]: the floor's height, which the relocalization
-//!   grid's heights are measured from.
+//! - [`floor::find_floor`]: the floor's height in a z-up map, which the
+//!   relocalization grid's heights are measured from;
+//!   [`align::find_floor_plane`]: the floor of a mesh in any frame (RANSAC),
+//!   and the `world_from_mesh` that makes it z-up.
 
+pub mod align;
 mod config;
 mod error;
 pub mod floor;
+mod format;
+mod gltf;
+mod gltf_write;
 mod obj;
 mod obj_write;
+mod ply;
+mod ply_write;
 mod subdivide;
 mod validate;
 
 pub use config::{MapConfig, MeshTransformConfig, MESH_SCALE_RANGE};
 pub use error::{MapError, MeshProblem, IN_MEMORY};
-pub use obj::{load_gray_texture, load_obj, luma601_255, MAX_VERTEX_COLOR, MAX_VERTEX_COORDINATE};
+pub use format::{check_content, load_mesh, MapFormat};
+pub use gltf::load_gltf;
+pub use gltf_write::write_glb;
+pub use obj::{
+    gray_texture, load_gray_texture, load_obj, luma601_255, MAX_VERTEX_COLOR, MAX_VERTEX_COORDINATE,
+};
 pub use obj_write::write_obj;
+pub use ply::load_ply;
+pub use ply_write::{write_ply, PlyEncoding};
 pub use subdivide::{subdivide, MAX_SUBDIVIDED_TRIANGLES};
 
 /// A texture converted to gray intensity (0..=255 as f32), row-major,

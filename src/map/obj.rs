@@ -358,13 +358,18 @@ pub fn load_gray_texture(path: &Path) -> Result<GrayTexture, MapError> {
         .map_err(|e| decode_err(image::ImageError::IoError(e)))?
         .decode()
         .map_err(decode_err)?;
+    Ok(gray_texture(&image))
+}
+
+/// A decoded image as a gray texture (Rec.601 luma, 0..=255).
+pub fn gray_texture(image: &image::DynamicImage) -> GrayTexture {
     let rgb = image.to_rgb32f();
     let texels = rgb.pixels().map(|p| luma601_255(p.0)).collect();
-    Ok(GrayTexture {
+    GrayTexture {
         width: rgb.width(),
         height: rgb.height(),
         texels,
-    })
+    }
 }
 
 /// Checks what `tobj` does not check gracefully: face indices (zero, out of
@@ -448,6 +453,15 @@ fn prescan_obj(text: &str, path: &Path) -> Result<Prescan, MapError> {
                 scan.used_materials.push((line_no, name));
             }
             Some("f") => {
+                let corners = line.split_whitespace().count() - 1;
+                if corners < 3 {
+                    return Err(parse_err(
+                        line_no,
+                        format!(
+                            "face has {corners} corners: at least 3 are needed (a truncated file?)"
+                        ),
+                    ));
+                }
                 for corner in words {
                     scan.corners += 1;
                     for (k, field) in corner.split('/').enumerate() {

@@ -3,6 +3,9 @@
 //! counting allocator of the allocation tests and the room meshes (which
 //! the renderer benchmarks include too).
 //!
+//! [`open3d_python`]: the venv's Python when it has open3d (the TSDF
+//! fusion of `star synth --preset scanned` and `scripts/map_from_rgbd.py`).
+//!
 //! The venv is `$STAR_VENV`, or `<repo>/.venv` by default. When it is
 //! missing, a test fails if `CI` or `STAR_REQUIRE_VENV` is set, and otherwise
 //! prints a loud SKIP message and returns early.
@@ -124,4 +127,30 @@ pub fn write_isolated_configs(dir: &Path, tag: &str, extra_star_toml: &str) -> s
     )
     .expect("write star.toml");
     star
+}
+
+/// The venv's python when it has open3d; `None` (after a SKIP message)
+/// when it does not and the venv is not required.
+pub fn open3d_python() -> Option<PathBuf> {
+    let python = venv_tool("python")?;
+    let ok = Command::new(&python)
+        .args(["-c", "import open3d"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if ok {
+        return Some(python);
+    }
+    let required =
+        std::env::var_os("CI").is_some() || std::env::var_os("STAR_REQUIRE_VENV").is_some();
+    assert!(
+        !required,
+        "{} cannot import open3d and CI/STAR_REQUIRE_VENV is set; pip install -r hil_tests/requirements.txt",
+        python.display()
+    );
+    eprintln!(
+        "\n**********\nSKIP: {} has no open3d (pip install -r hil_tests/requirements.txt); \
+         this test did not run\n**********\n",
+        python.display()
+    );
+    None
 }
