@@ -189,3 +189,45 @@ mod tests {
         assert!(e.to_string().contains("scan.stl") && e.to_string().contains("'stl'"));
     }
 }
+
+/// The last step of every loader: the triangles of each texture bucket
+/// (`None`: vertex colors) become one group each, the mesh is checked
+/// ([`Mesh::find_problem`]), and the load is logged. `no_colors`: what is
+/// missing when the file has no colors at all, warned as a map the tracker
+/// cannot use.
+pub(crate) fn finish_mesh(
+    mesh: &mut Mesh,
+    buckets: Vec<(Option<u32>, Vec<u32>)>,
+    path: &Path,
+    no_colors: Option<&str>,
+) -> Result<(), MapError> {
+    for (texture, indices) in buckets {
+        if indices.is_empty() {
+            continue;
+        }
+        mesh.groups.push(super::MeshGroup {
+            first_index: mesh.indices.len() as u32,
+            index_count: indices.len() as u32,
+            texture,
+        });
+        mesh.indices.extend(indices);
+    }
+    mesh.find_problem().map_err(|problem| MapError::Invalid {
+        path: path.to_path_buf(),
+        problem,
+    })?;
+    if let Some(missing) = no_colors {
+        tracing::warn!(
+            map = %path.display(),
+            "the mesh has no colors ({missing}): every surface renders the same flat white, which gives the tracker nothing to align to"
+        );
+    }
+    tracing::info!(
+        path = %path.display(),
+        triangles = mesh.triangle_count(),
+        vertices = mesh.positions.len(),
+        textures = mesh.textures.len(),
+        "mesh loaded"
+    );
+    Ok(())
+}

@@ -31,7 +31,7 @@ use gltf::mesh::Mode;
 use super::error::MapError;
 use super::format::check_regular_file;
 use super::obj::{gray_texture, luma601_255};
-use super::{Mesh, MeshGroup};
+use super::Mesh;
 
 /// The format's name for messages: `GLB` for `.glb`, else `glTF`.
 fn format_name(path: &Path) -> &'static str {
@@ -501,33 +501,12 @@ pub fn load_gltf(path: &Path) -> Result<Mesh, MapError> {
     if !textured {
         mesh.uvs.clear();
     }
-    for (texture, indices) in buckets {
-        if indices.is_empty() {
-            continue;
-        }
-        mesh.groups.push(MeshGroup {
-            first_index: mesh.indices.len() as u32,
-            index_count: indices.len() as u32,
-            texture,
-        });
-        mesh.indices.extend(indices);
-    }
-    mesh.find_problem().map_err(|problem| MapError::Invalid {
-        path: path.to_path_buf(),
-        problem,
-    })?;
-    if !any_color {
-        tracing::warn!(
-            map = %path.display(),
-            "the mesh has no colors (no COLOR_0, base-color factor or texture): every surface renders the same flat white, which gives the tracker nothing to align to"
-        );
-    }
-    tracing::info!(
-        path = %path.display(),
-        triangles = mesh.triangle_count(),
-        vertices = mesh.positions.len(),
-        textures = mesh.textures.len(),
-        "mesh loaded (glTF is y-up by convention: `star map align` writes the [map.world_from_mesh] that makes it z-up)"
-    );
+    super::format::finish_mesh(
+        &mut mesh,
+        buckets,
+        path,
+        (!any_color).then_some("no COLOR_0, base-color factor or texture"),
+    )?;
+    tracing::info!("glTF is y-up by convention: `star map align` writes the [map.world_from_mesh] that makes it z-up");
     Ok(mesh)
 }

@@ -29,7 +29,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::error::MapError;
-use super::{GrayTexture, Mesh, MeshGroup};
+use super::{GrayTexture, Mesh};
 
 /// Largest vertex coordinate magnitude accepted, in the file's units: a
 /// building in millimeters stays within 1e6 (a kilometer).
@@ -232,34 +232,12 @@ pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
             .1
             .extend(m.indices[..whole].iter().map(|&i| i + base));
     }
-    for (texture, indices) in buckets {
-        if indices.is_empty() {
-            continue;
-        }
-        mesh.groups.push(MeshGroup {
-            first_index: mesh.indices.len() as u32,
-            index_count: indices.len() as u32,
-            texture,
-        });
-        mesh.indices.extend(indices);
-    }
-    mesh.find_problem().map_err(|problem| MapError::Invalid {
-        path: path.to_path_buf(),
-        problem,
-    })?;
-    if !any_color {
-        tracing::warn!(
-            map = %path.display(),
-            "the mesh has no colors (no vertex colors, no material Kd, no texture): every surface renders the same flat white, which gives the tracker nothing to align to"
-        );
-    }
-    tracing::info!(
-        path = %path.display(),
-        triangles = mesh.triangle_count(),
-        vertices = mesh.positions.len(),
-        textures = mesh.textures.len(),
-        "mesh loaded"
-    );
+    super::format::finish_mesh(
+        &mut mesh,
+        buckets,
+        path,
+        (!any_color).then_some("no vertex colors, no material Kd, no texture"),
+    )?;
     Ok(mesh)
 }
 

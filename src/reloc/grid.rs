@@ -273,23 +273,18 @@ pub fn build_database_along(
                 if (seen.hits as f64) < config.min_valid_fraction * n_pixels {
                     continue;
                 }
-                let (w, h) = (view.gray.width(), view.gray.height());
-                if let Some(descriptor) = thumbnailer.describe_f32(
-                    view.gray.data(),
-                    Some(view.depth_m.data()),
-                    w,
-                    h,
-                    config.min_contrast_gray,
-                ) {
-                    let coarse_start = (coarse_points.len() + position_points.len()) as u32;
-                    let coarse_len = coarse.extract(&view, &mut position_points) as u32;
-                    position_entries.push(RelocEntry {
-                        world_from_camera,
-                        descriptor,
-                        coarse_start,
-                        coarse_len,
-                    });
-                }
+                let stored = coarse_points.len();
+                let mut describer = Describer {
+                    thumbnailer: &mut thumbnailer,
+                    coarse: &mut coarse,
+                    config,
+                };
+                position_entries.extend(describer.entry(
+                    &view,
+                    world_from_camera,
+                    &mut position_points,
+                    stored,
+                ));
             }
         }
         if free {
@@ -306,23 +301,12 @@ pub fn build_database_along(
             {
                 continue;
             }
-            let (w, h) = (view.gray.width(), view.gray.height());
-            if let Some(descriptor) = thumbnailer.describe_f32(
-                view.gray.data(),
-                Some(view.depth_m.data()),
-                w,
-                h,
-                config.min_contrast_gray,
-            ) {
-                let coarse_start = coarse_points.len() as u32;
-                let coarse_len = coarse.extract(&view, &mut coarse_points) as u32;
-                entries.push(RelocEntry {
-                    world_from_camera,
-                    descriptor,
-                    coarse_start,
-                    coarse_len,
-                });
-            }
+            let mut describer = Describer {
+                thumbnailer: &mut thumbnailer,
+                coarse: &mut coarse,
+                config,
+            };
+            entries.extend(describer.entry(&view, world_from_camera, &mut coarse_points, 0));
         }
         progress(positions.len() + done + 1, total);
     }
@@ -383,6 +367,43 @@ fn landmark_positions(
         tracing::warn!(error = %e, "no landmark views: the database will have no landmarks");
         Vec::new()
     })
+}
+
+/// Describes rendered database views.
+struct Describer<'a> {
+    thumbnailer: &'a mut Thumbnailer,
+    coarse: &'a mut CoarseExtractor,
+    config: &'a RelocConfig,
+}
+
+impl Describer<'_> {
+    /// The database entry of `view` rendered at `world_from_camera`, its
+    /// coarse points appended to `points` (which follow `stored` points
+    /// already in the database); `None` without contrast.
+    fn entry(
+        &mut self,
+        view: &RenderedView,
+        world_from_camera: Pose,
+        points: &mut Vec<CoarsePoint>,
+        stored: usize,
+    ) -> Option<RelocEntry> {
+        let (w, h) = (view.gray.width(), view.gray.height());
+        let descriptor = self.thumbnailer.describe_f32(
+            view.gray.data(),
+            Some(view.depth_m.data()),
+            w,
+            h,
+            self.config.min_contrast_gray,
+        )?;
+        let coarse_start = (stored + points.len()) as u32;
+        let coarse_len = self.coarse.extract(view, points) as u32;
+        Some(RelocEntry {
+            world_from_camera,
+            descriptor,
+            coarse_start,
+            coarse_len,
+        })
+    }
 }
 
 /// What a database view saw of the map.
