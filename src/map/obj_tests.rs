@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::map::error::MeshProblem;
-use crate::map::write_obj;
+use crate::map::{write_obj, MeshGroup};
 
 fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     let path = dir.join(name);
