@@ -161,35 +161,6 @@ pub fn load_mesh(path: &Path) -> Result<Mesh, MapError> {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn content_is_recognized_from_the_first_bytes() {
-        assert_eq!(Content::of(b"ply\nformat ascii 1.0\n"), Content::Ply);
-        assert_eq!(Content::of(b"ply\r\nformat"), Content::Ply);
-        assert_eq!(Content::of(b"glTF\x02\0\0\0"), Content::Glb);
-        assert_eq!(Content::of(b"\xEF\xBB\xBF  {\"asset\""), Content::Json);
-        assert_eq!(Content::of(b"# OBJ\nv 0 0 0\n"), Content::Other);
-        assert_eq!(Content::of(b"plywood"), Content::Other);
-    }
-
-    #[test]
-    fn the_extension_names_the_format() {
-        assert_eq!(
-            MapFormat::from_path(Path::new("a/b.PLY")).ok(),
-            Some(MapFormat::Ply)
-        );
-        assert_eq!(
-            MapFormat::from_path(Path::new("b.glb")).ok(),
-            Some(MapFormat::Glb)
-        );
-        let e = MapFormat::from_path(Path::new("scan.stl")).expect_err("stl");
-        assert!(e.to_string().contains("scan.stl") && e.to_string().contains("'stl'"));
-    }
-}
-
 /// The last step of every loader: the triangles of each texture bucket
 /// (`None`: vertex colors) become one group each, the mesh is checked
 /// ([`Mesh::find_problem`]), and the load is logged. `no_colors`: what is
@@ -230,4 +201,33 @@ pub(crate) fn finish_mesh(
         "mesh loaded"
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn content_is_recognized_from_the_first_bytes() {
+        assert_eq!(Content::of(b"ply\nformat ascii 1.0\n"), Content::Ply);
+        assert_eq!(Content::of(b"ply\r\nformat"), Content::Ply);
+        assert_eq!(Content::of(b"glTF\x02\0\0\0"), Content::Glb);
+        assert_eq!(Content::of(b"\xEF\xBB\xBF  {\"asset\""), Content::Json);
+        assert_eq!(Content::of(b"# OBJ\nv 0 0 0\n"), Content::Other);
+        assert_eq!(Content::of(b"plywood"), Content::Other);
+    }
+
+    #[test]
+    fn the_extension_names_the_format() {
+        assert_eq!(
+            MapFormat::from_path(Path::new("a/b.PLY")).ok(),
+            Some(MapFormat::Ply)
+        );
+        assert_eq!(
+            MapFormat::from_path(Path::new("b.glb")).ok(),
+            Some(MapFormat::Glb)
+        );
+        let e = MapFormat::from_path(Path::new("scan.stl")).expect_err("stl");
+        assert!(e.to_string().contains("scan.stl") && e.to_string().contains("'stl'"));
+    }
 }
