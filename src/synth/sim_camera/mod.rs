@@ -91,7 +91,7 @@ pub enum SimError {
 }
 
 /// A scene rebuilt from a `star synth` dataset.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct SimScene {
     /// The dataset folder.
     pub dir: PathBuf,
@@ -105,6 +105,18 @@ pub struct SimScene {
     pub seed: u64,
     /// The preset's name.
     pub preset: &'static str,
+}
+
+impl std::fmt::Debug for SimScene {
+    /// The mesh by its size only (it has hundreds of thousands of values).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SimScene")
+            .field("dir", &self.dir)
+            .field("preset", &self.preset)
+            .field("seed", &self.seed)
+            .field("image_triangles", &self.image_mesh.triangle_count())
+            .finish_non_exhaustive()
+    }
 }
 
 impl SimScene {

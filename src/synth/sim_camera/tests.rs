@@ -100,7 +100,7 @@ fn refuses_scenes_it_cannot_rebuild_saying_why() {
             "scanned dataset",
         ),
         (
-            text.replace(&scene_seed_line, &other_scene),
+            text.replace(&scene_seed_line, other_scene),
             "not this dataset's scene",
         ),
         (text.replace("seed = 5\n", ""), "`seed` missing"),
@@ -108,16 +108,10 @@ fn refuses_scenes_it_cannot_rebuild_saying_why() {
     ];
     for (bad, why) in cases {
         std::fs::write(&toml_path, &bad).expect("write");
-        // (`expect_err` would print the whole scene.)
-        let err = SimScene::load(ds.path())
-            .err()
-            .unwrap_or_else(|| panic!("{why}: loaded"))
-            .to_string();
+        let err = SimScene::load(ds.path()).expect_err(why).to_string();
         assert!(err.contains(why), "{why}: {err}");
     }
-    let err = SimScene::load(Path::new("/nonexistent/ds"))
-        .err()
-        .expect("missing");
+    let err = SimScene::load(Path::new("/nonexistent/ds")).expect_err("missing");
     assert!(
         err.to_string().contains("/nonexistent/ds/synth.toml"),
         "{err}"
