@@ -178,8 +178,10 @@ def command(gcs, cmd, *params, timeout_s=5.0, ok=(0,)):
 
 
 def armed(gcs):
-    beats = gcs.kept["HEARTBEAT"]
-    return bool(beats) and bool(beats[-1][1].base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+    """The autopilot's own HEARTBEAT says armed (SITL also forwards star's
+    and the sim camera's heartbeats, which never do)."""
+    beats = [m for _, m in gcs.kept["HEARTBEAT"] if m.autopilot != mavutil.mavlink.MAV_AUTOPILOT_INVALID]
+    return bool(beats) and bool(beats[-1].base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
 
 
 def ekf_now(gcs):
@@ -264,20 +266,35 @@ def camera_lines(scene):
     return out + ["[camera.intrinsics.distortion]"] + [d for d in dist if "=" in d]
 
 
-def fly(star_bin, work, scene):
-    """One closed-loop flight; returns its record (see `figures`)."""
+def set_param(gcs, name, value, timeout_s=5.0):
+    """PARAM_SET, confirmed by the PARAM_VALUE SITL answers with."""
+    conn = gcs.conn
+    since = time.monotonic()
+    conn.mav.param_set_send(conn.target_system, conn.target_component, name.encode(), float(value),
+                            mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+    wait_until(lambda: any(t >= since and m.param_id == name and abs(m.param_value - value) < 1e-3
+                           for t, m in gcs.kept["PARAM_VALUE"]), timeout_s, f"{name} = {value}")
+
+
+def fly(star_bin, work, scene, viso_delay_ms=None):
+    """One closed-loop flight; returns its record (see `figures`).
+    `viso_delay_ms`: VISO_DELAY_MS for SITL (default: extnav.parm's)."""
     work.mkdir(parents=True, exist_ok=True)
     sitl = Sitl(free_instance(), work / "sitl")
     gcs = tap = None
     rig = Rig(star_bin, work, scene)
     record = {"phases": {}}
     try:
-        gcs = Gcs(sitl.gcs_port, keep=("SIM_STATE", "HEARTBEAT", "COMMAND_ACK", "GPS_GLOBAL_ORIGIN"))
+        gcs = Gcs(sitl.gcs_port, keep=("SIM_STATE", "HEARTBEAT", "COMMAND_ACK", "GPS_GLOBAL_ORIGIN",
+                                           "PARAM_VALUE"))
         gcs.start_streams()
         conn = gcs.conn
         conn.mav.command_long_send(conn.target_system, conn.target_component,
                                    mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 108, 20_000, 0, 0, 0, 0, 0)
         gcs.wait_text("EKF3 IMU0 tilt alignment complete", 60)
+        if viso_delay_ms is not None:
+            set_param(gcs, "VISO_DELAY_MS", viso_delay_ms)
+        record["viso_delay_ms"] = viso_delay_ms
         wait_until(lambda: gcs.kept["SIM_STATE"], 10, "SIM_STATE on the GCS link")
         rest = gcs.kept["SIM_STATE"][-1][1]
         origin = (rest.lat_int, rest.lon_int, rest.alt)
@@ -463,6 +480,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out", type=pathlib.Path, help="working folder (SITL, logs, the scene)")
     parser.add_argument("--plot", type=pathlib.Path, help="write the top-down plot here (PNG)")
+    parser.add_argument("--viso-delay-ms", type=float, help="VISO_DELAY_MS for SITL (default: extnav.parm's)")
     parser.add_argument("--replot", action="store_true",
                         help="no flight: figures and plot from OUT/flight/record.json")
     args = parser.parse_args()
@@ -471,7 +489,7 @@ def main():
     else:
         star_bin = STAR
         scene = synth_scene(star_bin, args.out / "scene")
-        record = fly(star_bin, args.out / "flight", scene)
+        record = fly(star_bin, args.out / "flight", scene, args.viso_delay_ms)
     print(report(figures(record)))
     if args.plot:
         plot(record, args.plot)
