@@ -68,6 +68,9 @@ renderer = "cpu"
 CONFIG_TRACKER = """pyramid_levels = 3
 block_size_px = 16
 """
+# VISO_DELAY_MS set in SITL: the capture -> SITL delay measured here (min
+# about 4 ms, median about 6 ms; docs/benchmarks.md).
+VISO_DELAY_MS = 5
 COPTER_GUIDED = 4
 COPTER_LAND = 9
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -276,9 +279,9 @@ def set_param(gcs, name, value, timeout_s=5.0):
                            for t, m in gcs.kept["PARAM_VALUE"]), timeout_s, f"{name} = {value}")
 
 
-def fly(star_bin, work, scene, viso_delay_ms=None):
+def fly(star_bin, work, scene, viso_delay_ms=VISO_DELAY_MS):
     """One closed-loop flight; returns its record (see `figures`).
-    `viso_delay_ms`: VISO_DELAY_MS for SITL (default: extnav.parm's)."""
+    `viso_delay_ms`: VISO_DELAY_MS for SITL (None: extnav.parm's 10)."""
     work.mkdir(parents=True, exist_ok=True)
     sitl = Sitl(free_instance(), work / "sitl")
     gcs = tap = None
@@ -332,7 +335,7 @@ def fly(star_bin, work, scene, viso_delay_ms=None):
                                             int(round(rest.alt * 1000)), 0)
         wait_until(lambda: gcs.kept["GPS_GLOBAL_ORIGIN"], 10, "GPS_GLOBAL_ORIGIN from SITL", alive)
         cpu = CpuMeter({"sitl": sitl.proc.pid, "star camera": camera.pid, "star track": track.pid,
-                        "test (python)": os.getpid()})
+                        "harness (python)": os.getpid()})
         # GUIDED, then arm (retried while the pre-arm checks settle).
         wait_until(lambda: command(gcs, mavutil.mavlink.MAV_CMD_DO_SET_MODE, 1, COPTER_GUIDED) == 0,
                    30, "GUIDED mode", alive)
@@ -401,6 +404,15 @@ def figures(record):
     in_flight = (t_star >= t_arm) & (t_star <= t_disarm)
     out = {"ekf_samples": len(ekf), "star_poses": int(in_flight.sum())}
     out["ekf_rms_cm"], out["ekf_max_cm"] = errors_cm(t_ekf, p_ekf, t_truth, p_truth)
+    out["ekf_mean_cm"] = [float(v) for v in (p_ekf - interp(t_ekf, t_truth, p_truth)).mean(axis=0) * 100]
+    # The time shift that best aligns the EKF with the truth (constant
+    # offset removed): positive, the EKF lags; negative, it leads.
+    def shifted_rms(shift_s):
+        d = p_ekf - interp(t_ekf - shift_s, t_truth, p_truth)
+        d -= d.mean(axis=0)
+        return float(np.sqrt(np.mean(np.sum(d ** 2, axis=1))))
+    shifts = np.arange(-0.1, 0.1001, 0.005)
+    out["ekf_lag_ms"] = float(shifts[int(np.argmin([shifted_rms(s) for s in shifts]))] * 1e3)
     out["star_rms_cm"], out["star_max_cm"] = errors_cm(t_star[in_flight], p_star[in_flight], t_truth, p_truth)
     # Capture -> SITL: each VISION_POSITION_ESTIMATE through the tap, matched
     # to star's trajectory row of the same position (same pose, same frame).
@@ -423,6 +435,11 @@ def figures(record):
         # the last 100 (`JitterCorrection`): VISO_DELAY_MS should be that lag.
         windows = [d[i:i + 100].min() for i in range(0, max(1, len(d) - 99), 100)]
         out["viso_delay_ms"] = float(np.median(windows))
+    # EKF3's own log: vision samples it received, and those under 20 ms
+    # after the previous one in its corrected time (it drops those).
+    visp = record.get("visp") or []
+    out["visp"] = len(visp)
+    out["visp_under_20ms"] = sum(1 for a, b in zip(visp, visp[1:]) if b[2] - a[2] < 20)
     out["cpu_percent"] = record["cpu_percent"]
     out["flight_s"] = t_disarm - t_arm
     # How far the flown path (truth) is from the commanded square, for the plot.
@@ -432,7 +449,9 @@ def figures(record):
 def report(f):
     lines = [
         f"EKF (LOCAL_POSITION_NED) vs SITL truth: RMS {f['ekf_rms_cm']:.2f} cm, max {f['ekf_max_cm']:.2f} cm "
-        f"({f['ekf_samples']} samples, {f['flight_s']:.1f} s armed)",
+        f"({f['ekf_samples']} samples, {f['flight_s']:.1f} s armed); mean north/east/down "
+        + "/".join(f"{v:.2f}" for v in f["ekf_mean_cm"]) + f" cm; best time alignment {f['ekf_lag_ms']:+.0f} ms "
+        "(negative: EKF leads)",
         f"star (sent pose) vs SITL truth at capture: RMS {f['star_rms_cm']:.2f} cm, max {f['star_max_cm']:.2f} cm "
         f"({f['star_poses']} poses)",
     ]
@@ -441,6 +460,8 @@ def report(f):
         lines.append(f"capture -> SITL (SERIAL1) delay: min {d['min']:.1f}, median {d['median']:.1f}, "
                      f"p95 {d['p95']:.1f}, max {d['max']:.1f} ms over {f['delay_matched']} poses; "
                      f"VISO_DELAY_MS to set: {f['viso_delay_ms']:.0f}")
+    lines.append(f"EKF3 log: {f['visp']} vision samples, {f['visp_under_20ms']} under 20 ms apart in its "
+                 f"corrected time (dropped)")
     lines.append("CPU (% of one core, armed to disarmed): " +
                  ", ".join(f"{k} {v:.0f} %" for k, v in f["cpu_percent"].items()))
     return "\n".join(lines)
@@ -480,7 +501,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out", type=pathlib.Path, help="working folder (SITL, logs, the scene)")
     parser.add_argument("--plot", type=pathlib.Path, help="write the top-down plot here (PNG)")
-    parser.add_argument("--viso-delay-ms", type=float, help="VISO_DELAY_MS for SITL (default: extnav.parm's)")
+    parser.add_argument("--viso-delay-ms", type=float, default=VISO_DELAY_MS,
+                        help=f"VISO_DELAY_MS for SITL (default {VISO_DELAY_MS})")
     parser.add_argument("--replot", action="store_true",
                         help="no flight: figures and plot from OUT/flight/record.json")
     args = parser.parse_args()

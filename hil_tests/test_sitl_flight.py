@@ -36,9 +36,6 @@ from sitl import SKIP
 
 pytestmark = SKIP
 
-# What the delay measurement gives (capture -> SITL: min about 4 ms,
-# median about 6 ms on the development machine; docs/benchmarks.md).
-VISO_DELAY_MS = 5
 EKF_RMS_CM = 3.0
 EKF_MAX_CM = 10.0
 STAR_RMS_CM = 1.5
@@ -48,7 +45,7 @@ CORNER_TOL_M = 0.3
 
 def test_square_on_vision(star_bin, tmp_path):
     scene = flight.synth_scene(star_bin, tmp_path / "scene")
-    record = flight.fly(star_bin, tmp_path / "flight", scene, viso_delay_ms=VISO_DELAY_MS)
+    record = flight.fly(star_bin, tmp_path / "flight", scene, viso_delay_ms=flight.VISO_DELAY_MS)
     f = flight.figures(record)
     track_log = open(record["track_log"]).read()
     # The localizer's lost test (not the start-up hint check before tracking).
