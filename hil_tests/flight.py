@@ -38,7 +38,7 @@ import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
-from conftest import REPO, STAR, Rig, config_transform, quat_xyzw_matrix, read_tum, tum_matrix, wait_for_log  # noqa: E402
+from conftest import STAR, Rig, config_transform, quat_xyzw_matrix, read_tum, tum_matrix, wait_for_log  # noqa: E402
 from sitl import Gcs, Sitl, Tap, free_instance, stop_all  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
@@ -371,7 +371,6 @@ def fly(star_bin, work, scene, viso_delay_ms=VISO_DELAY_MS):
         stop_all(sitl, rig, tap, gcs)
     record["truth"] = [(t, (m.lat_int, m.lon_int, m.alt)) for t, m in gcs.kept["SIM_STATE"]]
     record["ekf"] = list(gcs.positions)
-    record["ekf_boot_ms"] = []  # LOCAL_POSITION_NED arrival only (Gcs keeps position tuples)
     record["vpe"] = [(t, f) for t, f in tap.of_type("VISION_POSITION_ESTIMATE")]
     record["star_trajectory"] = str(trajectory)
     record["texts"] = [x for _, x in gcs.texts]
@@ -442,7 +441,6 @@ def figures(record):
     out["visp_under_20ms"] = sum(1 for a, b in zip(visp, visp[1:]) if b[2] - a[2] < 20)
     out["cpu_percent"] = record["cpu_percent"]
     out["flight_s"] = t_disarm - t_arm
-    # How far the flown path (truth) is from the commanded square, for the plot.
     return out
 
 

@@ -107,13 +107,15 @@ pub fn run(args: &CameraArgs) -> Result<()> {
         settings.replay_speed = speed;
     }
     settings.replay_loop |= args.looping;
+    // A source that cannot be set up (a sim: scene) fails before the
+    // frame service is taken.
+    let open = source_opener(&config, &uri, &settings)?;
     // Before iceoryx2: see `signals::install_shutdown_handler`.
     let shutdown = signals::install_shutdown_handler()?;
     let iox =
         load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
     let node = create_node("star-camera", &iox).context("iceoryx2 node")?;
     let mut publisher = FramePublisher::new(&node).context("frame publisher")?;
-    let open = source_opener(&config, &uri, &settings)?;
     // systemd: READY=1 once the publisher is up (star-camera.service is
     // Type=notify), and WATCHDOG=1 while the runner loop turns: it asks
     // `stop` between frames and while it waits to reconnect a camera.

@@ -98,11 +98,11 @@ pub fn run(args: &RunArgs) -> Result<()> {
 
 fn camera_thread(config: &Config, uri: &SourceUri, shutdown: &AtomicBool) -> Result<()> {
     let settings = config.camera.source_settings();
+    let open = super::camera::source_opener(config, uri, &settings)?;
     let iox =
         load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
     let node = create_node("star-camera", &iox).context("iceoryx2 node")?;
     let mut publisher = FramePublisher::new(&node).context("frame publisher")?;
-    let open = super::camera::source_opener(config, uri, &settings)?;
     info!(source = %uri, "camera thread started");
     let stop = || shutdown.load(Ordering::Relaxed);
     let summary = run_camera(open, &mut publisher, &stop, &RunnerSettings::default())

@@ -19,6 +19,7 @@ use super::*;
 use crate::geometry::TransformConfig;
 use crate::ipc::Frame;
 use crate::mavlink_io::FrameConverter;
+use crate::synth::preset::Preset;
 use crate::synth::sequence::{write_sequence, SequenceOptions};
 
 fn dataset(preset: &str) -> tempfile::TempDir {
