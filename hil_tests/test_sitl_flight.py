@@ -15,9 +15,12 @@ Checked, from arming to disarming:
 - EKF3's LOCAL_POSITION_NED against SITL's truth (SIM_STATE): RMS and max
   within issue 20's targets (3 cm, 10 cm);
 - star's poses (its trajectory, at their capture times) against the
-  truth: within STAR_RMS_CM / STAR_MAX_CM (measured 0.47-0.55 cm RMS,
-  1.8-2.4 cm max over the flights in docs/benchmarks.md; the bound has
-  margin for SIM_STATE's 1.1 cm position steps);
+  truth: RMS within STAR_RMS_CM (measured 0.36-0.53 cm over the flights in
+  docs/benchmarks.md; margin for SIM_STATE's 1.1 cm position steps), and
+  no wrong pose (DESIGN.md: none more than STAR_MAX_CM off). The max is
+  not held tighter: the truth is timed by the harness's Python thread, and
+  at 0.5 m/s a 60 ms hiccup of it on a loaded machine is 3 cm (one flight
+  measured 4.4 cm, the others 1.3-2.0 cm);
 - EKF3 never stopped using external navigation.
 
 Reported, not asserted (they depend on the machine's load): the capture to
@@ -39,7 +42,7 @@ pytestmark = SKIP
 EKF_RMS_CM = 3.0
 EKF_MAX_CM = 10.0
 STAR_RMS_CM = 1.5
-STAR_MAX_CM = 5.0
+STAR_MAX_CM = 10.0
 CORNER_TOL_M = 0.3
 
 
