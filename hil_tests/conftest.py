@@ -147,14 +147,25 @@ class Rig:
         self.config = tmp / "star.toml"
         self.write_config()
 
-    def write_config(self, extra=""):
+    def write_config(self, extra="", camera_lines=None, init_pose=None, ned_from_world=None,
+                     body_from_camera=None, tracker=""):
+        """The test's star.toml. By default: the dataset's camera and first
+        ground-truth pose, the harness's transforms; each can be replaced
+        (`camera_lines`: the `[camera.intrinsics]` body, TOML lines;
+        `tracker`: more `[tracker]` lines)."""
         cam = []
         for line in (self.dataset / "camera.toml").read_text().splitlines():
             if line.startswith("depth_scale"):
                 continue
             cam.append(line.replace("[distortion]", "[camera.intrinsics.distortion]"))
-        _, poses = read_tum(self.dataset / "groundtruth.txt")
-        init = ", ".join(f"{v:.12f}" for v in poses[0])
+        if camera_lines is not None:
+            cam = camera_lines
+        if init_pose is None:
+            _, poses = read_tum(self.dataset / "groundtruth.txt")
+            init_pose = poses[0]
+        init = ", ".join(f"{v:.12f}" for v in init_pose)
+        ned_from_world = ned_from_world or NED_FROM_WORLD
+        body_from_camera = body_from_camera or BODY_FROM_CAMERA
         fmt = lambda v: "[" + ", ".join(str(x) for x in v) + "]"  # noqa: E731
         self.config.write_text(
             f"""[ipc]
@@ -164,23 +175,24 @@ silence_timeout_ms = 200
 mesh = "{self.dataset / 'map' / 'map.obj'}"
 [tracker]
 init_pose = [{init}]
+{tracker}
 [mavlink]
 connection = "udpout:127.0.0.1:{self.port}"
 # rate_hz stays at its default, 50 Hz: the camera's own rate.
 [mavlink.ned_from_world]
-translation_m = {fmt(NED_FROM_WORLD['translation_m'])}
-rpy_deg = {fmt(NED_FROM_WORLD['rpy_deg'])}
+translation_m = {fmt(ned_from_world['translation_m'])}
+rpy_deg = {fmt(ned_from_world['rpy_deg'])}
 [mavlink.body_from_camera]
-translation_m = {fmt(BODY_FROM_CAMERA['translation_m'])}
-rpy_deg = {fmt(BODY_FROM_CAMERA['rpy_deg'])}
+translation_m = {fmt(body_from_camera['translation_m'])}
+rpy_deg = {fmt(body_from_camera['rpy_deg'])}
 {extra}
 [camera.intrinsics]
 """ + "\n".join(cam) + "\n"
         )
 
-    def spawn(self, args, name):
+    def spawn(self, args, name, log_filter="info"):
         log = open(self.tmp / f"{name}.log", "w")
-        p = subprocess.Popen([self.star, "--log", "info", *args], stdout=subprocess.PIPE,
+        p = subprocess.Popen([self.star, "--log", log_filter, *args], stdout=subprocess.PIPE,
                              stderr=log, text=True, env={**os.environ, "NO_COLOR": "1"})
         p.log_path = self.tmp / f"{name}.log"
         self.procs.append(p)

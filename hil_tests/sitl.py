@@ -57,13 +57,15 @@ def free_instance():
 
 class Gcs:
     """The test's pymavlink link to SERIAL0: STATUSTEXT, LOCAL_POSITION_NED
-    and ATTITUDE, each with its arrival time (CLOCK_MONOTONIC, s).
+    and ATTITUDE, each with its arrival time (CLOCK_MONOTONIC, s), and the
+    messages of the types in `keep` (the autopilot's HEARTBEAT included) as
+    (arrival time, message) in `kept[type]`.
 
     One thread reads the link; nothing else calls `recv_match` on it (a
     second reader, such as `wait_heartbeat`, would take messages away from
     the recorded ones: a CI run lost EKF3's tilt-alignment STATUSTEXT so)."""
 
-    def __init__(self, port):
+    def __init__(self, port, keep=()):
         end = time.monotonic() + 20
         while True:
             try:
@@ -78,6 +80,7 @@ class Gcs:
         self.texts = []
         self.positions = []
         self.attitudes = []
+        self.kept = {kind: [] for kind in keep}
         self.heartbeat = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -95,12 +98,16 @@ class Gcs:
             kind = m.get_type()
             if kind == "HEARTBEAT" and m.get_srcSystem() != 255:
                 self.heartbeat.set()
+                if kind in self.kept:
+                    self.kept[kind].append((t, m))
             elif kind == "STATUSTEXT":
                 self.texts.append((t, m.text))
             elif kind == "LOCAL_POSITION_NED":
                 self.positions.append((t, (m.x, m.y, m.z)))
             elif kind == "ATTITUDE":
                 self.attitudes.append((t, m.yaw))
+            elif kind in self.kept and kind != "HEARTBEAT":
+                self.kept[kind].append((t, m))
 
     def start_streams(self):
         assert self.heartbeat.wait(timeout=20), "no HEARTBEAT from SITL in 20 s"

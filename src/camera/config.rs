@@ -10,7 +10,8 @@ use crate::settings::{first_failure, SettingError};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {
-    /// Source URI: `v4l2:/dev/videoN`, `aravis:ID`, `replay:DATASET`.
+    /// Source URI: `v4l2:/dev/videoN`, `aravis:ID`, `replay:DATASET`,
+    /// `pattern:WxH`, `sim:LINK[?scene=DIR&origin=LAT,LON,ALT]`.
     pub source: String,
     /// Requested frame rate, Hz.
     pub fps: f64,

@@ -2,7 +2,9 @@
 //!
 //! Owns the [`FrameSource`] trait and its implementations: V4L2
 //! (`v4l2:/dev/videoN`), Aravis/GenICam (`aravis:ID`), dataset replay
-//! (`replay:DIR`) and a test pattern (`pattern:WxH`). Takes in a source URI
+//! (`replay:DIR`) and a test pattern (`pattern:WxH`); it parses the
+//! vehicle-simulator camera's URI (`sim:`, see [`SimUri`]), whose source
+//! lives in `synth::sim_camera` (it renders a synthetic scene). Takes in a source URI
 //! plus [`SourceSettings`] from the config; gives out 8-bit gray frames with a
 //! CLOCK_MONOTONIC capture time, written straight into a frame slot (the
 //! loaned shared-memory sample on the camera side, a heap frame for the
@@ -27,7 +29,7 @@ pub mod aravis;
 pub use config::{replay_speed_is_sane, CameraConfig, MAX_REPLAY_SPEED, MIN_REPLAY_SPEED};
 pub use frame_size::{known_frame_sizes, KnownSize};
 pub use runner::{run_camera, RunError, RunSummary, RunnerSettings};
-pub use uri::SourceUri;
+pub use uri::{GeoPoint, SimUri, SourceUri};
 
 use std::path::PathBuf;
 
@@ -215,5 +217,11 @@ pub fn open_source(
             *height,
             settings.fps,
         )?)),
+        SourceUri::Sim(sim) => Err(CameraError::InvalidUri {
+            uri: sim.to_string(),
+            reason: "a sim: camera renders a synthetic scene with the config's transforms; \
+                     `star camera` and `star run` open it (synth::sim_camera)"
+                .into(),
+        }),
     }
 }

@@ -16,7 +16,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use tracing::{info, warn};
 
-use crate::camera::{open_source, run_camera, RunnerSettings, SourceUri};
+use crate::camera::{run_camera, RunnerSettings, SourceUri};
 use crate::config::Config;
 use crate::ipc::{create_node, load_iceoryx_config, FramePublisher};
 
@@ -98,19 +98,15 @@ pub fn run(args: &RunArgs) -> Result<()> {
 
 fn camera_thread(config: &Config, uri: &SourceUri, shutdown: &AtomicBool) -> Result<()> {
     let settings = config.camera.source_settings();
+    let open = super::camera::source_opener(config, uri, &settings)?;
     let iox =
         load_iceoryx_config(&config.ipc.iceoryx2_config, None).context("iceoryx2 configuration")?;
     let node = create_node("star-camera", &iox).context("iceoryx2 node")?;
     let mut publisher = FramePublisher::new(&node).context("frame publisher")?;
     info!(source = %uri, "camera thread started");
     let stop = || shutdown.load(Ordering::Relaxed);
-    let summary = run_camera(
-        || open_source(uri, &settings),
-        &mut publisher,
-        &stop,
-        &RunnerSettings::default(),
-    )
-    .with_context(|| format!("camera {uri}"))?;
+    let summary = run_camera(open, &mut publisher, &stop, &RunnerSettings::default())
+        .with_context(|| format!("camera {uri}"))?;
     info!(
         published = summary.stats.published,
         ended = summary.ended,

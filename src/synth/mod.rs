@@ -13,14 +13,20 @@
 //! - [`scanned`]: the scanned variant: a map rebuilt by TSDF fusion of a
 //!   noisy scanning run (through Open3D), a moving light and auto-exposure
 //!   steps in flight.
+//! - [`camera_model`]: renders turned into camera frames (blur, lens
+//!   distortion, sensor model), for `sequence` and `sim_camera`.
 //! - [`sequence`]: scene + trajectory + renderer + corruptions -> a TUM
 //!   dataset folder (`star synth`).
+//! - [`sim_camera`]: the `sim:` camera source: a simulated vehicle's camera,
+//!   rendering a dataset's scene at the true pose ArduPilot SITL reports.
 
+pub mod camera_model;
 pub mod corrupt;
 pub mod preset;
 pub mod scanned;
 pub mod scene;
 pub mod sequence;
+pub mod sim_camera;
 pub mod texture;
 pub mod trajectory;
 

@@ -24,9 +24,8 @@ use std::sync::Arc;
 
 use nalgebra::Vector3;
 
-use super::corrupt::{
-    derive_seed, subframe_offsets_s, DistortionError, DistortionWarp, SensorModel,
-};
+use super::camera_model::{SyntheticCamera, SyntheticCameraError};
+use super::corrupt::derive_seed;
 use super::preset::{ImageSource, Preset};
 use super::scanned::exposure::ExposureSchedule;
 use super::scanned::fusion::FusionStats;
@@ -37,8 +36,7 @@ use super::trajectory::{RoomBox, SynthTrajectory, TrajectoryError};
 use crate::dataset::{CameraFile, DatasetError, DatasetWriter, Trajectory};
 use crate::imgproc::{ImageF32, ImageU8};
 use crate::map::MapError;
-use crate::render::cpu::CpuRenderer;
-use crate::render::{RenderError, RenderedView, Renderer};
+use crate::render::RenderError;
 
 /// First TUM timestamp of a synthetic sequence, seconds (any positive
 /// value works; a realistic one catches tools that assume small stamps).
@@ -71,9 +69,9 @@ pub enum SequenceError {
     /// No collision-free trajectory in the scene.
     #[error("cannot place the trajectory")]
     Trajectory(#[from] TrajectoryError),
-    /// The lens distortion cannot be resampled.
-    #[error("cannot build the distortion warp")]
-    Distortion(#[from] DistortionError),
+    /// The synthetic camera (lens distortion warp, renderer) cannot be built.
+    #[error("cannot build the synthetic camera")]
+    Camera(#[from] SyntheticCameraError),
     /// Rendering failed.
     #[error("rendering failed")]
     Render(#[from] RenderError),
@@ -357,17 +355,16 @@ pub fn write_sequence_with(
         (spec.flight_light, phase_rad, exposure)
     });
     let mut normals = Vec::new();
-    let mut renderer = CpuRenderer::new(Arc::new(image_mesh))?;
-    let warp = DistortionWarp::new(&preset.camera)?;
-    let render_camera = *warp.render_camera();
-    let sensor = SensorModel::new(preset.photometric, &preset.camera, options.seed);
-
-    let mut view = RenderedView::for_camera(&render_camera);
-    let mut accum = ImageF32::new(view.gray.width(), view.gray.height(), 0.0);
-    let mut warped = ImageF32::new(0, 0, 0.0);
+    let mut camera = SyntheticCamera::new(
+        Arc::new(image_mesh),
+        &preset.camera,
+        preset.photometric,
+        preset.blur,
+        options.seed,
+    )?;
+    let render_camera = *camera.render_camera();
     let mut warped_depth = ImageF32::new(0, 0, 0.0);
     let mut frame = ImageU8::new(0, 0, 0);
-    let mut offsets_s = Vec::new();
     let mut ground_truth = Trajectory::default();
     let (mut rgb, mut depth) = (Vec::new(), Vec::new());
     let mut renders = 0;
@@ -378,57 +375,34 @@ pub fn write_sequence_with(
         let world_from_camera = trajectory.pose_at(t_s);
         ground_truth.push(stamp_s, world_from_camera);
 
-        match &preset.blur {
-            Some(spec) => subframe_offsets_s(
-                spec,
-                preset.camera.fx,
-                |t| trajectory.pose_at(t),
-                t_s,
-                &mut offsets_s,
-            ),
-            None => {
-                offsets_s.clear();
-                offsets_s.push(0.0);
-            }
-        }
         // Sub-frames are averaged; the one at the frame time (offset 0 when
         // there is one sub-frame) also gives the depth.
-        accum.fill(0.0);
-        let weight = 1.0 / offsets_s.len() as f32;
-        for &dt in &offsets_s {
-            let pose = trajectory.pose_at(t_s + dt);
-            renderer.render(&pose, &render_camera, &mut view)?;
-            renders += 1;
-            if let Some((light, phase_rad, _)) = &flight {
-                depth_normals(&view.depth_m, &render_camera, &mut normals);
-                let light = light.at(scene.room_size_m, *phase_rad, t_s + dt);
-                shade(
-                    &mut view.gray,
-                    &view.depth_m,
-                    &normals,
-                    &render_camera,
-                    &pose,
-                    &light,
-                );
-            }
-            for (a, &g) in accum.data_mut().iter_mut().zip(view.gray.data()) {
-                *a += weight * g;
-            }
-        }
-        warp.warp_gray(&accum, &mut warped);
-        if let Some((_, _, exposure)) = &flight {
-            let gain = exposure.gain_at(t_s) as f32;
-            warped.data_mut().iter_mut().for_each(|g| *g *= gain);
-        }
-        sensor.apply(&warped, i as u64, t_s, &mut frame);
+        renders += camera.expose(
+            |t| trajectory.pose_at(t),
+            t_s,
+            |view, pose, t| {
+                if let Some((light, phase_rad, _)) = &flight {
+                    depth_normals(&view.depth_m, &render_camera, &mut normals);
+                    let light = light.at(scene.room_size_m, *phase_rad, t);
+                    shade(
+                        &mut view.gray,
+                        &view.depth_m,
+                        &normals,
+                        &render_camera,
+                        pose,
+                        &light,
+                    );
+                }
+            },
+        )?;
+        let gain = flight
+            .as_ref()
+            .map(|(_, _, exposure)| exposure.gain_at(t_s) as f32);
+        camera.develop(gain, i as u64, t_s, &mut frame);
         rgb.push(writer.write_rgb(stamp_s, &frame)?);
 
         if options.write_depth {
-            if offsets_s.len() != 1 || offsets_s[0] != 0.0 {
-                renderer.render(&world_from_camera, &render_camera, &mut view)?;
-                renders += 1;
-            }
-            warp.warp_depth(&view.depth_m, &mut warped_depth);
+            renders += camera.depth(&world_from_camera, true, &mut warped_depth)?;
             depth.push(writer.write_depth_m(stamp_s, &warped_depth)?);
         }
         progress(i + 1);
