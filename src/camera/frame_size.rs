@@ -38,6 +38,8 @@ pub fn known_frame_sizes(uri: &SourceUri, open_files: bool) -> Result<Vec<KnownS
         }]),
         SourceUri::Replay(dir) if open_files => replay_sizes(dir),
         SourceUri::Replay(_) | SourceUri::V4l2(_) | SourceUri::Aravis(_) => Ok(Vec::new()),
+        // A simulated camera renders at the calibration's own size.
+        SourceUri::Sim(_) => Ok(Vec::new()),
     }
 }
 
