@@ -53,7 +53,7 @@ impl Default for KeyframeConfig {
             lost_inlier_ratio: 0.35,
             lost_visible_ratio: 0.15,
             lost_max_jump_m: 0.05,
-            lost_max_jump_deg: 2.0,
+            lost_max_jump_deg: 4.0,
             lost_min_correlation: 0.2,
             lost_correlation_drop: 0.6,
         }
