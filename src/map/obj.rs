@@ -60,15 +60,9 @@ fn read_obj_text(path: &Path) -> Result<String, MapError> {
         path: path.to_path_buf(),
         source,
     };
-    let meta = std::fs::metadata(path).map_err(read_err)?;
-    if !meta.is_file() {
-        return Err(read_err(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            "not a regular file",
-        )));
-    }
+    let len_bytes = super::format::check_regular_file(path)?;
     let mut bytes: Vec<u8> = Vec::new();
-    let len = usize::try_from(meta.len()).unwrap_or(usize::MAX);
+    let len = usize::try_from(len_bytes).unwrap_or(usize::MAX);
     reserve(&mut bytes, len, path, "the OBJ text")?;
     std::io::Read::read_to_end(
         &mut std::fs::File::open(path).map_err(read_err)?,
