@@ -51,6 +51,56 @@ pub struct IntegrityOptions {
     /// Add views along the scanning run (`scan_groundtruth.txt`) to the
     /// database.
     pub scan_views: bool,
+    /// Which kinds of trial to run.
+    pub kinds: TrialKinds,
+}
+
+/// Which kinds of trial `star bench integrity` runs. Each kind draws its
+/// random places from its own seeded stream, so running one kind alone
+/// gives the same trials as running all three.
+#[derive(Debug, Clone, Copy)]
+pub struct TrialKinds {
+    /// Cold starts without a pose.
+    pub cold: bool,
+    /// Kidnaps (teleports).
+    pub kidnap: bool,
+    /// Wrong initial hints.
+    pub hint: bool,
+}
+
+impl Default for TrialKinds {
+    fn default() -> Self {
+        Self {
+            cold: true,
+            kidnap: true,
+            hint: true,
+        }
+    }
+}
+
+impl std::str::FromStr for TrialKinds {
+    type Err = anyhow::Error;
+
+    /// Parses a comma-separated list of `cold`, `kidnap`, `hint` (or `all`).
+    fn from_str(s: &str) -> Result<Self> {
+        let mut kinds = Self {
+            cold: false,
+            kidnap: false,
+            hint: false,
+        };
+        for word in s.split(',').map(str::trim) {
+            match word {
+                "cold" => kinds.cold = true,
+                "kidnap" => kinds.kidnap = true,
+                "hint" => kinds.hint = true,
+                "all" => kinds = Self::default(),
+                other => anyhow::bail!(
+                    "unknown trial kind {other:?}: expected a comma-separated list of cold, kidnap, hint or all"
+                ),
+            }
+        }
+        Ok(kinds)
+    }
 }
 
 /// One trial's outcome.
@@ -99,26 +149,14 @@ pub fn run(options: &IntegrityOptions) -> Result<()> {
         }
         false => AlongTrajectory::default(),
     };
-    let db = match &options.database {
-        Some(path) if path.exists() => {
-            let db = RelocDatabase::read(path)
-                .with_context(|| format!("reading the database {}", path.display()))?;
-            if db.map_fingerprint != crate::reloc::map_fingerprint(&mesh) {
-                anyhow::bail!(
-                    "the database {} was built from another map; delete it to rebuild",
-                    path.display()
-                );
-            }
-            db
-        }
-        Some(path) => {
-            let db = database(&mesh, &dataset, &truth, &options.config, &along)?;
-            db.write(path)
-                .with_context(|| format!("writing the database {}", path.display()))?;
-            db
-        }
-        None => database(&mesh, &dataset, &truth, &options.config, &along)?,
-    };
+    let db = flown_region_database(
+        &mesh,
+        &dataset,
+        &truth,
+        &options.config,
+        &along,
+        options.database.as_deref(),
+    )?;
     println!(
         "integrity: {} seed {}: {} frames, map {} triangles; database {} views, {} landmarks over the flown region",
         match &options.dataset {
@@ -132,7 +170,6 @@ pub fn run(options: &IntegrityOptions) -> Result<()> {
         db.entries.len(),
         db.landmarks.len()
     );
-    let mut rng = SplitMix64::new(options.seed ^ 0x1a7e_9e11);
     let runner = Runner {
         dataset: &dataset,
         truth: &truth,
@@ -140,16 +177,28 @@ pub fn run(options: &IntegrityOptions) -> Result<()> {
         db: &db,
         config: &options.config,
     };
-    let cold = cold_starts(&runner, options.trials, &mut rng)?;
-    print("cold start (no pose)", &cold, 2.0);
-    let kidnap = kidnaps(&runner, options.trials, &mut rng)?;
-    print(
-        "kidnap (teleport > 1 m), camera time after the jump",
-        &kidnap,
-        1.0,
-    );
-    let hints = wrong_hints(&runner, options.trials, &mut rng)?;
-    print("wrong hint 1-3 m off", &hints, 2.0);
+    // One random stream per kind, so that a kind run alone repeats itself.
+    let stream = |k: u64| SplitMix64::new(options.seed ^ 0x1a7e_9e11 ^ (k << 32));
+    let kinds = options.kinds;
+    let mut cold = Vec::new();
+    if kinds.cold {
+        cold = cold_starts(&runner, options.trials, &mut stream(1))?;
+        print("cold start (no pose)", &cold, 2.0);
+    }
+    let mut kidnap = Vec::new();
+    if kinds.kidnap {
+        kidnap = kidnaps(&runner, options.trials, &mut stream(2))?;
+        print(
+            "kidnap (teleport > 1 m), camera time after the jump",
+            &kidnap,
+            1.0,
+        );
+    }
+    let mut hints = Vec::new();
+    if kinds.hint {
+        hints = wrong_hints(&runner, options.trials, &mut stream(3))?;
+        print("wrong hint 1-3 m off", &hints, 2.0);
+    }
     let all: Vec<Trial> = cold.iter().chain(&kidnap).chain(&hints).copied().collect();
     let wrong: usize = all.iter().map(|t| t.wrong).sum();
     let sent: usize = all.iter().map(|t| t.sent).sum();
@@ -163,10 +212,43 @@ pub fn run(options: &IntegrityOptions) -> Result<()> {
     Ok(())
 }
 
+/// The relocalization database over the region `dataset` flies through:
+/// read from `path` when that file exists (and was built from `mesh`),
+/// else built (and written to `path` when given).
+pub(crate) fn flown_region_database(
+    mesh: &Mesh,
+    dataset: &Dataset,
+    truth: &Trajectory,
+    config: &Config,
+    along: &AlongTrajectory,
+    path: Option<&Path>,
+) -> Result<RelocDatabase> {
+    Ok(match path {
+        Some(path) if path.exists() => {
+            let db = RelocDatabase::read(path)
+                .with_context(|| format!("reading the database {}", path.display()))?;
+            if db.map_fingerprint != crate::reloc::map_fingerprint(mesh) {
+                anyhow::bail!(
+                    "the database {} was built from another map; delete it to rebuild",
+                    path.display()
+                );
+            }
+            db
+        }
+        Some(path) => {
+            let db = database(mesh, dataset, truth, config, along)?;
+            db.write(path)
+                .with_context(|| format!("writing the database {}", path.display()))?;
+            db
+        }
+        None => database(mesh, dataset, truth, config, along)?,
+    })
+}
+
 /// The dataset's map in the world frame: `map/map.obj`, placed by the
 /// `[map.world_from_mesh]` of `star.toml` beside it when there is one (a
 /// scanned dataset's map is in the scanner's frame).
-fn map_of(root: &Path) -> Result<Mesh> {
+pub(crate) fn map_of(root: &Path) -> Result<Mesh> {
     let obj = root.join("map").join("map.obj");
     let placement = root.join("star.toml");
     let mesh = if placement.exists() {
@@ -309,6 +391,20 @@ impl Runner<'_> {
     }
 }
 
+impl Trial {
+    /// One line for this trial, so that a failing one can be rerun alone.
+    fn print(&self, kind: &str, place: &str) {
+        let recovered = match self.recovered_s {
+            Some(s) => format!("first correct pose after {s:.2} s"),
+            None => "never recovered".to_owned(),
+        };
+        println!(
+            "    {kind} ({place}): {recovered}; wrong poses {} of {}",
+            self.wrong, self.sent
+        );
+    }
+}
+
 fn trial(report: &OfflineReport, recovered_s: Option<f64>) -> Trial {
     let integrity = report.integrity.unwrap_or_default();
     Trial {
@@ -333,7 +429,9 @@ fn cold_starts(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<V
         .map(|_| {
             let order = excerpt(n, rng);
             let report = runner.run(&order, StartMode::Cold, None)?;
-            Ok(trial(&report, report.first_pose_wall_s))
+            let t = trial(&report, report.first_pose_wall_s);
+            t.print("cold start", &format!("frames {}..", order[0]));
+            Ok(t)
         })
         .collect()
 }
@@ -355,6 +453,7 @@ fn kidnaps(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<T
             b = rng.below(n - after);
         }
         let order: Vec<usize> = (a..a + before).chain(b..b + after).collect();
+        let jump_m = (position(b) - position(a + before - 1)).norm();
         let report = runner.run(&order, StartMode::Trusted, Some(runner.truth.poses[a]))?;
         // The first pose after the jump, in frames at 50 Hz.
         let jump_s = before as f64 / 50.0;
@@ -364,7 +463,16 @@ fn kidnaps(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<T
             .iter()
             .find(|(t, sent)| *sent && t - first_stamp >= jump_s)
             .map(|(t, _)| t - first_stamp - jump_s);
-        out.push(trial(&report, recovered));
+        let t = trial(&report, recovered);
+        t.print(
+            "kidnap",
+            &format!(
+                "frames {a}..{} then {b}..{}, {jump_m:.2} m",
+                a + before,
+                b + after
+            ),
+        );
+        out.push(t);
     }
     Ok(out)
 }
@@ -385,7 +493,12 @@ fn wrong_hints(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<V
                 truth.rotation,
             );
             let report = runner.run(&order, StartMode::Hint, Some(hint))?;
-            Ok(trial(&report, report.first_pose_wall_s))
+            let t = trial(&report, report.first_pose_wall_s);
+            t.print(
+                "wrong hint",
+                &format!("frames {}.., {offset_m:.2} m off", order[0]),
+            );
+            Ok(t)
         })
         .collect()
 }

@@ -89,6 +89,11 @@ pub enum BenchCommand {
         /// `scan_groundtruth.txt`.
         #[arg(long)]
         scan_views: bool,
+        /// Kinds of trial to run: a comma-separated list of `cold`,
+        /// `kidnap`, `hint` (each kind draws its places from its own
+        /// seeded stream, so one kind alone repeats its trials).
+        #[arg(long, default_value = "all")]
+        kinds: crate::bench::integrity::TrialKinds,
     },
     /// Relocalization on the synthetic realistic scene: success rate,
     /// retrieval distance, search and recovery time.
@@ -102,6 +107,16 @@ pub enum BenchCommand {
         /// Seed of the scene and the queries.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Query random frames of this existing `star synth` dataset (its
+        /// own images, e.g. a `--scanned` one, whose `star.toml` places the
+        /// map) instead of rendering a scene of `--seed`.
+        #[arg(long)]
+        dataset: Option<PathBuf>,
+        /// With `--dataset`: the relocalization database over the region it
+        /// flies through, read when the file exists, else built and written
+        /// there (the database of `star bench integrity --database`).
+        #[arg(long, requires = "dataset")]
+        database: Option<PathBuf>,
     },
 }
 
@@ -123,6 +138,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             dataset,
             database,
             scan_views,
+            kinds,
         } => {
             let config = match config {
                 Some(p) => crate::config::Config::load(p)
@@ -140,12 +156,23 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
                 dataset: dataset.clone(),
                 database: database.clone(),
                 scan_views: *scan_views,
+                kinds: *kinds,
             })
         }
         BenchCommand::Reloc {
             config,
             queries,
             seed,
-        } => crate::bench::reloc::run(config.as_deref(), *queries, *seed),
+            dataset,
+            database,
+        } => {
+            let source = dataset
+                .as_ref()
+                .map(|dataset| crate::bench::reloc::DatasetSource {
+                    dataset: dataset.clone(),
+                    database: database.clone(),
+                });
+            crate::bench::reloc::run(config.as_deref(), *queries, *seed, source.as_ref())
+        }
     }
 }

@@ -226,12 +226,14 @@ impl Localizer {
         // database views ranked by the whole-image descriptor, nearby
         // first. Every candidate passes the same gate.
         let landmark = reloc.landmark_candidate(pixels, w, h, stride, SearchRegion::Everywhere);
-        if let Some((_, found)) = &landmark {
-            tracing::debug!(
+        match &landmark {
+            Some((_, found)) => tracing::debug!(
+                capture_ns,
                 inliers = found.inliers,
                 matches = found.matches,
                 "landmark pose found"
-            );
+            ),
+            None => tracing::debug!(capture_ns, "no landmark pose"),
         }
         let mut tried = [u32::MAX; 2 * (MAX_TOP_K + 1)];
         let mut n_tried = 0usize;

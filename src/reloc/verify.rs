@@ -57,7 +57,7 @@ pub fn passes_whole_gate(
     (passes_gate(&a.quality, config) && gain_ok)
         .then(|| min_correlations(keyframe, frame, camera, &a.camera_from_keyframe))
         .flatten()
-        .filter(|c| c.all >= config.min_correlation && c.trimmed >= config.min_trimmed_correlation)
+        .filter(|c| c.all >= config.min_correlation && c.local >= config.min_local_correlation)
 }
 
 /// Initial yaw offsets tried per candidate, radians: the yaw the search
@@ -212,8 +212,9 @@ pub fn verify_candidate(
             residual_gray = q.residual_rms,
             gain = a.gain,
             correlations = ?min_correlations(keyframe, frame, camera, &a.camera_from_keyframe)
-                .map(|c| (c.all, c.trimmed)),
+                .map(|c| (c.all, c.trimmed, c.local, c.kept, c.local_kept)),
             accepted = accepted.is_some(),
+            position_m = ?world_from_camera.translation.vector.as_slice(),
             "candidate start aligned"
         );
         if let Some(ncc) = accepted {

@@ -7,8 +7,9 @@
 //! the aligned `camera_from_keyframe` pose; gives the zero-mean normalized
 //! cross-correlation at one pyramid level ([`correlation`]), that figure
 //! with its version trimmed of the points an occluder covers
-//! ([`correlations`]), and the smallest of both over levels 0, 1 and 2
-//! ([`min_correlations`]). Allocates nothing.
+//! ([`correlations`]), the correlation of local contrast (intensity over
+//! the local mean, trimmed the same way), and the smallest of each over
+//! levels 0, 1 and 2 ([`min_correlations`]). Allocates nothing.
 
 use nalgebra::Vector3;
 
@@ -32,6 +33,8 @@ pub fn min_correlations(
                     all: o.all.min(c.all),
                     trimmed: o.trimmed.min(c.trimmed),
                     kept: o.kept.min(c.kept),
+                    local: o.local.min(c.local),
+                    local_kept: o.local_kept.min(c.local_kept),
                 }));
             }
             None if level < 2 => return None,
@@ -54,7 +57,7 @@ pub fn correlation(
     level: usize,
 ) -> Option<f32> {
     let (kl, cam) = level_of(keyframe, frame, camera, level)?;
-    let fit = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None)?;
+    let fit = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None, None)?;
     Some(fit.ncc)
 }
 
@@ -83,6 +86,14 @@ pub struct Correlations {
     pub trimmed: f32,
     /// Fraction of the visible points the trimming kept.
     pub kept: f32,
+    /// The trimmed correlation of local contrast (each intensity divided by
+    /// the mean around it, two pyramid levels up): blind to shading that
+    /// varies smoothly across the view, such as a lamp's falloff on a map
+    /// whose colors were baked under other light. `NaN` where the pyramid
+    /// has no coarser level to take the mean from.
+    pub local: f32,
+    /// Fraction of the visible points the local-contrast trimming kept.
+    pub local_kept: f32,
 }
 
 /// [`correlation`] together with its trimmed version.
@@ -94,20 +105,71 @@ pub fn correlations(
     level: usize,
 ) -> Option<Correlations> {
     let (kl, cam) = level_of(keyframe, frame, camera, level)?;
-    let all = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None)?;
-    let mut trimmed = all;
-    for _ in 0..4 {
-        let limit = (trimmed.slope, trimmed.offset, 2.5 * trimmed.sigma);
-        match ncc_pass(kl, frame, &cam, level, camera_from_keyframe, Some(limit)) {
-            Some(t) => trimmed = t,
-            None => break,
+    let all = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None, None)?;
+    let trim = |contrast: Option<Contrast>, first: NccFit| {
+        let mut trimmed = first;
+        for _ in 0..4 {
+            let limit = (trimmed.slope, trimmed.offset, 2.5 * trimmed.sigma);
+            match ncc_pass(
+                kl,
+                frame,
+                &cam,
+                level,
+                camera_from_keyframe,
+                Some(limit),
+                contrast,
+            ) {
+                Some(t) => trimmed = t,
+                None => break,
+            }
         }
-    }
+        trimmed
+    };
+    let trimmed = trim(None, all);
+    let coarse = (level + 2).min(frame.len().min(keyframe.gray_pyramid().len()) - 1);
+    let local = (coarse > level)
+        .then(|| {
+            let contrast = Contrast {
+                keyframe: keyframe.gray_pyramid(),
+                coarse,
+            };
+            let first = ncc_pass(
+                kl,
+                frame,
+                &cam,
+                level,
+                camera_from_keyframe,
+                None,
+                Some(contrast),
+            )?;
+            let trimmed = trim(Some(contrast), first);
+            Some((trimmed.ncc, trimmed.n as f32 / all.n.max(1) as f32))
+        })
+        .flatten();
+    let (local, local_kept) = local.unwrap_or((f32::NAN, f32::NAN));
     Some(Correlations {
         all: all.ncc,
         trimmed: trimmed.ncc,
         kept: trimmed.n as f32 / all.n.max(1) as f32,
+        local,
+        local_kept,
     })
+}
+
+/// Local contrast instead of intensity: each intensity divided by the
+/// mean around it, read from pyramid level `coarse` of the keyframe's
+/// render and of the frame.
+#[derive(Clone, Copy)]
+struct Contrast<'a> {
+    keyframe: &'a Pyramid,
+    coarse: usize,
+}
+
+/// The pixel of level `coarse` under pixel `(x, y)` of level `level`
+/// (pixel centers at integers).
+fn to_coarse(x: f64, y: f64, level: usize, coarse: usize) -> (f32, f32) {
+    let s = 0.5f64.powi((coarse - level) as i32);
+    (((x + 0.5) * s - 0.5) as f32, ((y + 0.5) * s - 0.5) as f32)
 }
 
 /// One correlation pass and the affine fit `frame = slope * keyframe + offset`.
@@ -131,6 +193,7 @@ fn ncc_pass(
     level: usize,
     camera_from_keyframe: &Pose,
     limit: Option<(f64, f64, f64)>,
+    contrast: Option<Contrast>,
 ) -> Option<NccFit> {
     let image = frame.level(level);
     let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0f64, 0f64, 0f64, 0f64, 0f64);
@@ -147,7 +210,25 @@ fn ncc_pass(
         let Some(v) = image.bilinear(uv.x as f32, uv.y as f32) else {
             continue;
         };
-        let (a, b) = (kp.gray as f64, v as f64);
+        let (mut a, mut b) = (kp.gray as f64, v as f64);
+        if let Some(c) = contrast {
+            let (fx, fy) = to_coarse(uv.x, uv.y, level, c.coarse);
+            let Some(uv_k) = kl.camera.project(&p) else {
+                continue;
+            };
+            let (kx, ky) = to_coarse(uv_k.x, uv_k.y, level, c.coarse);
+            let (Some(mf), Some(mk)) = (
+                frame.level(c.coarse).bilinear(fx, fy),
+                c.keyframe.level(c.coarse).bilinear(kx, ky),
+            ) else {
+                continue;
+            };
+            if mf < 4.0 || mk < 4.0 {
+                continue;
+            }
+            a = a / mk as f64 - 1.0;
+            b = b / mf as f64 - 1.0;
+        }
         if let Some((slope, offset, max)) = limit {
             if (b - (slope * a + offset)).abs() > max {
                 continue;
@@ -214,6 +295,31 @@ mod tests {
         let mut pyramid = Pyramid::new(160, 128, 3);
         pyramid.fill_from_f32(&frame);
         (keyframe, pyramid, camera)
+    }
+
+    #[test]
+    fn local_contrast_sees_through_shading_but_not_a_wrong_view() {
+        // A lamp's falloff across the view: the frame is three times as
+        // bright on the right as on the left, plus an exposure offset.
+        let shade = |x: usize, y: usize| 0.5 + 1.0 * (x as f32 / 160.0) + 0.3 * (y as f32 / 128.0);
+        let (kf, frame, camera) = setup(|x, y, v| shade(x, y) * v + 5.0);
+        let c = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("shaded");
+        assert!(c.local > 0.95, "{c:?}");
+        assert!(c.trimmed < c.local, "{c:?}");
+        // The same shading over another texture does not correlate.
+        let (kf, frame, camera) = setup(|x, y, _| shade(x, y) * texture(x, y, 1.7));
+        let c = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("other");
+        assert!(c.local < 0.6, "{c:?}");
+        // An object over the left fifth is trimmed away as before.
+        let (kf, frame, camera) = setup(|x, y, v| {
+            if x < 32 {
+                texture(y, x, 2.9)
+            } else {
+                0.8 * v + 10.0
+            }
+        });
+        let c = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("occluded");
+        assert!(c.local > 0.9, "{c:?}");
     }
 
     #[test]

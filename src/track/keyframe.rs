@@ -148,6 +148,11 @@ impl Keyframe {
         self.levels.get(l).map_or(0, |lv| lv.points.len())
     }
 
+    /// The rendered gray pyramid this keyframe was prepared from.
+    pub fn gray_pyramid(&self) -> &Pyramid {
+        &self.scratch.gray
+    }
+
     /// Fills this keyframe from a rendered `view` at `world_from_keyframe`.
     pub fn prepare(
         &mut self,

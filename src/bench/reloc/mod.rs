@@ -43,12 +43,32 @@ use crate::rng::SplitMix64;
 use setup::Bench;
 use tally::Tally;
 
-/// Runs the benchmark with `queries` random poses.
-pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> Result<()> {
+/// Where `star bench reloc` draws its queries.
+#[derive(Debug, Clone, Default)]
+pub struct DatasetSource {
+    /// An existing `star synth` dataset (its `star.toml`, when present,
+    /// places the map); its frames are the queries.
+    pub dataset: std::path::PathBuf,
+    /// Its database over the flown region: read when the file exists, else
+    /// built and written there.
+    pub database: Option<std::path::PathBuf>,
+}
+
+/// Runs the benchmark with `queries` random poses of the realistic scene
+/// of `seed`, or random frames of `source`.
+pub fn run(
+    config_path: Option<&std::path::Path>,
+    queries: usize,
+    seed: u64,
+    source: Option<&DatasetSource>,
+) -> Result<()> {
     if queries == 0 {
         anyhow::bail!("--queries must be at least 1");
     }
-    let mut bench = Bench::new(config_path, seed)?;
+    let mut bench = match source {
+        None => Bench::new(config_path, seed)?,
+        Some(source) => dataset_bench(config_path, source)?,
+    };
     let verbose = std::env::var_os("STAR_BENCH_VERBOSE").is_some();
     let mut rng = SplitMix64::new(seed ^ 0x7e10c);
     let (mut done, mut tries) = (0usize, 0usize);
@@ -97,4 +117,36 @@ pub fn run(config_path: Option<&std::path::Path>, queries: usize, seed: u64) -> 
     );
     tally::search_timing(&bench.db, bench.config.reloc.top_k as usize, seed);
     Ok(())
+}
+
+/// The bench over an existing dataset: its configuration (`config_path`,
+/// else the dataset's `star.toml`, else the defaults), its map and the
+/// database over the region it flies through.
+fn dataset_bench(config_path: Option<&std::path::Path>, source: &DatasetSource) -> Result<Bench> {
+    use anyhow::Context;
+    let root = &source.dataset;
+    let placed = root.join("star.toml");
+    let config = match config_path {
+        Some(p) => crate::config::Config::load(p)
+            .with_context(|| format!("loading config {}", p.display()))?,
+        None if placed.exists() => crate::config::Config::load(&placed)
+            .with_context(|| format!("loading {}", placed.display()))?,
+        None => crate::config::Config::default(),
+    };
+    let dataset = crate::dataset::Dataset::open(root)
+        .with_context(|| format!("opening the dataset {}", root.display()))?;
+    let truth = dataset
+        .ground_truth
+        .clone()
+        .context("the dataset has no groundtruth.txt: the queries need the truth")?;
+    let mesh = std::sync::Arc::new(crate::bench::integrity::map_of(root)?);
+    let db = crate::bench::integrity::flown_region_database(
+        &mesh,
+        &dataset,
+        &truth,
+        &config,
+        &crate::reloc::AlongTrajectory::default(),
+        source.database.as_deref(),
+    )?;
+    Bench::from_dataset(config, dataset, mesh, db)
 }

@@ -1,8 +1,9 @@
 //! Drawing a query: a random free pose at the database's heights and
 //! pitch, rendered from the truth mesh (occluders, no map holes) through
-//! the lens distortion and the realistic sensor model.
+//! the lens distortion and the realistic sensor model; or a random frame
+//! of a dataset, with its ground truth.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use nalgebra::{Translation3, Vector3};
 
 use crate::geometry::look::camera_rotation;
@@ -10,7 +11,7 @@ use crate::geometry::Pose;
 use crate::render::Renderer;
 use crate::rng::SplitMix64;
 
-use super::setup::Bench;
+use super::setup::{Bench, Queries};
 
 /// A drawn query; its frame is in [`Bench::frame`] and [`Bench::pyramid`].
 pub(super) struct QueryFrame {
@@ -28,8 +29,29 @@ impl Bench {
         rng: &mut SplitMix64,
         index: usize,
     ) -> Result<Option<QueryFrame>> {
-        let (z_lo, z_hi) = self.z_range_m;
-        let scene = &self.scene;
+        let synthetic = match &mut self.queries {
+            Queries::Synthetic(s) => s,
+            Queries::Dataset {
+                dataset,
+                truth,
+                scratch,
+            } => {
+                let i = rng.below(dataset.len());
+                dataset
+                    .load_frame_into(i, &mut self.frame, scratch)
+                    .with_context(|| format!("reading frame {i} of {}", dataset.root.display()))?;
+                self.pyramid
+                    .fill_from_u8(self.frame.data(), self.frame.width());
+                let truth = truth.poses[i];
+                return Ok(Some(QueryFrame {
+                    truth,
+                    position_m: truth.translation.vector,
+                }));
+            }
+        };
+        let s = synthetic.as_mut();
+        let (z_lo, z_hi) = s.z_range_m;
+        let scene = &s.scene;
         let p = Vector3::new(
             rng.range(scene.free_min_m[0], scene.free_max_m[0]),
             rng.range(scene.free_min_m[1], scene.free_max_m[1]),
@@ -39,29 +61,22 @@ impl Bench {
             return Ok(None);
         }
         let yaw = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
-        let pitch = (self.pitch_mid_deg + rng.range(-5.0, 5.0)).to_radians();
+        let pitch = (s.pitch_mid_deg + rng.range(-5.0, 5.0)).to_radians();
         // STAR_BENCH_ROLL_DEG=R: queries rolled uniformly within +-R deg
         // (the database views have none; no draw without it, so the default
         // queries stay the same).
-        let roll = self
+        let roll = s
             .max_roll_deg
             .map_or(0.0, |r| rng.range(-r, r).to_radians());
         let truth = Pose::from_parts(Translation3::from(p), camera_rotation(yaw, pitch, roll));
-        self.truth_r
-            .render(&truth, &self.render_camera, &mut self.qview)?;
-        let hits = self
-            .qview
-            .depth_m
-            .data()
-            .iter()
-            .filter(|&&d| d > 0.0)
-            .count();
-        if hits < self.qview.depth_m.data().len() * 6 / 10 {
+        s.truth_r.render(&truth, &s.render_camera, &mut s.qview)?;
+        let hits = s.qview.depth_m.data().iter().filter(|&&d| d > 0.0).count();
+        if hits < s.qview.depth_m.data().len() * 6 / 10 {
             return Ok(None);
         }
-        self.warp.warp_gray(&self.qview.gray, &mut self.warped);
-        self.sensor.apply(
-            &self.warped,
+        s.warp.warp_gray(&s.qview.gray, &mut s.warped);
+        s.sensor.apply(
+            &s.warped,
             index as u64,
             rng.range(0.0, 60.0),
             &mut self.frame,

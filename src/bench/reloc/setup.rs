@@ -1,6 +1,7 @@
-//! The bench's fixed parts: the realistic scene of a seed, its database
-//! (CPU renderer), the candidate renderer the service would use, and the
-//! buffers the queries and candidates reuse.
+//! The bench's fixed parts: the map and its database, where the queries
+//! come from (the realistic scene of a seed, rendered, or the frames of an
+//! existing dataset), the candidate renderer the service would use, and
+//! the buffers the queries and candidates reuse.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -8,6 +9,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 
 use crate::config::Config;
+use crate::dataset::{Dataset, Trajectory};
 use crate::geometry::PinholeCamera;
 use crate::imgproc::{ImageF32, ImageU8};
 use crate::reloc::{build_database, RelocDatabase, Relocalizer};
@@ -19,15 +21,22 @@ use crate::synth::sequence::preset_scene;
 use crate::synth::Scene;
 use crate::track::{Aligner, Keyframe, Pyramid, TrackerConfig};
 
-/// Everything the queries run against.
-pub(super) struct Bench {
-    pub(super) config: Config,
+/// Where the queries come from.
+pub(super) enum Queries {
+    /// Random free poses of a synthetic scene, rendered.
+    Synthetic(Box<Synthetic>),
+    /// Random frames of a dataset with ground truth (one pose per frame).
+    Dataset {
+        dataset: Dataset,
+        truth: Trajectory,
+        /// PNG decoding scratch.
+        scratch: Vec<u8>,
+    },
+}
+
+/// The synthetic scene the queries are rendered from.
+pub(super) struct Synthetic {
     pub(super) scene: Scene,
-    pub(super) camera: PinholeCamera,
-    pub(super) db: RelocDatabase,
-    pub(super) reloc: Relocalizer,
-    /// Renders the candidates: the configured `[render] renderer`.
-    pub(super) candidate_r: Box<dyn Renderer>,
     /// Renders the queries from the truth mesh.
     pub(super) truth_r: CpuRenderer,
     pub(super) warp: DistortionWarp,
@@ -35,6 +44,23 @@ pub(super) struct Bench {
     pub(super) sensor: SensorModel,
     pub(super) qview: RenderedView,
     pub(super) warped: ImageF32,
+    /// Query heights, the database's.
+    pub(super) z_range_m: (f64, f64),
+    /// Query pitch: the middle of the database's pitches.
+    pub(super) pitch_mid_deg: f64,
+    /// `STAR_BENCH_ROLL_DEG`.
+    pub(super) max_roll_deg: Option<f64>,
+}
+
+/// Everything the queries run against.
+pub(super) struct Bench {
+    pub(super) config: Config,
+    pub(super) camera: PinholeCamera,
+    pub(super) db: RelocDatabase,
+    pub(super) reloc: Relocalizer,
+    /// Renders the candidates: the configured `[render] renderer`.
+    pub(super) candidate_r: Box<dyn Renderer>,
+    pub(super) queries: Queries,
     pub(super) frame: ImageU8,
     pub(super) pinhole: PinholeCamera,
     /// As the STAR loop builds keyframes: one pyramid level more than tracking.
@@ -49,12 +75,6 @@ pub(super) struct Bench {
     pub(super) returned: Vec<Box<Keyframe>>,
     pub(super) aligner: Aligner,
     pub(super) pyramid: Pyramid,
-    /// Query heights, the database's.
-    pub(super) z_range_m: (f64, f64),
-    /// Query pitch: the middle of the database's pitches.
-    pub(super) pitch_mid_deg: f64,
-    /// `STAR_BENCH_ROLL_DEG`.
-    pub(super) max_roll_deg: Option<f64>,
 }
 
 impl Bench {
@@ -111,12 +131,6 @@ impl Bench {
         let warp = DistortionWarp::new(&camera)?;
         let render_camera = *warp.render_camera();
         let sensor = SensorModel::new(preset.photometric, &camera, seed);
-        let pinhole = camera.pinhole();
-        let tracker = crate::track::build_config(&config.tracker);
-        let renders_per_candidate = 1 + rc.refine_renders as usize;
-        let spare: Vec<Box<Keyframe>> = (0..renders_per_candidate)
-            .map(|_| Box::new(Keyframe::new(&pinhole, &tracker)))
-            .collect();
         let reloc = Relocalizer::new(db.clone(), rc, &camera)?;
         // World heights: the configured ones above the map's floor.
         let z_range_m = crate::reloc::above_floor(&map, rc)?
@@ -135,10 +149,83 @@ impl Bench {
                     .with_context(|| format!("STAR_BENCH_ROLL_DEG={v}: expected degrees in 0..90"))
             })
             .transpose()?;
-        Ok(Self {
+        let queries = Queries::Synthetic(Box::new(Synthetic {
             qview: RenderedView::for_camera(&render_camera),
-            kview: RenderedView::for_camera(&pinhole),
             warped: ImageF32::new(0, 0, 0.0),
+            scene,
+            truth_r,
+            warp,
+            render_camera,
+            sensor,
+            z_range_m,
+            pitch_mid_deg,
+            max_roll_deg,
+        }));
+        Self::assemble(config, camera, db, reloc, candidate_r, queries)
+    }
+
+    /// The bench over an existing dataset (`dataset`, with one ground-truth
+    /// pose per frame): its map placed by `config` (`[map]`), its database
+    /// `db`, and random frames of it as the queries.
+    pub(super) fn from_dataset(
+        config: Config,
+        dataset: Dataset,
+        mesh: Arc<crate::map::Mesh>,
+        db: RelocDatabase,
+    ) -> Result<Self> {
+        let truth = dataset
+            .ground_truth
+            .clone()
+            .context("the dataset has no groundtruth.txt: the queries need the truth")?;
+        anyhow::ensure!(
+            truth.len() == dataset.len(),
+            "the dataset's groundtruth.txt has {} poses for {} frames: the bench needs one per frame (a `star synth` dataset)",
+            truth.len(),
+            dataset.len()
+        );
+        let camera = *dataset.camera();
+        let kind = config.render.renderer;
+        let candidate_r = crate::render::select::make_renderer(kind, mesh.clone())
+            .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+        println!(
+            "reloc bench: dataset {}, {} frames, map {} triangles, camera {}x{}",
+            dataset.root.display(),
+            dataset.len(),
+            mesh.triangle_count(),
+            camera.width,
+            camera.height
+        );
+        println!(
+            "  candidates rendered by {} (`[render] renderer = {kind:?}`); database {} keyframes and {} landmarks",
+            candidate_r.name(),
+            db.entries.len(),
+            db.landmarks.len()
+        );
+        let reloc = Relocalizer::new(db.clone(), &config.reloc, &camera)?;
+        let queries = Queries::Dataset {
+            dataset,
+            truth,
+            scratch: Vec::new(),
+        };
+        Self::assemble(config, camera, db, reloc, candidate_r, queries)
+    }
+
+    fn assemble(
+        config: Config,
+        camera: PinholeCamera,
+        db: RelocDatabase,
+        reloc: Relocalizer,
+        candidate_r: Box<dyn Renderer>,
+        queries: Queries,
+    ) -> Result<Self> {
+        let pinhole = camera.pinhole();
+        let tracker = crate::track::build_config(&config.tracker);
+        let renders_per_candidate = 1 + config.reloc.refine_renders as usize;
+        let spare: Vec<Box<Keyframe>> = (0..renders_per_candidate)
+            .map(|_| Box::new(Keyframe::new(&pinhole, &tracker)))
+            .collect();
+        Ok(Self {
+            kview: RenderedView::for_camera(&pinhole),
             frame: ImageU8::new(0, 0, 0),
             returned: Vec::with_capacity(renders_per_candidate),
             aligner: Aligner::new(&tracker),
@@ -147,33 +234,35 @@ impl Bench {
                 camera.height as usize,
                 tracker.pyramid_levels as usize,
             ),
-            config: config.clone(),
-            scene,
+            config,
             camera,
             db,
             reloc,
             candidate_r,
-            truth_r,
-            warp,
-            render_camera,
-            sensor,
+            queries,
             pinhole,
             tracker,
             spare,
-            z_range_m,
-            pitch_mid_deg,
-            max_roll_deg,
         })
     }
 
     /// Prints how the queries were drawn.
     pub(super) fn print_queries(&self, done: usize) {
-        let (z_lo, z_hi) = self.z_range_m;
-        println!(
-            "  queries: {done} random free poses (clearance 0.4 m, z {z_lo}..{z_hi} m, yaw any, pitch {}+-5 deg, roll +-{} deg, >= 60 % of the view on the map), truth mesh + distortion + realistic sensor model; top_k {}",
-            self.pitch_mid_deg,
-            self.max_roll_deg.unwrap_or(0.0),
-            self.config.reloc.top_k
-        );
+        match &self.queries {
+            Queries::Synthetic(s) => {
+                let (z_lo, z_hi) = s.z_range_m;
+                println!(
+                    "  queries: {done} random free poses (clearance 0.4 m, z {z_lo}..{z_hi} m, yaw any, pitch {}+-5 deg, roll +-{} deg, >= 60 % of the view on the map), truth mesh + distortion + realistic sensor model; top_k {}",
+                    s.pitch_mid_deg,
+                    s.max_roll_deg.unwrap_or(0.0),
+                    self.config.reloc.top_k
+                );
+            }
+            Queries::Dataset { dataset, .. } => println!(
+                "  queries: {done} random frames of the dataset's {} (its own images, as the camera saw them); top_k {}",
+                dataset.len(),
+                self.config.reloc.top_k
+            ),
+        }
     }
 }
