@@ -22,6 +22,9 @@ use crate::synth::Scene;
 use crate::track::{Aligner, Keyframe, Pyramid, TrackerConfig};
 
 /// Where the queries come from.
+// Built once per bench run; the synthetic side is boxed only so that the
+// two stay near in size.
+#[allow(clippy::large_enum_variant)]
 pub(super) enum Queries {
     /// Random free poses of a synthetic scene, rendered.
     Synthetic(Box<Synthetic>),
