@@ -48,6 +48,9 @@ SPEED_MPS = 0.5
 # Acceleration of the commanded target at the corners (it stops at each).
 ACCEL_MPS2 = 0.5
 ALT_M = 1.0
+# Laps of the square (STAR_FLIGHT_LAPS, default 1: about 35 s armed; 5 laps
+# make the 2-minute flight of issue 20's dropped-samples target).
+LAPS = int(os.environ.get("STAR_FLIGHT_LAPS", "1"))
 CAMERA_WH = (320, 256)
 FPS = 50.0
 START_XY_M = (2.5, 4.0)
@@ -234,13 +237,15 @@ def side_s():
     return 2 * SPEED_MPS / ACCEL_MPS2 + (SQUARE_M - SPEED_MPS ** 2 / ACCEL_MPS2) / SPEED_MPS
 
 
-def square_target(t_s, z_m):
-    """Position and velocity `t_s` into the square (north, east, south, west
-    from the origin, stopping at each corner), at height `-z_m`."""
+def square_target(t_s, z_m, laps=1):
+    """Position and velocity `t_s` into `laps` laps of the square (north,
+    east, south, west from the origin, stopping at each corner), at height
+    `-z_m`."""
     corners = np.array([(0, 0), (SQUARE_M, 0), (SQUARE_M, SQUARE_M), (0, SQUARE_M), (0, 0)], float)
-    k = min(int(t_s // side_s()), 4)
-    if k == 4:
+    if t_s >= 4 * laps * side_s():
         return (0.0, 0.0, z_m), (0.0, 0.0, 0.0)
+    t_s = t_s % (4 * side_s())
+    k = min(int(t_s // side_s()), 3)
     d, v = side_progress_m(t_s - k * side_s())
     u = (corners[k + 1] - corners[k]) / SQUARE_M
     p = corners[k] + u * d
@@ -352,12 +357,12 @@ def fly(star_bin, work, scene, viso_delay_ms=VISO_DELAY_MS):
         wait_until(lambda: ekf_now(gcs)[2] < -0.95 * ALT_M, 30, f"climb to {ALT_M} m", alive)
         time.sleep(2.0)
         record["phases"]["square"] = t0 = time.monotonic()
-        log(f"square: {4 * side_s():.0f} s")
+        log(f"square: {LAPS} x {4 * side_s():.0f} s")
         while True:
             t = time.monotonic() - t0
-            p, v = square_target(t, -ALT_M)
+            p, v = square_target(t, -ALT_M, LAPS)
             send_target(gcs, p, v, yaw_rad)
-            if t >= 4 * side_s() + 3.0:  # and 3 s of hover at the end
+            if t >= 4 * LAPS * side_s() + 3.0:  # and 3 s of hover at the end
                 break
             alive()
             time.sleep(0.1)
@@ -434,14 +439,45 @@ def figures(record):
         # the last 100 (`JitterCorrection`): VISO_DELAY_MS should be that lag.
         windows = [d[i:i + 100].min() for i in range(0, max(1, len(d) - 99), 100)]
         out["viso_delay_ms"] = float(np.median(windows))
-    # EKF3's own log: vision samples it received, and those under 20 ms
-    # after the previous one in its corrected time (it drops those).
+    # EKF3's own log: vision samples it received, and those its 20 ms rule
+    # dropped (replayed on its corrected times, see `ekf3_dropped`).
     visp = record.get("visp") or []
     out["visp"] = len(visp)
-    out["visp_under_20ms"] = sum(1 for a, b in zip(visp, visp[1:]) if b[2] - a[2] < 20)
+    out.update(ekf3_dropped(visp))
     out["cpu_percent"] = record["cpu_percent"]
     out["flight_s"] = t_disarm - t_arm
     return out
+
+
+# EKF3's minimum spacing of external navigation samples
+# (NavEKF3::extNavIntervalMin_ms).
+EXTNAV_INTERVAL_MIN_MS = 20
+
+
+def ekf3_dropped(visp):
+    """Replays the rule by which EKF3 drops vision samples on SITL's VISP log
+    rows (TimeUS, RTimeUS, CTimeMS, Ign): `NavEKF3_core::writeExtNavData`
+    returns early when `timeStamp_ms - extNavMeasTime_ms < 20` (uint32 ms),
+    where `timeStamp_ms` is CTimeMS (the sample's `usec` through ArduPilot's
+    jitter correction, truncated to ms) and `extNavMeasTime_ms` is the
+    CTimeMS of the last sample it *kept*. Rows with Ign set were not passed to
+    the EKF (AP_VisualOdom ignores samples around a reset) and are skipped.
+
+    Returns the number dropped and how many of those star itself sent closer
+    than 20 ms to the last kept one (its `usec`, RTimeUS); the others were
+    moved closer by ArduPilot's jitter correction."""
+    kept_c = kept_r = None
+    dropped = by_star = ignored = 0
+    for _, r_us, c_ms, ign in visp:
+        if ign:
+            ignored += 1
+            continue
+        if kept_c is not None and (int(c_ms) - kept_c) % (1 << 32) < EXTNAV_INTERVAL_MIN_MS:
+            dropped += 1
+            by_star += (r_us - kept_r) < EXTNAV_INTERVAL_MIN_MS * 1000
+            continue
+        kept_c, kept_r = int(c_ms), r_us
+    return {"visp_dropped": dropped, "visp_dropped_star_usec": by_star, "visp_ignored": ignored}
 
 
 def report(f):
@@ -458,8 +494,9 @@ def report(f):
         lines.append(f"capture -> SITL (SERIAL1) delay: min {d['min']:.1f}, median {d['median']:.1f}, "
                      f"p95 {d['p95']:.1f}, max {d['max']:.1f} ms over {f['delay_matched']} poses; "
                      f"VISO_DELAY_MS to set: {f['viso_delay_ms']:.0f}")
-    lines.append(f"EKF3 log: {f['visp']} vision samples, {f['visp_under_20ms']} under 20 ms apart in its "
-                 f"corrected time (dropped)")
+    lines.append(f"EKF3 log: {f['visp']} vision samples, {f['visp_dropped']} dropped by its 20 ms rule "
+                 f"({f['visp_dropped_star_usec']} of them sent by star under 20 ms apart, the rest moved closer "
+                 f"by ArduPilot's jitter correction; {f['visp_ignored']} ignored by AP_VisualOdom)")
     lines.append("CPU (% of one core, armed to disarmed): " +
                  ", ".join(f"{k} {v:.0f} %" for k, v in f["cpu_percent"].items()))
     return "\n".join(lines)
