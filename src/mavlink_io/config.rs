@@ -37,9 +37,9 @@ pub const PEER_SILENCE_RANGE_S: (f64, f64) = (0.5, 600.0);
 pub const DEFAULT_AUTOPILOT_MIN_INTERVAL_MS: f64 = 20.0;
 
 /// Default `position_sigma_floor_m` (see `docs/benchmarks.md`, covariance).
-pub const DEFAULT_POSITION_SIGMA_FLOOR_M: f64 = 0.0012;
+pub const DEFAULT_POSITION_SIGMA_FLOOR_M: f64 = 0.0005;
 /// Default `angle_sigma_floor_deg`.
-pub const DEFAULT_ANGLE_SIGMA_FLOOR_DEG: f64 = 0.02;
+pub const DEFAULT_ANGLE_SIGMA_FLOOR_DEG: f64 = 0.01;
 
 /// Which message carries the pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -105,7 +105,8 @@ pub struct MavlinkConfig {
     /// before another may take the link, s.
     pub peer_silence_s: f64,
     /// Smallest position standard deviation sent, m (each of x, y, z): the
-    /// tracker's own covariance is a floor-free photometric estimate.
+    /// tracker's covariance is calibrated on the benches
+    /// (`tracker.covariance_scale`); this guards views they did not cover.
     pub position_sigma_floor_m: f64,
     /// Smallest angle standard deviation sent, degrees (roll, pitch, yaw).
     pub angle_sigma_floor_deg: f64,
