@@ -52,7 +52,8 @@ ALT_M = 1.0
 # make the 2-minute flight of issue 20's dropped-samples target).
 LAPS = int(os.environ.get("STAR_FLIGHT_LAPS", "1"))
 CAMERA_WH = (320, 256)
-FPS = 50.0
+# The sim camera's rate (STAR_SIM_FPS, default 50 = EKF3's cap).
+FPS = float(os.environ.get("STAR_SIM_FPS", "50"))
 START_XY_M = (2.5, 4.0)
 # SITL's vehicle rests with its body origin this far above home altitude;
 # the room's floor is put there.
@@ -65,8 +66,10 @@ BODY_FROM_CAMERA = {"translation_m": [0.1, 0.0, -0.05], "rpy_deg": [90.0, 0.0, 9
 # ArduPilot's LOCATION_SCALING_FACTOR: meters per 1e-7 degree of latitude.
 M_PER_DEG_E7 = 0.011131884502145034
 # The keyframe renderer, and the tracker's pixel sizes scaled to the half-size camera.
-CONFIG_EXTRA = """[render]
+CONFIG_EXTRA = f"""[render]
 renderer = "cpu"
+[camera]
+fps = {FPS}
 """
 CONFIG_TRACKER = """pyramid_levels = 3
 block_size_px = 16
@@ -74,6 +77,15 @@ block_size_px = 16
 # VISO_DELAY_MS set in SITL: the capture -> SITL delay measured here (min
 # about 4 ms, median about 6 ms; docs/benchmarks.md).
 VISO_DELAY_MS = 5
+# SERIAL1_BAUD for SITL (STAR_SITL_SERIAL1_BAUD, ArduPilot's code: 921 =
+# 921 600, 57 = 57 600, its default). SERIAL1 is TCP here, but ArduPilot
+# still dates each packet by the byte time at this baud of the packet and of
+# what is queued behind it (`receive_time_constraint_us`): at 57 600, 174 µs
+# a byte, a HEARTBEAT read in one go with the pose before it dates that pose
+# 3.6 ms early, and EKF3's jitter correction then drops it. 50 Hz of vision
+# needs about 64 kbit/s, more than 57 600 baud carries: the integration guide
+# says 921 600, and so does the flight.
+SERIAL1_BAUD = int(os.environ.get("STAR_SITL_SERIAL1_BAUD", "921"))
 COPTER_GUIDED = 4
 COPTER_LAND = 9
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -288,7 +300,7 @@ def fly(star_bin, work, scene, viso_delay_ms=VISO_DELAY_MS):
     """One closed-loop flight; returns its record (see `figures`).
     `viso_delay_ms`: VISO_DELAY_MS for SITL (None: extnav.parm's 10)."""
     work.mkdir(parents=True, exist_ok=True)
-    sitl = Sitl(free_instance(), work / "sitl")
+    sitl = Sitl(free_instance(), work / "sitl", params={"SERIAL1_BAUD": SERIAL1_BAUD})
     gcs = tap = None
     rig = Rig(star_bin, work, scene)
     record = {"phases": {}}
@@ -303,6 +315,7 @@ def fly(star_bin, work, scene, viso_delay_ms=VISO_DELAY_MS):
         if viso_delay_ms is not None:
             set_param(gcs, "VISO_DELAY_MS", viso_delay_ms)
         record["viso_delay_ms"] = viso_delay_ms
+        record["serial1_baud"] = SERIAL1_BAUD
         wait_until(lambda: gcs.kept["SIM_STATE"], 10, "SIM_STATE on the GCS link")
         rest = gcs.kept["SIM_STATE"][-1][1]
         origin = (rest.lat_int, rest.lon_int, rest.alt)
@@ -444,6 +457,12 @@ def figures(record):
     visp = record.get("visp") or []
     out["visp"] = len(visp)
     out.update(ekf3_dropped(visp))
+    # The same, armed to disarmed only (VISP rows timed by their arrival at
+    # the tap, found by `usec`).
+    arrival = {int(f["usec"]): t for t, f in record["vpe"]}
+    armed_rows = [row for row in visp if t_arm <= arrival.get(int(row[1]), -1.0) <= t_disarm]
+    out["visp_armed"] = len(armed_rows)
+    out["visp_dropped_armed"] = ekf3_dropped(armed_rows)["visp_dropped"]
     out["cpu_percent"] = record["cpu_percent"]
     out["flight_s"] = t_disarm - t_arm
     return out
@@ -496,7 +515,8 @@ def report(f):
                      f"VISO_DELAY_MS to set: {f['viso_delay_ms']:.0f}")
     lines.append(f"EKF3 log: {f['visp']} vision samples, {f['visp_dropped']} dropped by its 20 ms rule "
                  f"({f['visp_dropped_star_usec']} of them sent by star under 20 ms apart, the rest moved closer "
-                 f"by ArduPilot's jitter correction; {f['visp_ignored']} ignored by AP_VisualOdom)")
+                 f"by ArduPilot's jitter correction; {f['visp_ignored']} ignored by AP_VisualOdom); armed: "
+                 f"{f['visp_dropped_armed']} of {f['visp_armed']}")
     lines.append("CPU (% of one core, armed to disarmed): " +
                  ", ".join(f"{k} {v:.0f} %" for k, v in f["cpu_percent"].items()))
     return "\n".join(lines)
