@@ -48,8 +48,12 @@ SPEED_MPS = 0.5
 # Acceleration of the commanded target at the corners (it stops at each).
 ACCEL_MPS2 = 0.5
 ALT_M = 1.0
+# Laps of the square (STAR_FLIGHT_LAPS, default 1: about 35 s armed; 5 laps
+# make the 2-minute flight of issue 20's dropped-samples target).
+LAPS = int(os.environ.get("STAR_FLIGHT_LAPS", "1"))
 CAMERA_WH = (320, 256)
-FPS = 50.0
+# The sim camera's rate (STAR_SIM_FPS, default 50 = EKF3's cap).
+FPS = float(os.environ.get("STAR_SIM_FPS", "50"))
 START_XY_M = (2.5, 4.0)
 # SITL's vehicle rests with its body origin this far above home altitude;
 # the room's floor is put there.
@@ -62,8 +66,10 @@ BODY_FROM_CAMERA = {"translation_m": [0.1, 0.0, -0.05], "rpy_deg": [90.0, 0.0, 9
 # ArduPilot's LOCATION_SCALING_FACTOR: meters per 1e-7 degree of latitude.
 M_PER_DEG_E7 = 0.011131884502145034
 # The keyframe renderer, and the tracker's pixel sizes scaled to the half-size camera.
-CONFIG_EXTRA = """[render]
+CONFIG_EXTRA = f"""[render]
 renderer = "cpu"
+[camera]
+fps = {FPS}
 """
 CONFIG_TRACKER = """pyramid_levels = 3
 block_size_px = 16
@@ -71,6 +77,15 @@ block_size_px = 16
 # VISO_DELAY_MS set in SITL: the capture -> SITL delay measured here (min
 # about 4 ms, median about 6 ms; docs/benchmarks.md).
 VISO_DELAY_MS = 5
+# SERIAL1_BAUD for SITL (STAR_SITL_SERIAL1_BAUD, ArduPilot's code: 921 =
+# 921 600, 57 = 57 600, its default). SERIAL1 is TCP here, but ArduPilot
+# still dates each packet by the byte time at this baud of the packet and of
+# what is queued behind it (`receive_time_constraint_us`): at 57 600, 174 µs
+# a byte, a HEARTBEAT read in one go with the pose before it dates that pose
+# 3.6 ms early, and EKF3's jitter correction then drops it. 50 Hz of vision
+# needs about 64 kbit/s, more than 57 600 baud carries: the integration guide
+# says 921 600, and so does the flight.
+SERIAL1_BAUD = int(os.environ.get("STAR_SITL_SERIAL1_BAUD", "921"))
 COPTER_GUIDED = 4
 COPTER_LAND = 9
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -234,13 +249,15 @@ def side_s():
     return 2 * SPEED_MPS / ACCEL_MPS2 + (SQUARE_M - SPEED_MPS ** 2 / ACCEL_MPS2) / SPEED_MPS
 
 
-def square_target(t_s, z_m):
-    """Position and velocity `t_s` into the square (north, east, south, west
-    from the origin, stopping at each corner), at height `-z_m`."""
+def square_target(t_s, z_m, laps=1):
+    """Position and velocity `t_s` into `laps` laps of the square (north,
+    east, south, west from the origin, stopping at each corner), at height
+    `-z_m`."""
     corners = np.array([(0, 0), (SQUARE_M, 0), (SQUARE_M, SQUARE_M), (0, SQUARE_M), (0, 0)], float)
-    k = min(int(t_s // side_s()), 4)
-    if k == 4:
+    if t_s >= 4 * laps * side_s():
         return (0.0, 0.0, z_m), (0.0, 0.0, 0.0)
+    t_s = t_s % (4 * side_s())
+    k = min(int(t_s // side_s()), 3)
     d, v = side_progress_m(t_s - k * side_s())
     u = (corners[k + 1] - corners[k]) / SQUARE_M
     p = corners[k] + u * d
@@ -283,7 +300,7 @@ def fly(star_bin, work, scene, viso_delay_ms=VISO_DELAY_MS):
     """One closed-loop flight; returns its record (see `figures`).
     `viso_delay_ms`: VISO_DELAY_MS for SITL (None: extnav.parm's 10)."""
     work.mkdir(parents=True, exist_ok=True)
-    sitl = Sitl(free_instance(), work / "sitl")
+    sitl = Sitl(free_instance(), work / "sitl", params={"SERIAL1_BAUD": SERIAL1_BAUD})
     gcs = tap = None
     rig = Rig(star_bin, work, scene)
     record = {"phases": {}}
@@ -298,6 +315,7 @@ def fly(star_bin, work, scene, viso_delay_ms=VISO_DELAY_MS):
         if viso_delay_ms is not None:
             set_param(gcs, "VISO_DELAY_MS", viso_delay_ms)
         record["viso_delay_ms"] = viso_delay_ms
+        record["serial1_baud"] = SERIAL1_BAUD
         wait_until(lambda: gcs.kept["SIM_STATE"], 10, "SIM_STATE on the GCS link")
         rest = gcs.kept["SIM_STATE"][-1][1]
         origin = (rest.lat_int, rest.lon_int, rest.alt)
@@ -352,12 +370,12 @@ def fly(star_bin, work, scene, viso_delay_ms=VISO_DELAY_MS):
         wait_until(lambda: ekf_now(gcs)[2] < -0.95 * ALT_M, 30, f"climb to {ALT_M} m", alive)
         time.sleep(2.0)
         record["phases"]["square"] = t0 = time.monotonic()
-        log(f"square: {4 * side_s():.0f} s")
+        log(f"square: {LAPS} x {4 * side_s():.0f} s")
         while True:
             t = time.monotonic() - t0
-            p, v = square_target(t, -ALT_M)
+            p, v = square_target(t, -ALT_M, LAPS)
             send_target(gcs, p, v, yaw_rad)
-            if t >= 4 * side_s() + 3.0:  # and 3 s of hover at the end
+            if t >= 4 * LAPS * side_s() + 3.0:  # and 3 s of hover at the end
                 break
             alive()
             time.sleep(0.1)
@@ -434,14 +452,51 @@ def figures(record):
         # the last 100 (`JitterCorrection`): VISO_DELAY_MS should be that lag.
         windows = [d[i:i + 100].min() for i in range(0, max(1, len(d) - 99), 100)]
         out["viso_delay_ms"] = float(np.median(windows))
-    # EKF3's own log: vision samples it received, and those under 20 ms
-    # after the previous one in its corrected time (it drops those).
+    # EKF3's own log: vision samples it received, and those its 20 ms rule
+    # dropped (replayed on its corrected times, see `ekf3_dropped`).
     visp = record.get("visp") or []
     out["visp"] = len(visp)
-    out["visp_under_20ms"] = sum(1 for a, b in zip(visp, visp[1:]) if b[2] - a[2] < 20)
+    out.update(ekf3_dropped(visp))
+    # The same, armed to disarmed only (VISP rows timed by their arrival at
+    # the tap, found by `usec`).
+    arrival = {int(f["usec"]): t for t, f in record["vpe"]}
+    armed_rows = [row for row in visp if t_arm <= arrival.get(int(row[1]), -1.0) <= t_disarm]
+    out["visp_armed"] = len(armed_rows)
+    out["visp_dropped_armed"] = ekf3_dropped(armed_rows)["visp_dropped"]
     out["cpu_percent"] = record["cpu_percent"]
     out["flight_s"] = t_disarm - t_arm
     return out
+
+
+# EKF3's minimum spacing of external navigation samples
+# (NavEKF3::extNavIntervalMin_ms).
+EXTNAV_INTERVAL_MIN_MS = 20
+
+
+def ekf3_dropped(visp):
+    """Replays the rule by which EKF3 drops vision samples on SITL's VISP log
+    rows (TimeUS, RTimeUS, CTimeMS, Ign): `NavEKF3_core::writeExtNavData`
+    returns early when `timeStamp_ms - extNavMeasTime_ms < 20` (uint32 ms),
+    where `timeStamp_ms` is CTimeMS (the sample's `usec` through ArduPilot's
+    jitter correction, truncated to ms) and `extNavMeasTime_ms` is the
+    CTimeMS of the last sample it *kept*. Rows with Ign set were not passed to
+    the EKF (AP_VisualOdom ignores samples around a reset) and are skipped.
+
+    Returns the number dropped and how many of those star itself sent closer
+    than 20 ms to the last kept one (its `usec`, RTimeUS); the others were
+    moved closer by ArduPilot's jitter correction."""
+    kept_c = kept_r = None
+    dropped = by_star = ignored = 0
+    for _, r_us, c_ms, ign in visp:
+        if ign:
+            ignored += 1
+            continue
+        if kept_c is not None and (int(c_ms) - kept_c) % (1 << 32) < EXTNAV_INTERVAL_MIN_MS:
+            dropped += 1
+            by_star += (r_us - kept_r) < EXTNAV_INTERVAL_MIN_MS * 1000
+            continue
+        kept_c, kept_r = int(c_ms), r_us
+    return {"visp_dropped": dropped, "visp_dropped_star_usec": by_star, "visp_ignored": ignored}
 
 
 def report(f):
@@ -458,8 +513,10 @@ def report(f):
         lines.append(f"capture -> SITL (SERIAL1) delay: min {d['min']:.1f}, median {d['median']:.1f}, "
                      f"p95 {d['p95']:.1f}, max {d['max']:.1f} ms over {f['delay_matched']} poses; "
                      f"VISO_DELAY_MS to set: {f['viso_delay_ms']:.0f}")
-    lines.append(f"EKF3 log: {f['visp']} vision samples, {f['visp_under_20ms']} under 20 ms apart in its "
-                 f"corrected time (dropped)")
+    lines.append(f"EKF3 log: {f['visp']} vision samples, {f['visp_dropped']} dropped by its 20 ms rule "
+                 f"({f['visp_dropped_star_usec']} of them sent by star under 20 ms apart, the rest moved closer "
+                 f"by ArduPilot's jitter correction; {f['visp_ignored']} ignored by AP_VisualOdom); armed: "
+                 f"{f['visp_dropped_armed']} of {f['visp_armed']}")
     lines.append("CPU (% of one core, armed to disarmed): " +
                  ", ".join(f"{k} {v:.0f} %" for k, v in f["cpu_percent"].items()))
     return "\n".join(lines)

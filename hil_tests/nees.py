@@ -1,6 +1,6 @@
 """NEES of the pose covariance star sends, against ground truth (a figure,
 not a test): synthesizes a 150-frame sequence (preset `realistic` unless
-given, seed 3), replays 600 frames of it ping-pong through `star run`, takes
+given, seed 3 or NEES_SEED), replays 600 frames of it ping-pong through `star run`, takes
 VISION_POSITION_ESTIMATE with the harness's autopilot (conftest.Autopilot),
 and compares each pose (x y z in NED, roll pitch yaw) with ground truth
 converted by the harness's own numpy transforms. Prints NEES per degree of
@@ -8,6 +8,7 @@ freedom (1 = the covariance fits the errors), the errors and the sent sigmas.
 
     STAR_BIN=target/release/star .venv/bin/python hil_tests/nees.py /tmp/nees [PRESET]
     MAVLINK_EXTRA='position_sigma_floor_m = 0;angle_sigma_floor_deg = 0' ...   # [mavlink] keys
+    TRACKER_EXTRA='covariance_scale = 1' ...                                     # [tracker] keys
 """
 import os
 import pathlib
@@ -24,12 +25,15 @@ star = STAR
 tmp = pathlib.Path(sys.argv[1]); tmp.mkdir(parents=True, exist_ok=True)
 ds = tmp / "realistic"
 if not ds.exists():
-    subprocess.run([str(star), "--log", "warn", "synth", "--preset", sys.argv[2] if len(sys.argv) > 2 else "realistic", str(ds), "--frames", "150", "--seed", "3", "--no-depth"], check=True)
+    subprocess.run([str(star), "--log", "warn", "synth", "--preset", sys.argv[2] if len(sys.argv) > 2 else "realistic", str(ds), "--frames", "150", "--seed", os.environ.get("NEES_SEED", "3"), "--no-depth"], check=True)
 seq = pingpong(ds, tmp / "pp", 600)
 rig = Rig(star, tmp, seq)
 extra = os.environ.get("MAVLINK_EXTRA", "")
 if extra:
     rig.config.write_text(rig.config.read_text().replace("[mavlink]\n", "[mavlink]\n" + extra.replace(";", "\n") + "\n", 1))
+tracker_extra = os.environ.get("TRACKER_EXTRA", "")
+if tracker_extra:
+    rig.config.write_text(rig.config.read_text().replace("[tracker]\n", "[tracker]\n" + tracker_extra.replace(";", "\n") + "\n", 1))
 ap = Autopilot(rig.port).up()
 try:
     run = rig.spawn(["run", "--config", str(rig.config), "--source", f"replay:{seq}", "--idle-exit-s", "1"], "run")
@@ -68,7 +72,7 @@ for _, f in vpes:
     ep_all.append(e_p); ea_all.append(e_a)
     sig.append((np.sqrt(np.trace(P[:3, :3])), np.degrees(np.sqrt(np.trace(P[3:, 3:])))))
 errs = np.array(errs); sig = np.array(sig)
-print(f"preset {sys.argv[2] if len(sys.argv) > 2 else 'realistic'}, [mavlink] extra {os.environ.get('MAVLINK_EXTRA', '')!r}")
+print(f"preset {sys.argv[2] if len(sys.argv) > 2 else 'realistic'}, [mavlink] extra {os.environ.get('MAVLINK_EXTRA', '')!r}, [tracker] extra {tracker_extra!r}")
 print(f"poses {len(pos_nees)}; NEES/dof position median {np.median(pos_nees):.2f} mean {np.mean(pos_nees):.2f}; angle median {np.median(ang_nees):.2f} mean {np.mean(ang_nees):.2f}")
 print(f"error: position median {np.median(errs[:,0])*100:.3f} cm p95 {np.percentile(errs[:,0],95)*100:.3f} cm; angle median {np.median(errs[:,1]):.4f} deg p95 {np.percentile(errs[:,1],95):.4f} deg")
 print(f"sent sigma (sqrt trace): position median {np.median(sig[:,0])*100:.4f} cm, angle median {np.median(sig[:,1]):.5f} deg")

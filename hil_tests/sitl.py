@@ -231,15 +231,21 @@ class Tap:
 class Sitl:
     """ArduCopter SITL in its own working directory (eeprom.bin, logs/)."""
 
-    def __init__(self, instance, workdir, serial1=None, extra_args=()):
+    def __init__(self, instance, workdir, serial1=None, extra_args=(), params=None):
         """`serial1`: SITL's SERIAL1 on this serial device (`uart:PATH:BAUD`)
-        instead of TCP port 5762 + 10 N."""
+        instead of TCP port 5762 + 10 N. `params`: more default parameters
+        ({name: value}, after copter.parm and extnav.parm)."""
         self.instance = instance
         self.dir = workdir
         self.dir.mkdir(parents=True, exist_ok=True)
         self.log = open(self.dir / "sitl.out", "w")
+        defaults = [str(SITL_DIR / "copter.parm"), str(SITL_DIR / "extnav.parm")]
+        if params:
+            extra = self.dir / "harness.parm"
+            extra.write_text("".join(f"{k} {v}\n" for k, v in params.items()))
+            defaults.append(str(extra))
         args = [str(ARDUCOPTER), "--model", "quad", "--speedup", "1", f"-I{instance}", "--wipe",
-                "--home", HOME, "--defaults", f"{SITL_DIR / 'copter.parm'},{SITL_DIR / 'extnav.parm'}"]
+                "--home", HOME, "--defaults", ",".join(defaults)]
         if serial1:
             args += ["--serial1", serial1]
         self.proc = subprocess.Popen([*args, *extra_args], cwd=self.dir, stdout=self.log,

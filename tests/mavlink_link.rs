@@ -416,16 +416,18 @@ fn the_pose_after_a_reset_waits_one_interval() {
     for k in 0..60u64 {
         if k % 20 == 10 {
             // A relocalization: the tracker's counter changes, and the next
-            // frame follows as soon as the link has taken this one.
+            // frame (captured one interval later, as the autopilot's
+            // minimum spacing wants) follows as soon as the link has taken
+            // this one.
             tracker_counter += 1;
-            let mut reset = sample(monotonic_now_ns() - 10_000_000, true);
+            let mut reset = sample(monotonic_now_ns(), true);
             reset.reset_counter = tracker_counter;
             let sent = link.stats().vision_position_estimate_sent;
             link.publish(reset);
             wait_for("the reset pose sent", || {
                 link.stats().vision_position_estimate_sent > sent
             });
-            let mut next = sample(monotonic_now_ns() + 10_000_000, true);
+            let mut next = sample(reset.capture_ns + 20_000_000, true);
             next.reset_counter = tracker_counter;
             link.publish(next);
         } else {

@@ -57,7 +57,8 @@ fn publish_does_not_allocate() {
             + s.poses_dropped_rate
             + s.poses_dropped_link
             + s.poses_dropped_lost
-            + s.poses_dropped_clock;
+            + s.poses_dropped_clock
+            + s.poses_dropped_spacing;
         if taken > 0 {
             break;
         }

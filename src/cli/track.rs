@@ -172,7 +172,7 @@ pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
     );
     match &summary.link {
         Some(s) => println!(
-            "track: MAVLink sent VISION_POSITION_ESTIMATE {}  ODOMETRY {}  HEARTBEAT {}  TIMESYNC requests {}  TIMESYNC replies {}; dropped: lost {} rate {} stale {} link {}; autopilot heartbeats {}",
+            "track: MAVLink sent VISION_POSITION_ESTIMATE {}  ODOMETRY {}  HEARTBEAT {}  TIMESYNC requests {}  TIMESYNC replies {}; dropped: lost {} rate {} stale {} link {} clock {} spacing {}; autopilot heartbeats {}",
             s.vision_position_estimate_sent,
             s.odometry_sent,
             s.heartbeat_sent,
@@ -182,6 +182,8 @@ pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
             s.poses_dropped_rate,
             s.poses_dropped_stale,
             s.poses_dropped_link,
+            s.poses_dropped_clock,
+            s.poses_dropped_spacing,
             s.autopilot_heartbeats
         ),
         None => println!("track: MAVLink disabled"),

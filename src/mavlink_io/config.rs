@@ -32,10 +32,14 @@ pub const MAX_TIMESYNC_WAIT_MS: u32 = 60_000;
 /// is no failover.
 pub const PEER_SILENCE_RANGE_S: (f64, f64) = (0.5, 600.0);
 
+/// Default `autopilot_min_interval_ms`: ArduPilot's
+/// `NavEKF3::extNavIntervalMin_ms`.
+pub const DEFAULT_AUTOPILOT_MIN_INTERVAL_MS: f64 = 20.0;
+
 /// Default `position_sigma_floor_m` (see `docs/benchmarks.md`, covariance).
-pub const DEFAULT_POSITION_SIGMA_FLOOR_M: f64 = 0.0012;
+pub const DEFAULT_POSITION_SIGMA_FLOOR_M: f64 = 0.0005;
 /// Default `angle_sigma_floor_deg`.
-pub const DEFAULT_ANGLE_SIGMA_FLOOR_DEG: f64 = 0.02;
+pub const DEFAULT_ANGLE_SIGMA_FLOOR_DEG: f64 = 0.01;
 
 /// Which message carries the pose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -62,6 +66,18 @@ pub struct MavlinkConfig {
     /// Maximum pose message rate, Hz, on capture timestamps (ArduPilot drops
     /// samples less than 20 ms apart, hence 50).
     pub rate_hz: f64,
+    /// Smallest spacing of consecutive `usec` values the autopilot keeps,
+    /// ms: a pose that would be stamped closer to the last one is stamped at
+    /// this spacing when that moves it by at most 0.5 ms, and skipped
+    /// (counted) otherwise. Default 20: ArduPilot's EKF3 drops external
+    /// navigation samples under 20 ms after the last one it kept
+    /// (`extNavIntervalMin_ms`, on its jitter-corrected time in whole ms).
+    /// PX4's EKF2 drops a vision sample closer than `_min_obs_interval_us` to
+    /// the newest one in its buffer ("EV data too fast"), which is its
+    /// fusion horizon over the observation buffer length, about 10.5 ms with
+    /// the defaults (EKF2_PREDICT_US 10 000, EKF2_DELAY_MAX 200): 11 there,
+    /// with `rate_hz` up to 90; 20 is safe for both.
+    pub autopilot_min_interval_ms: f64,
     /// `vision_position_estimate` or `odometry`.
     pub message: PoseMessage,
     /// Our MAVLink system id (normally the autopilot's).
@@ -89,7 +105,8 @@ pub struct MavlinkConfig {
     /// before another may take the link, s.
     pub peer_silence_s: f64,
     /// Smallest position standard deviation sent, m (each of x, y, z): the
-    /// tracker's own covariance is a floor-free photometric estimate.
+    /// tracker's covariance is calibrated on the benches
+    /// (`tracker.covariance_scale`); this guards views they did not cover.
     pub position_sigma_floor_m: f64,
     /// Smallest angle standard deviation sent, degrees (roll, pitch, yaw).
     pub angle_sigma_floor_deg: f64,
@@ -111,6 +128,7 @@ impl Default for MavlinkConfig {
             enabled: true,
             connection: "udpout:127.0.0.1:14550".into(),
             rate_hz: 50.0,
+            autopilot_min_interval_ms: DEFAULT_AUTOPILOT_MIN_INTERVAL_MS,
             message: PoseMessage::VisionPositionEstimate,
             system_id: 1,
             component_id: COMPONENT_ID_VISUAL_INERTIAL_ODOMETRY,
@@ -143,6 +161,15 @@ impl MavlinkConfig {
                 "rate_hz",
                 self.rate_hz.is_finite() && self.rate_hz > 0.0 && self.rate_hz <= 1000.0,
                 format!("expected 0 < rate_hz <= 1000, found {}", self.rate_hz),
+            ),
+            (
+                "autopilot_min_interval_ms",
+                self.autopilot_min_interval_ms.is_finite()
+                    && (0.0..=1000.0).contains(&self.autopilot_min_interval_ms),
+                format!(
+                    "expected 0 <= autopilot_min_interval_ms <= 1000, found {}",
+                    self.autopilot_min_interval_ms
+                ),
             ),
             (
                 "system_id",
@@ -228,6 +255,14 @@ impl MavlinkConfig {
     /// Minimum spacing of pose messages on capture time, nanoseconds.
     pub fn min_interval_ns(&self) -> u64 {
         (1e9 / self.rate_hz).round() as u64
+    }
+
+    /// Minimum spacing of consecutive `usec` values, nanoseconds: the
+    /// autopilot's (`autopilot_min_interval_ms`), and at least half the rate
+    /// cap's interval.
+    pub fn min_usec_spacing_ns(&self) -> u64 {
+        let autopilot_ns = (self.autopilot_min_interval_ms * 1e6).round() as u64;
+        autopilot_ns.max(self.min_interval_ns() / 2)
     }
 }
 
@@ -361,5 +396,24 @@ mod tests {
     fn interval_from_rate() {
         let c = MavlinkConfig::default();
         assert_eq!(c.min_interval_ns(), 20_000_000);
+        assert_eq!(c.min_usec_spacing_ns(), 20_000_000);
+        let px4 = MavlinkConfig {
+            rate_hz: 90.0,
+            autopilot_min_interval_ms: 11.0,
+            ..Default::default()
+        };
+        assert_eq!(px4.min_usec_spacing_ns(), 11_000_000);
+        let off = MavlinkConfig {
+            autopilot_min_interval_ms: 0.0,
+            ..Default::default()
+        };
+        off.validate()
+            .expect("0 = no spacing beyond the rate cap's");
+        assert_eq!(off.min_usec_spacing_ns(), 10_000_000);
+        let bad = MavlinkConfig {
+            autopilot_min_interval_ms: -1.0,
+            ..Default::default()
+        };
+        assert_eq!(bad.validate().unwrap_err().key, "autopilot_min_interval_ms");
     }
 }

@@ -26,9 +26,19 @@
 //! time (CLOCK_MONOTONIC) plus a slew-limited TIMESYNC offset for the whole
 //! stream; if the autopilot has not answered within `timesync_wait_ms`, it is
 //! the bare capture time from the stream's first pose on, also after answers
-//! arrive (logged at warn). `usec` is strictly increasing, at least half the
-//! rate cap's interval apart, and an offset change moves consecutive values
-//! by at most 1 % of their capture interval.
+//! arrive (logged at warn). Consecutive `usec` values are at least
+//! `autopilot_min_interval_ms` apart (EKF3 drops samples under 20 ms apart):
+//! a pose that would land closer is stamped at the minimum when that moves
+//! it by at most 0.5 ms, skipped (`poses_dropped_spacing`) otherwise; an
+//! offset change moves consecutive values apart by at most 1 % of their
+//! capture interval, and closer only out of the slack above the minimum.
+//!
+//! HEARTBEAT and TIMESYNC requests go out between poses, half an interval
+//! after the last one: ArduPilot dates a packet by the byte time of what is
+//! queued behind it in its UART buffer, so one sent right after a pose
+//! back-dated the pose (and its jitter correction then shortened the gap to
+//! the pose before, under EKF3's 20 ms), and one sent right before a pose
+//! was back-dated itself.
 //!
 //! ```no_run
 //! # use std::sync::{Arc, atomic::AtomicBool};
@@ -231,7 +241,7 @@ impl MavlinkLink {
             clock: Mutex::new(PoseClock::new(
                 config.timesync,
                 u64::from(config.timesync_wait_ms) * 1_000_000,
-                config.min_interval_ns(),
+                config.min_usec_spacing_ns(),
             )),
             counters: Arc::default(),
         });

@@ -4,7 +4,8 @@
 //! exponential backoff (each new connection starts a new stream: TIMESYNC
 //! estimate and pose clock start afresh), the rate cap, the staleness check,
 //! frame conversion, stamping through the pose clock (`stamp.rs`), HEARTBEAT
-//! at 1 Hz and our TIMESYNC requests; gives out messages on the link.
+//! at 1 Hz and our TIMESYNC requests (both between poses, see
+//! [`quiet_at`]); gives out messages on the link.
 
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
@@ -114,6 +115,34 @@ impl RateCap {
     }
 }
 
+/// When a HEARTBEAT or TIMESYNC request that is due at `now` may go out:
+/// half a pose interval after the last pose sent, the middle of the gap to
+/// the next one. ArduPilot dates each packet by its UART's last read minus
+/// the byte time of the packet and of everything queued behind it (174 µs a
+/// byte at the 57 600 baud SITL assumes on TCP, 11 µs at 921 600): a
+/// HEARTBEAT read together with the pose before it dated that pose up to
+/// 3.6 ms early, and ArduPilot's jitter correction then put it under 20 ms
+/// after the pose before (EKF3 dropped it); a TIMESYNC request read together
+/// with the pose after it was dated 22 ms early. With no pose for two
+/// intervals (tracking lost, not started) they go out at once.
+pub(crate) fn quiet_at(now: Instant, last_pose: Option<Instant>, interval: Duration) -> Instant {
+    let Some(last) = last_pose else {
+        return now;
+    };
+    let since = now.saturating_duration_since(last);
+    if since >= 2 * interval {
+        now
+    } else if since < interval / 4 {
+        last + interval / 2
+    } else if since <= interval * 3 / 4 {
+        now
+    } else {
+        // The next pose is due: after it (this is moved then), or once the
+        // stream has paused.
+        last + 2 * interval
+    }
+}
+
 /// Per-thread state of the sender.
 struct Sender {
     shared: Arc<Shared>,
@@ -130,6 +159,9 @@ struct Sender {
     /// that changed it (see `handle`).
     last_reset_sent: Option<u8>,
     reset_hold_until: Option<Instant>,
+    /// When the last pose went out, and the pose interval (`rate_hz`).
+    last_pose_sent: Option<Instant>,
+    pose_interval: Duration,
     backoff: Duration,
     reconnect_at: Instant,
     next_heartbeat: Instant,
@@ -154,6 +186,8 @@ pub(crate) fn run(shared: Arc<Shared>) {
         peer_epoch: 0,
         last_reset_sent: None,
         reset_hold_until: None,
+        last_pose_sent: None,
+        pose_interval: Duration::from_nanos(config.min_interval_ns()),
         backoff: MIN_BACKOFF,
         reconnect_at: now,
         next_heartbeat: now,
@@ -171,7 +205,8 @@ impl Sender {
         self.check_link();
         self.check_peer();
         let now = Instant::now();
-        if self.link.is_some() {
+        let quiet = quiet_at(now, self.last_pose_sent, self.pose_interval);
+        if self.link.is_some() && now >= quiet {
             if now >= self.next_heartbeat {
                 self.next_heartbeat = now + HEARTBEAT_PERIOD;
                 if self.send(&messages::heartbeat(self.state)) {
@@ -195,9 +230,9 @@ impl Sender {
                 self.send_timesync_request();
             }
         }
-        let mut deadline = (now + POLL).min(self.next_heartbeat);
+        let mut deadline = (now + POLL).min(self.next_heartbeat.max(quiet));
         if self.shared.config.timesync {
-            deadline = deadline.min(self.next_timesync);
+            deadline = deadline.min(self.next_timesync.max(quiet));
         }
         if self.link.is_none() {
             deadline = deadline.min(self.reconnect_at);
@@ -403,6 +438,14 @@ impl Sender {
                 bump(&counters.poses_dropped_clock);
                 return;
             }
+            Stamp::Skip => {
+                tracing::debug!(
+                    capture_ns = sample.capture_ns,
+                    "pose skipped: under the autopilot's minimum spacing"
+                );
+                bump(&counters.poses_dropped_spacing);
+                return;
+            }
         };
         let twist_covariance = Matrix6::from_fn(|r, c| sample.covariance_6x6[r][c]);
         let mut covariance = self.converter.pose_covariance(&pose, &twist_covariance);
@@ -432,6 +475,7 @@ impl Sender {
             ),
         };
         if self.send(&message) {
+            self.last_pose_sent = Some(Instant::now());
             bump(counter);
             counters
                 .reset_counter
@@ -522,6 +566,23 @@ mod tests {
         let first_interval = after.iter().filter(|&&t| t < 1_220_000_000).count();
         assert!(first_interval <= 2, "{after:?}");
         assert!((10..=11).contains(&after.len()), "{after:?}");
+    }
+
+    #[test]
+    fn heartbeat_and_timesync_wait_for_the_middle_of_a_gap() {
+        let t0 = Instant::now();
+        let i = Duration::from_millis(20);
+        let ms = Duration::from_millis;
+        // No pose yet, or none for two intervals: at once.
+        assert_eq!(quiet_at(t0, None, i), t0);
+        assert_eq!(quiet_at(t0 + ms(40), Some(t0), i), t0 + ms(40));
+        // Right after a pose: half an interval after it.
+        assert_eq!(quiet_at(t0 + ms(1), Some(t0), i), t0 + ms(10));
+        // In the middle of the gap: at once.
+        assert_eq!(quiet_at(t0 + ms(8), Some(t0), i), t0 + ms(8));
+        assert_eq!(quiet_at(t0 + ms(15), Some(t0), i), t0 + ms(15));
+        // Just before the next pose: not before it (nor past a pause).
+        assert_eq!(quiet_at(t0 + ms(18), Some(t0), i), t0 + ms(40));
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //!
 //! Takes each pose's capture time (CLOCK_MONOTONIC), the time now and the
 //! TIMESYNC estimate ([`OffsetEstimate`]); gives out a [`Stamp`]: hold the
-//! pose (drop it) or send it with this `usec`.
+//! pose (clock not settled), skip it (it would land under the autopilot's
+//! minimum spacing), or send it with this `usec`.
 //!
 //! One stream, one clock. A stream starts when the link opens
 //! ([`PoseClock::start_stream`]). Its first pose decides the clock of the
@@ -25,28 +26,44 @@
 //!   switch would be (issue 20: a first pose in CLOCK_MONOTONIC and the next
 //!   in the autopilot's clock made ArduPilot date 200 samples 500 ms old).
 //!
-//! In the autopilot's clock, the offset in `usec` is an *applied* offset,
-//! not the raw estimate. It starts at the low edge of the estimate's
-//! uncertainty interval (`offset +- rtt / 2`, where the true offset lies):
-//! ArduPilot stamps `tc1` when the request arrives but answers from its main
-//! loop, so the way back is the long one and the true offset sits near the
-//! low edge (measured against SITL: the first sample's centre was 3 ms high);
-//! and wherever in the interval it sits, later, tighter samples then correct
-//! upward, which lengthens intervals between `usec` values (EKF3 drops
-//! samples under 20 ms apart, never longer ones). After that the applied
-//! offset moves only when it leaves the current estimate's interval,
-//! toward that interval, by at most [`SLEW_DIVISOR`]
-//! parts of the capture interval per pose (1 %: a 2 ms step of the estimate
-//! is absorbed over 200 ms of poses, each interval shortened by at most
-//! 0.2 ms at 50 Hz). So a new lowest-RTT sample that moves the estimate by a
-//! few ms, or a hostile reply, can never move two consecutive `usec` values
-//! closer than 99 % of their capture interval, nor apart by more than
-//! 101 %. A confirmed jump of the estimate (an autopilot restart, see
-//! `timesync.rs`) is slewed the same way: `usec` stays continuous.
+//! **The minimum spacing** (`autopilot_min_interval_ms`, default 20 ms, EKF3's
+//! `extNavIntervalMin_ms`). EKF3 drops a sample whose time, `usec` through
+//! ArduPilot's jitter correction and truncated to ms, is less than 20 ms
+//! after the last sample it kept (`NavEKF3_core::writeExtNavData`). So
+//! consecutive `usec` values of a stream are never closer than the minimum:
+//! - a pose whose `usec` would be closer by at most [`TOLERANCE_NS`] (a
+//!   camera at exactly 50 Hz whose capture times jitter by tens of µs) is
+//!   stamped at the minimum: that moves its stamp later by under half of
+//!   ArduPilot's 1 ms resolution;
+//! - a pose closer than that is skipped ([`Stamp::Skip`], counted): a
+//!   camera faster than the minimum allows loses frames here, on our side and
+//!   counted, instead of in the EKF.
 //!
-//! On top of that, `usec` is strictly increasing by at least half the
-//! configured minimum interval (the rate cap's own spacing): a pose whose
-//! stamp would land closer is stamped at that distance.
+//! **The offset.** In the autopilot's clock, the offset in `usec` is an
+//! *applied* offset, not the raw estimate. It starts at the low edge of the
+//! estimate's uncertainty interval (`offset +- rtt / 2`, where the true
+//! offset lies; the low edge is the bound that holds when the autopilot
+//! back-dates its TIMESYNC stamps, see `timesync.rs`). After that the applied
+//! offset moves only when it leaves the current estimate's interval, toward
+//! that interval:
+//! - upward (later stamps, longer gaps) by at most [`SLEW_DIVISOR`] parts of
+//!   the capture interval per pose (1 %: a 2 ms step of the estimate is
+//!   absorbed over 200 ms of poses);
+//! - downward (earlier stamps, shorter gaps) only out of the slack above the
+//!   minimum spacing: a gap that is longer than the minimum (a frame that
+//!   was skipped or came late) gives its excess. Before, a 1 % downward slew
+//!   with the camera at exactly 50 Hz put consecutive stamps 19.8 ms apart,
+//!   and EKF3 dropped about half of 40 samples a flight so. A camera at
+//!   exactly the minimum leaves no slack: a downward correction that is
+//!   still more than [`TOLERANCE_NS`] out after this skips one pose to make
+//!   room (a drift of 50 ppm between the two clocks costs one pose in about
+//!   500).
+//!
+//! So a new TIMESYNC sample, or a hostile reply, can never move two
+//! consecutive `usec` values apart by more than 101 % of their capture
+//! interval, nor closer than the minimum spacing. A confirmed jump of the
+//! estimate (an autopilot restart, see `timesync.rs`) is followed the same
+//! way: `usec` stays continuous.
 //!
 //! Our TIMESYNC answers use the same clock as the poses
 //! ([`PoseClock::public_ns`]), so an autopilot that runs TIMESYNC itself
@@ -61,6 +78,20 @@ pub const SLEW_DIVISOR: i64 = 100;
 pub const SETTLE_SAMPLES: usize = 4;
 /// Period of our TIMESYNC requests while the clock is not settled, ms.
 pub const SETTLE_PERIOD_MS: u64 = 25;
+/// How far a stamp may be moved later to keep the minimum spacing, and how
+/// far the applied offset may stay above the estimate's interval before a
+/// pose is skipped to correct it, ns: half of ArduPilot's 1 ms resolution.
+pub const TOLERANCE_NS: i64 = 500_000;
+
+/// What a slew of the applied offset did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Slew {
+    /// Moved as far as allowed (or needed no move).
+    Done,
+    /// More than [`TOLERANCE_NS`] above the estimate's interval with no room
+    /// under the pose's stamp to come down.
+    Stuck,
+}
 
 /// Which clock the current stream's `usec` is in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -80,6 +111,10 @@ pub enum StreamClock {
 pub enum Stamp {
     /// Drop it: the stream's clock is not settled yet.
     Hold,
+    /// Drop it: its `usec` would be closer than the minimum spacing to the
+    /// last one sent (by more than [`TOLERANCE_NS`]), or a downward offset
+    /// correction needs the room.
+    Skip,
     /// Send it with this `usec`.
     Usec(u64),
 }
@@ -89,23 +124,24 @@ pub enum Stamp {
 pub struct PoseClock {
     timesync: bool,
     wait_ns: u64,
-    min_step_us: u64,
+    min_spacing_us: u64,
     clock: StreamClock,
     stream_start_ns: u64,
     applied_ns: i64,
-    /// Capture time and `usec` of the last stamped pose of this stream.
+    /// Capture time and `usec` of the last pose sent in this stream.
     last: Option<(u64, u64)>,
 }
 
 impl PoseClock {
     /// A clock that waits up to `wait_ns` for the first TIMESYNC answer
     /// (`timesync = false`: never waits, always CLOCK_MONOTONIC) and keeps
-    /// `usec` at least `min_interval_ns / 2` apart.
-    pub fn new(timesync: bool, wait_ns: u64, min_interval_ns: u64) -> Self {
+    /// consecutive `usec` values at least `min_spacing_ns` apart (rounded up
+    /// to whole µs, 1 µs at least).
+    pub fn new(timesync: bool, wait_ns: u64, min_spacing_ns: u64) -> Self {
         Self {
             timesync,
             wait_ns,
-            min_step_us: (min_interval_ns / 2_000).max(1),
+            min_spacing_us: min_spacing_ns.div_ceil(1_000).max(1),
             clock: Self::initial(timesync),
             stream_start_ns: 0,
             applied_ns: 0,
@@ -165,7 +201,8 @@ impl PoseClock {
     }
 
     /// The stamp of a pose captured at `capture_ns`, handed to the link at
-    /// `now_ns`, with the current TIMESYNC estimate.
+    /// `now_ns`, with the current TIMESYNC estimate. A [`Stamp::Usec`] is
+    /// taken as sent: the next pose is spaced from it.
     pub fn stamp(
         &mut self,
         capture_ns: u64,
@@ -194,342 +231,70 @@ impl PoseClock {
                 return Stamp::Hold;
             }
         }
+        let capture = i64::try_from(capture_ns).unwrap_or(i64::MAX);
+        let Some((last_capture_ns, last_usec)) = self.last else {
+            let usec = Self::usec_of(capture.saturating_add(self.applied_ns));
+            self.last = Some((capture_ns, usec));
+            return Stamp::Usec(usec);
+        };
+        // The earliest `usec` this pose may have.
+        let floor_usec = last_usec.saturating_add(self.min_spacing_us);
         if self.clock == StreamClock::Autopilot {
-            if let (Some(e), Some((last_capture_ns, _))) = (estimate, self.last) {
-                self.slew(e, capture_ns.saturating_sub(last_capture_ns));
+            if let Some(e) = estimate {
+                let gap_ns = capture_ns.saturating_sub(last_capture_ns);
+                let floor_ns = i64::try_from(floor_usec)
+                    .unwrap_or(i64::MAX)
+                    .saturating_mul(1_000);
+                if self.slew(e, gap_ns, capture, floor_ns) == Slew::Stuck {
+                    // No room to correct downward: skip this pose, the next
+                    // one gets two intervals of it.
+                    return Stamp::Skip;
+                }
             }
         }
-        let public_ns = i64::try_from(capture_ns)
-            .unwrap_or(i64::MAX)
-            .saturating_add(self.applied_ns);
-        let mut usec = u64::try_from(public_ns.max(0) / 1_000).unwrap_or(0);
-        if let Some((_, last_usec)) = self.last {
-            usec = usec.max(last_usec.saturating_add(self.min_step_us));
-        }
+        let natural_usec = Self::usec_of(capture.saturating_add(self.applied_ns));
+        let usec = if natural_usec >= floor_usec {
+            natural_usec
+        } else if floor_usec - natural_usec <= TOLERANCE_NS.unsigned_abs() / 1_000 {
+            floor_usec
+        } else {
+            return Stamp::Skip;
+        };
         self.last = Some((capture_ns, usec));
         Stamp::Usec(usec)
     }
 
-    /// Moves the applied offset toward the estimate's interval by at most
-    /// `gap_ns / SLEW_DIVISOR`.
-    fn slew(&mut self, estimate: OffsetEstimate, gap_ns: u64) {
+    fn usec_of(public_ns: i64) -> u64 {
+        u64::try_from(public_ns.max(0) / 1_000).unwrap_or(0)
+    }
+
+    /// Moves the applied offset toward the estimate's interval: upward by at
+    /// most `gap_ns / SLEW_DIVISOR`, downward by at most the room between
+    /// this pose's natural stamp and `floor_ns`.
+    fn slew(&mut self, estimate: OffsetEstimate, gap_ns: u64, capture: i64, floor_ns: i64) -> Slew {
         let half = estimate.uncertainty_ns.max(0);
         let lo = estimate.offset_ns.saturating_sub(half);
         let hi = estimate.offset_ns.saturating_add(half);
-        let target = self.applied_ns.clamp(lo, hi);
         let max_step = i64::try_from(gap_ns).unwrap_or(i64::MAX) / SLEW_DIVISOR;
-        self.applied_ns = self.applied_ns.saturating_add(
-            target
-                .saturating_sub(self.applied_ns)
-                .clamp(-max_step, max_step),
-        );
+        if self.applied_ns < lo {
+            self.applied_ns = self
+                .applied_ns
+                .saturating_add(lo.saturating_sub(self.applied_ns).min(max_step));
+        } else if self.applied_ns > hi {
+            let room = capture
+                .saturating_add(self.applied_ns)
+                .saturating_sub(floor_ns)
+                .max(0);
+            let step = self.applied_ns.saturating_sub(hi).min(room);
+            self.applied_ns = self.applied_ns.saturating_sub(step);
+            if step == 0 && self.applied_ns.saturating_sub(hi) > TOLERANCE_NS {
+                return Slew::Stuck;
+            }
+        }
+        Slew::Done
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::mavlink_io::timesync::{TimesyncEstimator, TimesyncEvent, WINDOW};
-
-    const MS: u64 = 1_000_000;
-    /// 50 Hz.
-    const INTERVAL: u64 = 20 * MS;
-    const WAIT: u64 = 1_500 * MS;
-
-    fn est(offset_ns: i64, uncertainty_ns: i64) -> Option<OffsetEstimate> {
-        Some(OffsetEstimate {
-            offset_ns,
-            uncertainty_ns,
-            samples: SETTLE_SAMPLES,
-        })
-    }
-
-    fn usec(s: Stamp) -> u64 {
-        match s {
-            Stamp::Usec(u) => u,
-            Stamp::Hold => panic!("held"),
-        }
-    }
-
-    /// Consecutive differences of `usecs`, µs.
-    fn gaps(usecs: &[u64]) -> Vec<i64> {
-        usecs
-            .windows(2)
-            .map(|w| w[1] as i64 - w[0] as i64)
-            .collect()
-    }
-
-    #[test]
-    fn first_pose_waits_for_the_offset() {
-        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
-        let t0 = 10_000 * MS;
-        clock.start_stream(t0);
-        // Poses from 100 ms on, no answer yet: held.
-        for k in 0..10 {
-            let t = t0 + 100 * MS + k * INTERVAL;
-            assert_eq!(clock.stamp(t, t + MS, None), Stamp::Hold);
-            assert_eq!(clock.clock(), StreamClock::Waiting);
-        }
-        // The answer comes: the very first pose sent is in the autopilot's clock.
-        let offset = -9_000_000_000i64;
-        let t = t0 + 400 * MS;
-        let first = usec(clock.stamp(t, t + MS, est(offset, 500_000)));
-        // At the low edge of the estimate's interval.
-        let applied = offset - 500_000;
-        assert_eq!(first as i64, (t as i64 + applied) / 1_000);
-        assert_eq!(clock.clock(), StreamClock::Autopilot);
-        assert_eq!(clock.applied_offset_ns(), Some(applied));
-        assert_eq!(clock.public_ns(t, None), t as i64 + applied);
-        let second = usec(clock.stamp(t + INTERVAL, t + INTERVAL + MS, est(offset, 500_000)));
-        assert_eq!(second - first, INTERVAL / 1_000);
-    }
-
-    #[test]
-    fn first_answers_settle_the_clock_before_the_first_pose() {
-        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
-        let t0 = 10_000 * MS;
-        clock.start_stream(t0);
-        let few = |samples| {
-            Some(OffsetEstimate {
-                offset_ns: 1_000_000_000,
-                uncertainty_ns: 2_000_000,
-                samples,
-            })
-        };
-        // One to three answers: still held (a first answer may be slow).
-        for samples in 1..SETTLE_SAMPLES {
-            let t = t0 + samples as u64 * 25 * MS;
-            assert_eq!(clock.stamp(t, t, few(samples)), Stamp::Hold);
-            assert!(clock.settling(t, few(samples)));
-        }
-        // Enough answers: no more fast requests, even before a pose comes.
-        assert!(!clock.settling(t0 + 90 * MS, few(SETTLE_SAMPLES)));
-        // Nor after the wait.
-        assert!(!clock.settling(t0 + WAIT, None));
-        let t = t0 + 100 * MS;
-        assert!(matches!(
-            clock.stamp(t, t, few(SETTLE_SAMPLES)),
-            Stamp::Usec(_)
-        ));
-        assert!(!clock.settling(t, None), "a pose went out: settled");
-        assert_eq!(clock.applied_offset_ns(), Some(998_000_000));
-        // A slow autopilot that answered once by the end of the wait gets
-        // its clock all the same.
-        clock.start_stream(t0);
-        let t = t0 + WAIT;
-        assert_eq!(usec(clock.stamp(t, t, few(1))), (t + 998_000_000) / 1_000);
-        assert_eq!(clock.clock(), StreamClock::Autopilot);
-    }
-
-    #[test]
-    fn silent_autopilot_gets_our_clock_from_the_first_pose_and_no_switch() {
-        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
-        let t0 = 10_000 * MS;
-        clock.start_stream(t0);
-        let mut sent = Vec::new();
-        for k in 0..200u64 {
-            let t = t0 + k * INTERVAL;
-            // The autopilot starts answering at 2.5 s, well after the wait.
-            let e = (t >= t0 + 2_500 * MS).then_some(OffsetEstimate {
-                offset_ns: 5_000_000_000,
-                uncertainty_ns: 100_000,
-                samples: WINDOW,
-            });
-            match clock.stamp(t, t + MS, e) {
-                Stamp::Hold => {
-                    assert!(t + MS < t0 + WAIT, "held after the wait: {k}");
-                    assert!(sent.is_empty(), "held after a pose was sent: {k}");
-                }
-                Stamp::Usec(u) => sent.push((t, u)),
-            }
-        }
-        assert_eq!(sent.first().map(|s| s.0), Some(t0 + 75 * INTERVAL));
-        for (t, u) in &sent {
-            assert_eq!(*u, t / 1_000, "usec is CLOCK_MONOTONIC throughout");
-        }
-        assert_eq!(clock.clock(), StreamClock::Monotonic);
-        assert_eq!(clock.applied_offset_ns(), None);
-        assert_eq!(
-            clock.public_ns(123 * MS, est(5_000_000_000, 0)),
-            123 * MS as i64,
-            "TIMESYNC answers in the same clock as usec"
-        );
-        // A new stream (the link reopened) decides afresh.
-        clock.start_stream(t0 + 10_000 * MS);
-        assert_eq!(clock.clock(), StreamClock::Waiting);
-        let t = t0 + 10_100 * MS;
-        assert_eq!(
-            usec(clock.stamp(t, t, est(5_000_000_000, 0))),
-            (t + 5_000_000_000) / 1_000
-        );
-    }
-
-    #[test]
-    fn timesync_off_sends_our_clock_at_once() {
-        let mut clock = PoseClock::new(false, WAIT, INTERVAL);
-        clock.start_stream(0);
-        assert_eq!(clock.clock(), StreamClock::Monotonic);
-        assert_eq!(clock.stamp(MS, MS, est(7, 0)), Stamp::Usec(1_000));
-    }
-
-    #[test]
-    fn offset_steps_keep_the_spacing() {
-        // The estimate steps by +-2 ms every 10 poses (new lowest-RTT
-        // samples), with a tight interval so each step is outside it.
-        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
-        clock.start_stream(0);
-        let base = 3_000_000_000i64;
-        let mut usecs = Vec::new();
-        for k in 0..2_000u64 {
-            let t = 1_000 * MS + k * INTERVAL;
-            let step = if (k / 10) % 2 == 0 {
-                2_000_000
-            } else {
-                -2_000_000
-            };
-            usecs.push(usec(clock.stamp(t, t, est(base + step, 50_000))));
-        }
-        for (k, g) in gaps(&usecs).into_iter().enumerate() {
-            assert!(g >= 10_000, "poses {k}, {} are {g} us apart", k + 1);
-            // In fact within 1 % of the 20 ms capture interval.
-            assert!(
-                (19_800..=20_200).contains(&g),
-                "poses {k}, {}: {g} us",
-                k + 1
-            );
-        }
-    }
-
-    #[test]
-    fn offset_inside_the_uncertainty_does_not_move_usec() {
-        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
-        clock.start_stream(0);
-        let mut usecs = Vec::new();
-        for k in 0..500u64 {
-            let t = 1_000 * MS + k * INTERVAL;
-            // The estimate wanders by +-2 ms, each with a 2.5 ms half round
-            // trip that contains where the first (tight) one put the clock.
-            let wander = [0, 2_000_000, -2_000_000, 1_000_000][(k / 25) as usize % 4];
-            let half_rtt = if k == 0 { 100_000 } else { 2_500_000 };
-            usecs.push(usec(clock.stamp(t, t, est(wander, half_rtt))));
-        }
-        assert!(
-            gaps(&usecs).iter().all(|&g| g == 20_000),
-            "{:?}",
-            gaps(&usecs)
-        );
-        assert_eq!(clock.applied_offset_ns(), Some(-100_000));
-    }
-
-    #[test]
-    fn a_real_offset_change_is_followed() {
-        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
-        clock.start_stream(0);
-        let t = 1_000 * MS;
-        clock.stamp(t, t, est(0, 100_000));
-        // The estimate moves 5 ms (a better sample): slewed in at 1 %.
-        for k in 1..=300u64 {
-            let t = t + k * INTERVAL;
-            clock.stamp(t, t, est(5_000_000, 100_000));
-        }
-        let applied = clock.applied_offset_ns().unwrap();
-        assert!((4_900_000..=5_000_000).contains(&applied), "{applied}");
-    }
-
-    #[test]
-    fn hostile_replies_never_move_usec_beyond_the_bound() {
-        // Through the estimator: a synced stream at 50 Hz, TIMESYNC every
-        // 500 ms, and replies with tc1 = 2^62, -2^62 and 1 in between.
-        let mut ts = TimesyncEstimator::new();
-        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
-        let offset = 4_000_000_000i64;
-        let t0 = 20_000 * MS;
-        clock.start_stream(t0);
-        // The settling exchanges, honest, 25 ms apart.
-        for k in 0..SETTLE_SAMPLES as i64 {
-            let ts1 = t0 as i64 - 100_000_000 + k * 25_000_000;
-            ts.request_sent(ts1);
-            let ev = ts.reply_received(ts1 + 1_000_000 + offset, ts1, ts1 + 2_000_000);
-            assert!(matches!(ev, TimesyncEvent::Sample(_)));
-        }
-        let mut usecs = Vec::new();
-        let mut captures = Vec::new();
-        for k in 0..1_000u64 {
-            let t = t0 + k * INTERVAL;
-            if k % 25 == 0 {
-                let ts1 = t as i64;
-                ts.request_sent(ts1);
-                let tc1 = match (k / 25) % 4 {
-                    0 => ts1 + 1_000_000 + offset, // honest, 2 ms round trip
-                    1 => 1 << 62,
-                    2 => -(1 << 62),
-                    _ => 1,
-                };
-                ts.reply_received(tc1, ts1, ts1 + 2_000_000);
-            }
-            if let Stamp::Usec(u) = clock.stamp(t, t + MS, ts.estimate()) {
-                usecs.push(u);
-                captures.push(t);
-            }
-        }
-        assert_eq!(usecs.len(), 1_000);
-        for (k, g) in gaps(&usecs).into_iter().enumerate() {
-            let capture_gap = ((captures[k + 1] - captures[k]) / 1_000) as i64;
-            let bound = capture_gap / SLEW_DIVISOR + 1;
-            assert!(
-                (g - capture_gap).abs() <= bound,
-                "poses {k}, {}: usec moved {g} us for {capture_gap} us",
-                k + 1
-            );
-        }
-        assert_eq!(
-            usecs[999] as i64,
-            (captures[999] as i64 + offset - 1_000_000) / 1_000,
-            "still in the autopilot's clock (low edge of the 2 ms round trip)"
-        );
-    }
-
-    #[test]
-    fn autopilot_restart_keeps_usec_continuous() {
-        // A confirmed jump of the estimate (three agreeing replies) is not a
-        // step in usec: it is slewed like any change.
-        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
-        clock.start_stream(0);
-        let mut usecs = Vec::new();
-        for k in 0..300u64 {
-            let t = 1_000 * MS + k * INTERVAL;
-            let offset = if k < 100 {
-                60_000_000_000
-            } else {
-                -1_000_000_000
-            };
-            usecs.push(usec(clock.stamp(t, t, est(offset, 1_000_000))));
-        }
-        assert!(gaps(&usecs).iter().all(|g| (19_800..=20_200).contains(g)));
-    }
-
-    #[test]
-    fn usec_is_strictly_increasing_by_half_an_interval() {
-        // Capture times that jitter and even repeat or go back (a clock
-        // glitch upstream), and an estimate that jumps around.
-        let mut clock = PoseClock::new(true, WAIT, INTERVAL);
-        clock.start_stream(0);
-        let mut usecs = Vec::new();
-        let mut t = 1_000 * MS;
-        for k in 0..3_000u64 {
-            t = match k % 7 {
-                3 => t,                    // same capture time twice
-                5 => t.saturating_sub(MS), // backwards
-                _ => t + 10 * MS + (k * 7919 % 13) * MS,
-            };
-            let e = est(
-                ((k * 104_729) % 40) as i64 * 1_000_000 - 20_000_000,
-                200_000,
-            );
-            usecs.push(usec(clock.stamp(t, t, e)));
-        }
-        for (k, g) in gaps(&usecs).into_iter().enumerate() {
-            assert!(g >= 10_000, "poses {k}, {}: {g} us", k + 1);
-        }
-    }
-}
+#[path = "stamp_tests.rs"]
+mod tests;

@@ -54,6 +54,10 @@ pub struct LinkStats {
     /// Samples not sent because the stream's clock was not settled yet
     /// (waiting for the first TIMESYNC answer, up to `timesync_wait_ms`).
     pub poses_dropped_clock: u64,
+    /// Samples not sent because their `usec` would have been closer than
+    /// `autopilot_min_interval_ms` to the last one sent (or a downward
+    /// offset correction needed the room).
+    pub poses_dropped_spacing: u64,
     /// Whether the current stream's `usec` is star's own CLOCK_MONOTONIC
     /// (TIMESYNC off, or no answer within `timesync_wait_ms`).
     pub monotonic_clock: bool,
@@ -89,6 +93,7 @@ pub(crate) struct Counters {
     pub poses_dropped_link: AtomicU64,
     pub poses_dropped_invalid: AtomicU64,
     pub poses_dropped_clock: AtomicU64,
+    pub poses_dropped_spacing: AtomicU64,
     pub monotonic_clock: AtomicBool,
     pub reset_counter: AtomicU8,
     pub has_offset: AtomicBool,
@@ -132,6 +137,7 @@ impl Counters {
             poses_dropped_link: self.poses_dropped_link.load(Relaxed),
             poses_dropped_invalid: self.poses_dropped_invalid.load(Relaxed),
             poses_dropped_clock: self.poses_dropped_clock.load(Relaxed),
+            poses_dropped_spacing: self.poses_dropped_spacing.load(Relaxed),
             monotonic_clock: self.monotonic_clock.load(Relaxed),
             reset_counter: self.reset_counter.load(Relaxed),
             timesync_offset_ns: self

@@ -15,9 +15,22 @@
 //! within `offset +- rtt / 2`: that half round trip is the sample's
 //! uncertainty.
 //!
-//! Robust filter: the estimate is the offset of the lowest-RTT sample among
-//! the last [`WINDOW`] accepted ones (queueing delay only ever adds to the
-//! RTT, so the fastest exchange is the most symmetric). Rejected outright:
+//! Robust filter: the estimate is the sample, among the last [`WINDOW`]
+//! accepted ones, with the highest lower bound `offset - rtt / 2`
+//! (`tc1 - now`, the autopilot's time at the request minus our time at the
+//! reply). That bound holds however the autopilot stamps `tc1`, as long as
+//! it stamps it between the request's arrival and the reply's departure; the
+//! upper bound `tc1 - ts1` does not hold when the autopilot back-dates
+//! `tc1`, and ArduPilot does: it stamps a request with its UART's
+//! `receive_time_constraint_us`, the last read minus the byte time (at the
+//! port's baud rate) of the packet *and of every byte queued behind it*.
+//! Against SITL (SERIAL1 over TCP, 57 600 baud assumed, 174 µs a byte) a
+//! request that arrived in one read with a VISION_POSITION_ESTIMATE behind it
+//! was dated 22 ms early; picked as the lowest-RTT sample it moved the
+//! estimate by -22 ms twice a flight (issue 20). A back-dated sample has a
+//! lower lower bound, so it never wins here; with honest stamps the highest
+//! lower bound is the exchange with the fastest way back, as symmetric a
+//! pick as the lowest RTT. Rejected outright:
 //! replies that do not match one of our last requests, with an RTT above
 //! [`MAX_RTT_NS`], or with an implausible autopilot time (`tc1 <= 0` or
 //! `tc1 >= 2^62` ns, 146 years).
@@ -33,7 +46,7 @@
 //! is the pose clock's: poses and answers use the same clock, so an
 //! autopilot that runs its own TIMESYNC (PX4) converts `usec` consistently.
 
-/// Number of samples the lowest-RTT filter looks at.
+/// Number of samples the filter picks its estimate from.
 pub const WINDOW: usize = 16;
 /// Replies slower than this round trip are not used, ns.
 pub const MAX_RTT_NS: i64 = 100_000_000;
@@ -57,6 +70,11 @@ pub struct TimesyncSample {
 }
 
 impl TimesyncSample {
+    /// The lowest offset this exchange allows, `offset - rtt / 2`, ns.
+    pub fn lower_bound_ns(&self) -> i64 {
+        self.offset_ns.saturating_sub(self.rtt_ns / 2)
+    }
+
     /// Whether two samples can describe the same clock offset.
     fn agrees_with(&self, other: &TimesyncSample) -> bool {
         let tolerance = self
@@ -197,11 +215,12 @@ impl TimesyncEstimator {
         self.next_sample = (self.next_sample + 1) % WINDOW;
     }
 
+    /// The sample with the highest lower bound (ties: the lower RTT).
     fn best(&self) -> Option<TimesyncSample> {
         self.window
             .iter()
             .flatten()
-            .min_by_key(|s| s.rtt_ns)
+            .max_by_key(|s| (s.lower_bound_ns(), std::cmp::Reverse(s.rtt_ns)))
             .copied()
     }
 
@@ -279,6 +298,38 @@ mod tests {
         }
         assert_eq!(est.offset_ns(), Some(offset));
         assert_eq!(est.rtt_ns(), Some(400_000));
+    }
+
+    #[test]
+    fn back_dated_replies_do_not_move_the_estimate() {
+        // ArduPilot dates a request by its UART's last read minus the byte
+        // time of everything queued behind it: against SITL, a request read
+        // together with a VISION_POSITION_ESTIMATE came back 22 ms early,
+        // and with the fastest round trip of the window.
+        let mut est = TimesyncEstimator::new();
+        let offset = 4_000_000_000i64;
+        for k in 0..6 {
+            exchange(&mut est, k * 500_000_000, offset, 4_000_000, 4_000_000);
+        }
+        let before = est.estimate();
+        // Within the plausibility bound of 8 ms round trips, and faster.
+        est.request_sent(3_000_000_000);
+        let tc1 = 3_000_000_000 + 3_000_000 + offset - 22_000_000;
+        let ev = est.reply_received(tc1, 3_000_000_000, 3_000_000_000 + 6_000_000);
+        assert!(matches!(ev, TimesyncEvent::Sample(_)), "{ev:?}");
+        assert_eq!(
+            est.estimate(),
+            Some(OffsetEstimate {
+                samples: 7,
+                ..before.unwrap()
+            })
+        );
+        // The fastest way back wins: the tightest lower bound.
+        exchange(&mut est, 4_000_000_000, offset, 900_000, 100_000);
+        assert_eq!(
+            est.estimate().map(|e| e.offset_ns - e.uncertainty_ns),
+            Some(offset - 100_000)
+        );
     }
 
     #[test]

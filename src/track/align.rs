@@ -220,7 +220,9 @@ impl Aligner {
         result.quality.residual_rms = (e.inlier_sq_sum / e.inliers.max(1) as f64).sqrt() as f32;
         result.quality.correlation = e.correlation;
         let dof = (e.ne.count as f64 - e.ne.n as f64).max(1.0);
-        let sigma_sq = e.ne.weighted_sq_sum / dof;
+        // The residual variance per degree of freedom, and the benches'
+        // factor for the residuals' correlation (`covariance_scale`).
+        let sigma_sq = e.ne.weighted_sq_sum / dof * self.config.covariance_scale;
         if let Some(inv) = e.ne.inverse() {
             for (r, row) in result.covariance_delta.iter_mut().enumerate() {
                 for (c, v) in row.iter_mut().enumerate() {

@@ -47,11 +47,23 @@ pub struct TrackerConfig {
     /// A residual below this counts as an inlier in the quality figures.
     #[serde(alias = "inlier_threshold")]
     pub inlier_threshold_gray: f32,
+    /// Factor on the variance of the alignment's covariance (dimensionless).
+    /// The alignment's own estimate is the inverse Hessian scaled by the
+    /// residual variance per degree of freedom, `sum(w r^2) / (n - 6)`, which
+    /// holds for independent residuals; neighbouring points' residuals are
+    /// not (blur, interpolation, the map's own shape and texture errors), so
+    /// it is too confident. This factor is calibrated on the benches so that
+    /// the normalized estimation error squared per degree of freedom of the
+    /// position is near 1 (`hil_tests/nees.py`, docs/benchmarks.md).
+    pub covariance_scale: f64,
     /// Initial pose of `star track` / `star run`, `world_from_camera` in TUM
     /// order `[tx, ty, tz, qx, qy, qz, qw]`; absent: `--init-pose` must give it.
     #[serde(rename = "init_pose")]
     pub world_from_camera_init: Option<[f64; 7]>,
 }
+
+/// Default `covariance_scale` (docs/benchmarks.md, "Covariance sent (NEES)").
+pub const DEFAULT_COVARIANCE_SCALE: f64 = 9.0;
 
 impl Default for TrackerConfig {
     fn default() -> Self {
@@ -66,6 +78,7 @@ impl Default for TrackerConfig {
             huber_min_gray: 4.0,
             outlier_cut_gray: 40.0,
             inlier_threshold_gray: 20.0,
+            covariance_scale: DEFAULT_COVARIANCE_SCALE,
             world_from_camera_init: None,
         }
     }
@@ -131,6 +144,11 @@ impl TrackerConfig {
                 format!("expected a finite value > 0, found {}", t.huber_min_gray),
             ),
             (
+                "covariance_scale",
+                t.covariance_scale.is_finite() && t.covariance_scale > 0.0 && t.covariance_scale <= 1e6,
+                format!("expected 0 < covariance_scale <= 1e6, found {}", t.covariance_scale),
+            ),
+            (
                 "outlier_cut_gray",
                 t.outlier_cut_gray.is_finite()
                     && t.outlier_cut_gray > t.huber_min_gray
@@ -141,5 +159,24 @@ impl TrackerConfig {
                 ),
             ),
         ])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn covariance_scale_is_checked() {
+        TrackerConfig::default().validate().expect("defaults valid");
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY, 2e6] {
+            let c = TrackerConfig {
+                covariance_scale: bad,
+                ..Default::default()
+            };
+            let e = c.validate().unwrap_err();
+            assert_eq!(e.key, "covariance_scale", "{bad}");
+            assert!(e.reason.contains("0 < covariance_scale <= 1e6"), "{e}");
+        }
     }
 }

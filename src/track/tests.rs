@@ -204,6 +204,32 @@ fn covariance_is_finite_and_positive() {
 }
 
 #[test]
+fn covariance_scale_multiplies_the_variance() {
+    // The residual-variance estimate times the benches' factor: the same
+    // alignment with `covariance_scale` 1 and 9 differs by exactly 9.
+    let truth = pose([0.01, 0.0, 0.0], [0.0, 0.5, 0.0]);
+    let one = setup(TrackerConfig {
+        covariance_scale: 1.0,
+        ..config()
+    });
+    let nine = setup(TrackerConfig {
+        covariance_scale: 9.0,
+        ..config()
+    });
+    let (a, _, _) = run(&one, &camera(), &truth, 1.0, 0.0);
+    let (b, _, _) = run(&nine, &camera(), &truth, 1.0, 0.0);
+    for i in 0..6 {
+        for j in 0..6 {
+            let (x, y) = (a.covariance_delta[i][j], b.covariance_delta[i][j]);
+            assert!(
+                (y - 9.0 * x).abs() <= 1e-9 * y.abs().max(1e-30),
+                "({i}, {j}): {x} {y}"
+            );
+        }
+    }
+}
+
+#[test]
 fn all_black_frame_is_not_a_confident_pose() {
     let s = setup(config());
     let cam = camera();
