@@ -13,6 +13,8 @@ use crate::imgproc::ImageU8;
 use crate::render::Renderer;
 
 use crate::localizer::{Localizer, LocalizerError, TrackState};
+use crate::output::view::Alignment;
+use crate::output::{FramePixels, FrameRow, KeyframeView, RecordSink};
 
 /// Errors of an offline run.
 #[derive(Debug, thiserror::Error)]
@@ -179,7 +181,20 @@ pub fn localize_dataset(
     renderer: Box<dyn Renderer>,
     config: &Config,
     options: &OfflineOptions,
+    on_frame: impl FnMut(usize),
+) -> Result<OfflineReport, OfflineError> {
+    localize_dataset_recorded(dataset, renderer, config, options, on_frame, None)
+}
+
+/// [`localize_dataset`], also handing every processed frame to a flight
+/// log (`star localize --record`), stamped with dataset time.
+pub fn localize_dataset_recorded(
+    dataset: &Dataset,
+    renderer: Box<dyn Renderer>,
+    config: &Config,
+    options: &OfflineOptions,
     mut on_frame: impl FnMut(usize),
+    mut record: Option<&mut RecordSink>,
 ) -> Result<OfflineReport, OfflineError> {
     let camera = *dataset.camera();
     let n = options
@@ -284,6 +299,31 @@ pub fn localize_dataset(
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         match out {
             Ok(out) => {
+                if let Some(record) = record.as_deref_mut() {
+                    let keyframe = localizer.keyframe();
+                    let tracking = out.state == TrackState::Tracking;
+                    let alignment = out
+                        .world_from_camera
+                        .filter(|_| tracking)
+                        .map(|w| Alignment {
+                            camera_from_keyframe: w.inverse() * keyframe.world_from_keyframe,
+                            gain: out.gain,
+                            bias: out.bias,
+                        });
+                    record.frame(
+                        &FrameRow::new(&out, stamp_s, ms),
+                        FramePixels {
+                            pixels: image.data(),
+                            width: image.width(),
+                            height: image.height(),
+                            stride: image.width(),
+                        },
+                        Some(KeyframeView {
+                            keyframe,
+                            alignment,
+                        }),
+                    );
+                }
                 report.frames += 1;
                 report.track_ms.push(ms);
                 report.reset_counters.push(out.reset_counter);

@@ -19,7 +19,7 @@ use super::messages::{self, LinkState};
 use super::reset::ResetCounter;
 use super::stamp::{Stamp, StreamClock, SETTLE_PERIOD_MS};
 use super::stats::bump;
-use super::{PoseMessage, PoseSample, Shared};
+use super::{PoseMessage, PoseSample, SendRecord, Shared};
 use crate::clock::monotonic_now_ns;
 
 /// HEARTBEAT period.
@@ -315,6 +315,7 @@ impl Sender {
             .start_stream(monotonic_now_ns());
         let counters = &self.shared.counters;
         counters.set_offset(None);
+        self.shared.send_log.set_offset(None);
         counters.monotonic_clock.store(false, Ordering::Relaxed);
     }
 
@@ -326,6 +327,7 @@ impl Sender {
         let stamp = clock.stamp(capture_ns, monotonic_now_ns(), estimate);
         let counters = &shared.counters;
         counters.set_offset(clock.applied_offset_ns());
+        shared.send_log.set_offset(clock.applied_offset_ns());
         counters
             .monotonic_clock
             .store(clock.clock() == StreamClock::Monotonic, Ordering::Relaxed);
@@ -433,6 +435,11 @@ impl Sender {
         };
         if self.send(&message) {
             bump(counter);
+            shared.send_log.push(SendRecord {
+                capture_ns: sample.capture_ns,
+                send_ns: monotonic_now_ns(),
+                timesync_offset_ns: shared.send_log.offset_ns(),
+            });
             counters
                 .reset_counter
                 .store(reset_counter, Ordering::Relaxed);
