@@ -9,7 +9,8 @@
 //!   recording with a warning, and the run's own trajectory still comes out
 //!   complete;
 //! - a record folder that cannot be created fails at start, naming it;
-//! - `star eval --frames` prints the log's counts.
+//! - `star eval --plot` writes a PNG of the requested size that is not
+//!   blank, and `--frames` prints the log's counts.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -233,4 +234,53 @@ fn a_record_folder_that_cannot_be_created_fails_at_start() {
         "the error names the folder: {err}"
     );
     assert!(!est.exists(), "failed before the run");
+}
+
+#[test]
+fn eval_plot_writes_a_png_of_the_requested_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let est = dir.path().join("est.txt");
+    let o = star(&[
+        "--log",
+        "warn",
+        "localize",
+        dataset().to_str().unwrap(),
+        "-o",
+        est.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let plot = dir.path().join("plot.png");
+    let o = star(&[
+        "eval",
+        dataset().join("groundtruth.txt").to_str().unwrap(),
+        est.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+        "--plot-size",
+        "900x500",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let image = image::open(&plot).expect("a PNG").to_rgb8();
+    assert_eq!(image.dimensions(), (900, 500));
+    // Not blank: the estimate's red, the rotation error's blue, text and
+    // axes in black, the truth in gray.
+    let count = |rgb: [u8; 3]| image.pixels().filter(|p| p.0 == rgb).count();
+    assert!(count([214, 39, 40]) > 200, "estimate/translation red");
+    assert!(count([31, 119, 180]) > 100, "rotation blue");
+    assert!(count([0, 0, 0]) > 500, "axes and text");
+    let white = count([255, 255, 255]);
+    assert!(white < 900 * 500 * 98 / 100, "{white} white pixels");
+
+    // A bad size is refused, naming it.
+    let o = star(&[
+        "eval",
+        dataset().join("groundtruth.txt").to_str().unwrap(),
+        est.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+        "--plot-size",
+        "900by500",
+    ]);
+    assert!(!o.status.success());
+    assert!(text(&o.stderr).contains("900by500"), "{}", text(&o.stderr));
 }

@@ -1,5 +1,6 @@
-//! Seeing what the tracker sees: the flight log (`--record DIR`) and the
-//! pictures of the keyframe against the camera frame.
+//! Seeing what the tracker sees: the flight log (`--record DIR`), the
+//! pictures of the keyframe against the camera frame, and the plots of
+//! `star eval --plot`.
 //!
 //! Owns the `[record]` section ([`RecordConfig`]); the tracker's end of the
 //! flight log ([`RecordSink`], fed per frame with a `Copy` [`FrameRow`] and
@@ -7,13 +8,14 @@
 //! recorder thread, which writes `trajectory.txt`, `frames.csv` and PNGs,
 //! rotates files by size and stops at a free-space floor; reading the log
 //! back ([`read_frames_log`], [`FrameLogSummary`]); the residual and view
-//! strip ([`view`]). Takes the localizer's
+//! strip ([`view`]); the trajectory plot ([`plot`]). Takes the localizer's
 //! per-frame output and keyframe, the MAVLink link's send log and TUM
 //! trajectories; gives out files.
 
 pub mod config;
 pub mod files;
 pub mod frames_log;
+pub mod plot;
 pub mod record;
 mod record_writer;
 pub mod row;
