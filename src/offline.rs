@@ -112,6 +112,10 @@ pub struct OfflineReport {
     pub integrity: Option<Integrity>,
     /// Wall time from the start of the run to the first pose output, s.
     pub first_pose_wall_s: Option<f64>,
+    /// With a flight log: per processed frame, the time the tracker
+    /// spent handing it to the log (row, and every Nth frame the picture
+    /// copy), ms.
+    pub record_ms: Vec<f64>,
 }
 
 /// Poses output that were wrong: the figure that matters most.
@@ -261,6 +265,7 @@ pub fn localize_dataset_recorded(
         evaluation: None,
         integrity: None,
         first_pose_wall_s: None,
+        record_ms: Vec::with_capacity(if record.is_some() { n } else { 0 }),
     };
     let levels = config.tracker.pyramid_levels as usize;
     let mut points: Vec<Vec<u32>> = vec![Vec::with_capacity(n); levels];
@@ -310,6 +315,7 @@ pub fn localize_dataset_recorded(
                             gain: out.gain,
                             bias: out.bias,
                         });
+                    let handed_at = Instant::now();
                     record.frame(
                         &FrameRow::new(&out, stamp_s, ms),
                         FramePixels {
@@ -323,6 +329,9 @@ pub fn localize_dataset_recorded(
                             alignment,
                         }),
                     );
+                    report
+                        .record_ms
+                        .push(handed_at.elapsed().as_secs_f64() * 1e3);
                 }
                 report.frames += 1;
                 report.track_ms.push(ms);

@@ -137,6 +137,12 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         .with_context(|| format!("writing {}", args.output.display()))?;
     print_summary(&report, &args.output);
     if let Some(record) = &record {
+        let (median_ms, p99_ms) = median_p99(&report.record_ms);
+        println!(
+            "  flight log hand-off per frame: median {:.1} us, p99 {:.1} us",
+            median_ms * 1e3,
+            p99_ms * 1e3
+        );
         print_record_summary("localize", record);
     }
     check_report(&report)

@@ -78,7 +78,7 @@ pub struct FrameLogSummary {
     pub searching: usize,
     /// Times tracking was lost.
     pub lost_events: usize,
-    /// Relocalizations (reset counter changes).
+    /// Relocalizations (reset counter changes after the first pose).
     pub relocalizations: usize,
     /// Poses that went out.
     pub poses_sent: usize,
@@ -108,6 +108,9 @@ impl FrameLogSummary {
                 RowState::Lost => s.lost += 1,
                 RowState::Searching => s.searching += 1,
             }
+            // The first pose of a run (a start verified through the gate,
+            // which increments the reset counter too) is no event.
+            let earlier_pose = s.poses_sent > 0;
             s.poses_sent += usize::from(row.pose_sent);
             if let Some(send_ns) = row.mavlink_send_ns {
                 s.mavlink_sent += 1;
@@ -121,12 +124,13 @@ impl FrameLogSummary {
                         stamp_s: row.stamp_s,
                     });
                 }
-                if row.pose_sent && row.reset_counter != p.reset_counter {
+                let resumed = row.pose_sent && earlier_pose;
+                if resumed && row.reset_counter != p.reset_counter {
                     s.relocalizations += 1;
                     s.events.push(LogEvent::Relocalized {
                         stamp_s: row.stamp_s,
                     });
-                } else if row.pose_sent && !p.pose_sent {
+                } else if resumed && !p.pose_sent {
                     s.events.push(LogEvent::Resumed {
                         stamp_s: row.stamp_s,
                     });
@@ -201,20 +205,22 @@ mod tests {
     fn counts_losses_relocalizations_and_sends() {
         use RowState::*;
         let rows = [
-            frame(1.0, Tracking, 0),
-            frame(1.1, Tracking, 0),
-            frame(1.2, Lost, 0),
-            frame(1.3, Searching, 0),
-            frame(1.4, Searching, 0),
-            frame(1.5, Tracking, 1),
-            frame(1.6, Tracking, 1),
+            frame(0.9, Searching, 0),
+            frame(1.0, Tracking, 1),
+            frame(1.1, Tracking, 1),
+            frame(1.2, Lost, 1),
+            frame(1.3, Searching, 1),
+            frame(1.4, Searching, 1),
+            frame(1.5, Tracking, 2),
+            frame(1.6, Tracking, 2),
         ];
         let s = FrameLogSummary::new(&rows);
-        assert_eq!((s.frames, s.tracking, s.lost, s.searching), (7, 4, 1, 2));
+        assert_eq!((s.frames, s.tracking, s.lost, s.searching), (8, 4, 1, 3));
         assert_eq!((s.lost_events, s.relocalizations, s.poses_sent), (1, 1, 4));
         assert_eq!(s.mavlink_sent, 4);
         let latency = s.median_send_latency_ms.expect("latency");
         assert!((latency - 3.0).abs() < 1e-3, "{latency}");
+        // The start (searching, then the first pose) is no event.
         assert_eq!(
             s.events,
             vec![

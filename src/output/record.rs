@@ -210,7 +210,7 @@ impl RecordSink {
         if every_n > 0 {
             for _ in 0..buffers {
                 let (kw, kh) = if views { (w, h) } else { (0, 0) };
-                let snapshot = Box::new(Snapshot {
+                let mut snapshot = Box::new(Snapshot {
                     index: 0,
                     stamp_s: 0.0,
                     frame: ImageU8::new(w, h, 0),
@@ -218,6 +218,11 @@ impl RecordSink {
                     keyframe_depth_m: ImageF32::new(kw, kh, 0.0),
                     alignment: None,
                 });
+                // Zeroed allocations are mapped lazily: touch every page
+                // now, not on the tracker's first copy into them.
+                snapshot.frame.fill(1);
+                snapshot.keyframe_gray.fill(1.0);
+                snapshot.keyframe_depth_m.fill(1.0);
                 // The channel holds every buffer: this never fails.
                 let _ = free_tx.try_send(snapshot);
             }

@@ -1,6 +1,7 @@
 //! The flight log's recorder thread (`star-record`): takes rows and
 //! pictures from the [`super::record::RecordSink`] queue and writes them;
-//! the tracker never waits for it.
+//! the tracker never waits for it, nor wakes it: the thread polls the
+//! queue every [`POLL`] when it finds it empty.
 //!
 //! Rows of a run with a MAVLink link are held back [`MAVLINK_HOLD_NS`]
 //! after their capture, so the link has sent (or dropped) their pose before
@@ -12,7 +13,7 @@
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering::Relaxed;
-use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender};
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -28,6 +29,9 @@ use super::view::{view_strip, warp_into_keyframe, ViewScratch};
 
 /// How long after its capture a row waits for its pose's MAVLink send.
 pub const MAVLINK_HOLD_NS: u64 = 500_000_000;
+/// How long the thread sleeps when its queue is empty: at 50 Hz about one
+/// frame's row, far below the queue's `record.queue_rows`.
+const POLL: Duration = Duration::from_millis(20);
 /// Longest time between two free-space checks.
 const CHECK_PERIOD: Duration = Duration::from_secs(1);
 /// Most bytes written between two free-space checks.
@@ -118,27 +122,34 @@ impl Writer {
 
     fn run(mut self) -> WriterReport {
         loop {
-            match self.setup.rx.recv_timeout(Duration::from_millis(100)) {
-                Ok(Message::Row(row)) => {
+            // Polled, never blocked on: a receiver parked in `recv` would
+            // make every `try_send` of the tracker a futex wake-up (and on
+            // a busy machine a context switch, measured at ~20 us median).
+            let message = match self.setup.rx.try_recv() {
+                Ok(message) => message,
+                Err(TryRecvError::Empty) => {
+                    self.housekeeping();
+                    std::thread::sleep(POLL);
+                    continue;
+                }
+                Err(TryRecvError::Disconnected) => break,
+            };
+            match message {
+                Message::Row(row) => {
                     if self.link.is_some() {
                         self.held.push_back(row);
                     } else {
                         self.write_row(&row);
                     }
                 }
-                Ok(Message::Image(snapshot)) => {
+                Message::Image(snapshot) => {
                     self.write_image(&snapshot);
                     // The pool's channel holds every buffer: never full.
                     let _ = self.setup.free.try_send(snapshot);
                 }
-                Ok(Message::Link(log)) => self.link = Some(log),
-                Err(RecvTimeoutError::Timeout) => {}
-                Err(RecvTimeoutError::Disconnected) => break,
+                Message::Link(log) => self.link = Some(log),
             }
-            self.release_held(false);
-            if self.last_check.elapsed() >= CHECK_PERIOD {
-                self.check_space();
-            }
+            self.housekeeping();
         }
         self.release_held(true);
         if let Some(files) = &mut self.setup.files {
@@ -149,6 +160,14 @@ impl Writer {
             self.report.csv_parts = files.csv.parts();
         }
         self.report
+    }
+
+    /// The held rows that are due, and the periodic free-space check.
+    fn housekeeping(&mut self) {
+        self.release_held(false);
+        if self.last_check.elapsed() >= CHECK_PERIOD {
+            self.check_space();
+        }
     }
 
     /// Writes the held rows whose MAVLink send had time to happen (all of
