@@ -4,7 +4,10 @@
 #  2. `star run`: replay camera -> iceoryx2 -> tracker -> MAVLink (udpout to a
 #     local port, where a pymavlink stand-in for the autopilot counts what
 #     arrives, when the Python venv exists) and the iceoryx2 pose service;
-#  3. ATE of the tracked trajectory against ground truth (`star eval`).
+#  3. ATE of the tracked trajectory against ground truth (`star eval`), with
+#     the flight log's counts and the plot of the trajectory and its errors
+#     ($out/trajectory.png; the flight log, `--record`, is in $out/record:
+#     trajectory, per-frame CSV, every 25th frame and its view strip).
 #
 # `scripts/demo.sh --sitl` flies instead: ArduCopter SITL (../shared/sitl,
 # or $STAR_SITL_DIR) with GPS off and EKF3 on star's vision only, the
@@ -96,8 +99,10 @@ fi
 
 init="$(awk '!/^#/ { $1 = ""; sub(/^ /, ""); print; exit }' "$data/groundtruth.txt")"
 echo "demo: star run (replay camera + tracker through iceoryx2, MAVLink to udp:$port)"
+rm -rf "$out/record"
 "$star" --log warn run --config "$out/star.toml" --source "replay:$data" \
-    --init-pose "$init" --trajectory "$out/estimate.txt" | tee "$out/run.txt"
+    --init-pose "$init" --trajectory "$out/estimate.txt" \
+    --record "$out/record" --record-every 25 --record-views | tee "$out/run.txt"
 
 if [[ -n "${rx_pid:-}" ]]; then
     sleep 0.3
@@ -116,4 +121,6 @@ print("demo: MAVLink received by the autopilot stand-in (pymavlink, CRC checked)
 PY
 fi
 echo "demo: accuracy against ground truth"
-"$star" eval "$data/groundtruth.txt" "$out/estimate.txt"
+rm -f "$out/trajectory.png"
+"$star" eval "$data/groundtruth.txt" "$out/estimate.txt" \
+    --frames "$out/record" --plot "$out/trajectory.png"

@@ -14,6 +14,7 @@ pub use crate::ipc::IpcConfig;
 pub use crate::localizer::KeyframeConfig;
 pub use crate::map::MapConfig;
 pub use crate::mavlink_io::MavlinkConfig;
+pub use crate::output::RecordConfig;
 pub use crate::reloc::RelocConfig;
 pub use crate::render::{RenderConfig, RendererKind};
 pub use crate::settings::SettingError;
@@ -69,6 +70,8 @@ pub struct Config {
     pub ipc: IpcConfig,
     /// Relocalization: database grid, search and acceptance gate.
     pub reloc: RelocConfig,
+    /// The flight log (`--record DIR`).
+    pub record: RecordConfig,
 }
 
 impl Config {
@@ -101,7 +104,7 @@ impl Config {
 
     /// Checks every section; the error names the file and the dotted key.
     pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
-        let sections: [(&str, Result<(), SettingError>); 7] = [
+        let sections: [(&str, Result<(), SettingError>); 8] = [
             ("camera", self.camera.validate()),
             ("map", self.map.validate()),
             ("ipc", self.ipc.validate()),
@@ -109,6 +112,7 @@ impl Config {
             ("keyframe", self.keyframe.validate()),
             ("mavlink", self.mavlink.validate()),
             ("reloc", self.reloc.validate()),
+            ("record", self.record.validate()),
         ];
         for (section, result) in sections {
             if let Err(e) = result {
@@ -238,6 +242,21 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/star.toml");
         let c = Config::load(&path).expect("config/star.toml must be valid");
         assert_eq!(c.reloc, crate::reloc::RelocConfig::default());
+    }
+
+    #[test]
+    fn shipped_record_section_is_the_default_and_validated() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/star.toml");
+        let c = Config::load(&path).expect("config/star.toml must be valid");
+        assert_eq!(c.record, RecordConfig::default());
+        let err = Config::parse(
+            "[record]
+queue_rows = 1
+",
+            Path::new("s.toml"),
+        )
+        .expect_err("queue_rows");
+        assert!(err.to_string().contains("record.queue_rows"), "{err}");
     }
 
     #[test]

@@ -20,6 +20,7 @@ pub mod localizer;
 pub mod map;
 pub mod mavlink_io;
 pub mod offline;
+pub mod output;
 pub mod reloc;
 pub mod render;
 pub mod rng;

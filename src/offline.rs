@@ -13,6 +13,8 @@ use crate::imgproc::ImageU8;
 use crate::render::Renderer;
 
 use crate::localizer::{Localizer, LocalizerError, TrackState};
+use crate::output::view::Alignment;
+use crate::output::{FramePixels, FrameRow, KeyframeView, RecordSink};
 
 /// Errors of an offline run.
 #[derive(Debug, thiserror::Error)]
@@ -110,6 +112,10 @@ pub struct OfflineReport {
     pub integrity: Option<Integrity>,
     /// Wall time from the start of the run to the first pose output, s.
     pub first_pose_wall_s: Option<f64>,
+    /// With a flight log: per processed frame, the time the tracker
+    /// spent handing it to the log (row, and every Nth frame the picture
+    /// copy), ms.
+    pub record_ms: Vec<f64>,
 }
 
 /// Poses output that were wrong: the figure that matters most.
@@ -179,7 +185,20 @@ pub fn localize_dataset(
     renderer: Box<dyn Renderer>,
     config: &Config,
     options: &OfflineOptions,
+    on_frame: impl FnMut(usize),
+) -> Result<OfflineReport, OfflineError> {
+    localize_dataset_recorded(dataset, renderer, config, options, on_frame, None)
+}
+
+/// [`localize_dataset`], also handing every processed frame to a flight
+/// log (`star localize --record`), stamped with dataset time.
+pub fn localize_dataset_recorded(
+    dataset: &Dataset,
+    renderer: Box<dyn Renderer>,
+    config: &Config,
+    options: &OfflineOptions,
     mut on_frame: impl FnMut(usize),
+    mut record: Option<&mut RecordSink>,
 ) -> Result<OfflineReport, OfflineError> {
     let camera = *dataset.camera();
     let n = options
@@ -246,6 +265,7 @@ pub fn localize_dataset(
         evaluation: None,
         integrity: None,
         first_pose_wall_s: None,
+        record_ms: Vec::with_capacity(if record.is_some() { n } else { 0 }),
     };
     let levels = config.tracker.pyramid_levels as usize;
     let mut points: Vec<Vec<u32>> = vec![Vec::with_capacity(n); levels];
@@ -284,6 +304,35 @@ pub fn localize_dataset(
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         match out {
             Ok(out) => {
+                if let Some(record) = record.as_deref_mut() {
+                    let keyframe = localizer.keyframe();
+                    let tracking = out.state == TrackState::Tracking;
+                    let alignment = out
+                        .world_from_camera
+                        .filter(|_| tracking)
+                        .map(|w| Alignment {
+                            camera_from_keyframe: w.inverse() * keyframe.world_from_keyframe,
+                            gain: out.gain,
+                            bias: out.bias,
+                        });
+                    let handed_at = Instant::now();
+                    record.frame(
+                        &FrameRow::new(&out, stamp_s, ms),
+                        FramePixels {
+                            pixels: image.data(),
+                            width: image.width(),
+                            height: image.height(),
+                            stride: image.width(),
+                        },
+                        Some(KeyframeView {
+                            keyframe,
+                            alignment,
+                        }),
+                    );
+                    report
+                        .record_ms
+                        .push(handed_at.elapsed().as_secs_f64() * 1e3);
+                }
                 report.frames += 1;
                 report.track_ms.push(ms);
                 report.reset_counters.push(out.reset_counter);

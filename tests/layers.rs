@@ -25,6 +25,8 @@ const LAYERS: &[&[&str]] = &[
     &["reloc"],
     // The STAR loop; the test-data generator (flight code never imports it).
     &["localizer", "synth"],
+    // Outputs for people: the flight log, its pictures, the plots.
+    &["output"],
     // Aggregates every module's config section.
     &["config"],
     // The processes.

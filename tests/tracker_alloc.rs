@@ -81,10 +81,10 @@ fn pose_at(i: usize) -> Pose {
 }
 
 /// Writes the shipped iceoryx2 config with this test's prefix into `dir`.
-fn write_iceoryx_config(dir: &Path) -> PathBuf {
+fn write_iceoryx_config(dir: &Path, tag: &str) -> PathBuf {
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/iceoryx2.toml");
     let text = std::fs::read_to_string(shipped).expect("shipped iceoryx2.toml");
-    let prefix = common::prefix("trkalloc");
+    let prefix = common::prefix(tag);
     let text = text.replace("prefix = \"iox2_\"", &format!("prefix = \"{prefix}\""));
     assert!(
         text.contains(&prefix),
@@ -304,10 +304,23 @@ fn step_until_done(tracker: &mut Tracker, stop: &mut StopWhen, processed: &Atomi
 
 #[test]
 fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
-    let _cleanup = common::Cleanup(common::prefix("trkalloc"));
+    tracker_loop("trkalloc", false);
+}
+
+/// The same with the flight log on (`--record`, a frame PNG and a view
+/// strip every 10th frame, the MAVLink send log attached): the rows and
+/// the pictures go to the recorder thread without an allocation on the
+/// tracker's.
+#[test]
+fn tracker_loop_with_the_flight_log_allocates_only_iceoryx2_pose_loans() {
+    tracker_loop("trkallocrec", true);
+}
+
+fn tracker_loop(tag: &str, record: bool) {
+    let _cleanup = common::Cleanup(common::prefix(tag));
     let dir = tempfile::tempdir().expect("tempdir");
     let mesh_path = star::map::write_obj(&wall(), dir.path(), "wall").expect("write the map");
-    let iceoryx = write_iceoryx_config(dir.path());
+    let iceoryx = write_iceoryx_config(dir.path(), tag);
     let trajectory = dir.path().join("trajectory.txt");
     let mavlink = UdpSocket::bind("127.0.0.1:0").expect("MAVLink socket");
     mavlink.set_nonblocking(true).expect("non-blocking");
@@ -350,8 +363,21 @@ fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
     let shutdown = Arc::new(AtomicBool::new(false));
     let mut tracker =
         star::tracker::start(&config, Some(world_from_camera_start), shutdown).expect("start");
+    let record_dir = dir.path().join("record");
     let mut stop = StopWhen {
         trajectory: Some(TrajectoryWriter::create(&trajectory).expect("trajectory file")),
+        record: record.then(|| {
+            let settings = star::output::RecordConfig {
+                every_n_frames: 10,
+                views: true,
+                min_free_mb: 0.0,
+                ..star::output::RecordConfig::default()
+            };
+            let mut sink = star::output::RecordSink::start(&record_dir, &settings, &camera())
+                .expect("flight log");
+            sink.attach_mavlink(tracker.mavlink.as_ref().expect("MAVLink").send_log());
+            sink
+        }),
         ..StopWhen::default()
     };
     let processed = Arc::new(AtomicU64::new(0));
@@ -424,6 +450,30 @@ fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
         1 + tracked,
         "a header line and one line per tracked frame"
     );
+    if record {
+        let log = summary.record.as_ref().expect("a flight log summary");
+        assert_eq!(log.stopped, None, "{log:?}");
+        assert_eq!(log.rows_dropped, 0, "{log:?}");
+        assert_eq!(
+            log.rows_written,
+            WARMUP + COUNTED,
+            "one row per frame: {log:?}"
+        );
+        assert_eq!(log.poses_written, tracked, "{log:?}");
+        assert!(log.images_written > 0 && log.views_written > 0, "{log:?}");
+        let rows = star::output::read_frames_log(&record_dir).expect("read frames.csv");
+        let sent = rows.iter().filter(|r| r.mavlink_send_ns.is_some()).count() as u64;
+        assert!(
+            sent > 0 && sent <= tracked,
+            "{sent} rows with a MAVLink send time of {tracked} poses"
+        );
+        assert!(rows
+            .iter()
+            .filter_map(|r| r.mavlink_send_ns.map(|t| t >= r.capture_ns))
+            .all(|after| after));
+    } else {
+        assert_eq!(summary.record, None);
+    }
 
     // The one known cost: iceoryx2 0.10 allocates one `Rc` per loaned pose
     // sample (`Publisher::loan_uninit` -> `ChunkMutSharedState::new`), and

@@ -11,10 +11,13 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::config::Config;
 use crate::dataset::Dataset;
-use crate::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport, StartMode};
+use crate::offline::{
+    localize_dataset_recorded, median_p99, OfflineOptions, OfflineReport, StartMode,
+};
 use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 
 use super::pose_arg::parse_pose;
+use super::record_arg::{print_record_summary, RecordArgs};
 
 /// Arguments of `star localize`.
 #[derive(Debug, clap::Args)]
@@ -49,6 +52,9 @@ pub struct LocalizeArgs {
     /// searches the database (needs --reloc), as in flight without a hint.
     #[arg(long, value_enum, default_value = "trusted")]
     pub start: StartArg,
+    /// The flight log.
+    #[command(flatten)]
+    pub record: RecordArgs,
 }
 
 /// `--start`.
@@ -70,6 +76,7 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
     };
     let dataset = Dataset::open(&args.dataset)
         .with_context(|| format!("opening dataset {}", args.dataset.display()))?;
+    let mut record = args.record.start(&config, dataset.camera())?;
     let map_path = args
         .map
         .clone()
@@ -114,13 +121,30 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         .unwrap_or_else(|_| ProgressStyle::default_bar())
         .progress_chars("=> "),
     );
-    let report = localize_dataset(&dataset, renderer, &config, &options, |_| bar.inc(1))?;
+    let report = localize_dataset_recorded(
+        &dataset,
+        renderer,
+        &config,
+        &options,
+        |_| bar.inc(1),
+        record.as_mut(),
+    )?;
     bar.finish_and_clear();
+    let record = record.map(crate::output::RecordSink::finish);
     report
         .estimate
         .write(&args.output)
         .with_context(|| format!("writing {}", args.output.display()))?;
     print_summary(&report, &args.output);
+    if let Some(record) = &record {
+        let (median_ms, p99_ms) = median_p99(&report.record_ms);
+        println!(
+            "  flight log hand-off per frame: median {:.1} us, p99 {:.1} us",
+            median_ms * 1e3,
+            p99_ms * 1e3
+        );
+        print_record_summary("localize", record);
+    }
     check_report(&report)
 }
 

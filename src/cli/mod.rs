@@ -17,6 +17,7 @@ mod eval;
 pub mod localize;
 mod map;
 mod pose_arg;
+mod record_arg;
 mod reloc;
 mod render;
 mod replay;
@@ -62,19 +63,9 @@ pub enum Command {
     /// Render the map at a pose (CPU rasterizer) to a gray PNG and a depth PNG.
     Render(render::RenderArgs),
     /// Absolute trajectory error (no alignment) and relative pose error of
-    /// an estimated TUM trajectory against ground truth.
-    Eval {
-        /// Ground-truth trajectory (TUM format, world_from_camera).
-        gt: PathBuf,
-        /// Estimated trajectory (TUM format, world_from_camera).
-        est: PathBuf,
-        /// Also compute the RPE over this many matched frames.
-        #[arg(long)]
-        delta: Option<usize>,
-        /// Association tolerance in seconds (5 ms suits 50 Hz; use 0.02 for 30 Hz TUM).
-        #[arg(long, default_value_t = crate::eval::DEFAULT_MAX_DT_S)]
-        max_dt: f64,
-    },
+    /// an estimated TUM trajectory against ground truth; flight-log counts
+    /// and a plot on request.
+    Eval(eval::EvalArgs),
     /// Camera calibration import (`star calib import FILE`: OpenCV, Kalibr
     /// or ROS to `[camera.intrinsics]`).
     #[command(subcommand)]
@@ -127,12 +118,7 @@ pub fn main() -> ExitCode {
         Command::Bench(cmd) => bench::run(&cmd),
         Command::Map(cmd) => map::run(&cmd),
         Command::Render(args) => render::run(&args),
-        Command::Eval {
-            gt,
-            est,
-            delta,
-            max_dt,
-        } => eval::run(&gt, &est, delta, max_dt),
+        Command::Eval(args) => eval::run(&args),
         Command::Synth(args) => synth::run(&args),
         Command::Reloc(cmd) => reloc::run(&cmd),
         Command::Calib(cmd) => calib::run(&cmd),

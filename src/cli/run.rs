@@ -57,7 +57,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         config.camera.intrinsics = *dataset.camera();
     }
     let hint = initial_pose(args.track.init_pose.as_deref(), &config)?;
-    let mut stop = stop_when(&args.track)?;
+    let mut stop = stop_when(&args.track, &config)?;
     let tracker = match start(&config, hint, shutdown.clone()) {
         Ok(tracker) => tracker,
         Err(e) if e.is::<crate::tracker::StoppedDuringStart>() => {

@@ -23,6 +23,7 @@ use crate::service::signals;
 use crate::tracker::{start, StopReason, StopWhen, StoppedDuringStart, TrackSummary};
 
 use super::pose_arg::parse_pose;
+use super::record_arg::{print_record_summary, RecordArgs};
 
 /// Options shared by `star track` and `star run`.
 #[derive(Debug, Clone, clap::Args)]
@@ -55,6 +56,9 @@ pub struct TrackArgs {
     /// Stop after this many seconds without a frame, once frames arrived.
     #[arg(long)]
     pub idle_exit_s: Option<f64>,
+    /// The flight log.
+    #[command(flatten)]
+    pub record: RecordArgs,
 }
 
 /// The initial pose hint: `--init-pose`, else `tracker.init_pose`, else
@@ -108,8 +112,9 @@ pub fn load_config(args: &TrackArgs) -> Result<Config> {
 }
 
 /// The stop conditions given on the command line; creates the trajectory
-/// file, so a bad `--trajectory` path fails before the run, not after it.
-pub fn stop_when(args: &TrackArgs) -> Result<StopWhen> {
+/// file and starts the flight log, so a bad `--trajectory` or `--record`
+/// path fails before the run, not after it.
+pub fn stop_when(args: &TrackArgs, config: &Config) -> Result<StopWhen> {
     let trajectory = match &args.trajectory {
         Some(path) => Some(
             TrajectoryWriter::create(path)
@@ -122,6 +127,7 @@ pub fn stop_when(args: &TrackArgs) -> Result<StopWhen> {
         idle: args.idle_exit_s.map(Duration::from_secs_f64),
         source_done: None,
         trajectory,
+        record: args.record.start(config, &config.camera.intrinsics)?,
     })
 }
 
@@ -130,7 +136,7 @@ pub fn run(args: &TrackArgs) -> Result<()> {
     let shutdown = signals::install_shutdown_handler()?;
     let config = load_config(args)?;
     let hint = initial_pose(args.init_pose.as_deref(), &config)?;
-    let mut stop = stop_when(args)?;
+    let mut stop = stop_when(args, &config)?;
     let tracker = match start(&config, hint, shutdown) {
         Ok(tracker) => tracker,
         Err(e) if e.is::<StoppedDuringStart>() => {
@@ -147,6 +153,9 @@ pub fn run(args: &TrackArgs) -> Result<()> {
 pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
     if let (Some(path), Some(poses)) = (trajectory, summary.trajectory_poses) {
         println!("track: wrote {poses} poses to {}", path.display());
+    }
+    if let Some(record) = &summary.record {
+        print_record_summary("track", record);
     }
     let rate = if summary.frames > 0 {
         100.0 * summary.tracked as f64 / summary.frames as f64

@@ -108,6 +108,10 @@ pub struct FrameOutput {
     pub stale_keyframe: bool,
     /// Incremented on every discontinuity (relocalization, re-initialization).
     pub reset_counter: u8,
+    /// No pose, and the loop is searching rather than just lost: this frame
+    /// was searched in the relocalization database, or a start pose or
+    /// relocalization candidate is being verified.
+    pub searching: bool,
 }
 
 /// Running counters for the summary.
@@ -392,6 +396,7 @@ impl Localizer {
             keyframe_age_s,
             stale_keyframe: self.pending,
             reset_counter: self.reset_counter,
+            searching: false,
         };
         if !tracking {
             if self.state == TrackState::Tracking {
@@ -438,11 +443,13 @@ impl Localizer {
             }
             self.tracked_run = 0;
             self.correlation_mean = None;
+            let attempts = self.stats.reloc_attempts;
             if self.reloc.is_some() && self.reloc_due(capture_ns) {
                 self.relocalize(pixels, stride, capture_ns);
                 out.reset_counter = self.reset_counter;
             }
             self.reverify_without_database(capture_ns);
+            out.searching = self.stats.reloc_attempts > attempts || self.verify_left > 0;
             return Ok(out);
         }
         if dt_s > 0.0 {
@@ -459,6 +466,7 @@ impl Localizer {
             self.verify_left -= 1;
             if self.verify_left > 0 {
                 self.stats.lost_frames += 1;
+                out.searching = true;
                 return Ok(out);
             }
             self.confirm_relocalization();

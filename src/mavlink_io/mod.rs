@@ -58,6 +58,7 @@ pub mod link;
 pub mod messages;
 mod receiver;
 pub mod reset;
+pub mod send_log;
 mod sender;
 pub mod signing;
 pub mod stamp;
@@ -75,6 +76,7 @@ use mavlink::MavHeader;
 pub use config::{MavlinkConfig, PoseMessage, TransformConfig};
 pub use frames::{FrameConverter, NedPose};
 pub use link::{LinkAddress, LinkError};
+pub use send_log::{SendLog, SendRecord};
 pub use stats::LinkStats;
 
 use crate::geometry::Pose;
@@ -150,6 +152,8 @@ pub(crate) struct Shared {
     /// other way round).
     pub clock: Mutex<PoseClock>,
     pub counters: Arc<Counters>,
+    /// The poses sent lately, for the flight log.
+    pub send_log: Arc<SendLog>,
 }
 
 impl Shared {
@@ -244,6 +248,7 @@ impl MavlinkLink {
                 config.min_usec_spacing_ns(),
             )),
             counters: Arc::default(),
+            send_log: Arc::default(),
         });
         let (done_tx, done_rx) = mpsc::channel();
         let mut handle = MavlinkHandle {
@@ -298,6 +303,12 @@ impl MavlinkHandle {
     /// Counters: messages sent by type, drops by reason, link up or down.
     pub fn stats(&self) -> LinkStats {
         self.shared.counters.snapshot()
+    }
+
+    /// The poses sent lately (capture time, send time, TIMESYNC offset),
+    /// for the flight log.
+    pub fn send_log(&self) -> Arc<SendLog> {
+        self.shared.send_log.clone()
     }
 
     /// Stops the threads and waits up to [`SHUTDOWN_TIMEOUT`] for them.

@@ -20,7 +20,7 @@ use super::messages::{self, LinkState};
 use super::reset::ResetCounter;
 use super::stamp::{Stamp, StreamClock, SETTLE_PERIOD_MS};
 use super::stats::bump;
-use super::{PoseMessage, PoseSample, Shared};
+use super::{PoseMessage, PoseSample, SendRecord, Shared};
 use crate::clock::monotonic_now_ns;
 
 /// HEARTBEAT period.
@@ -350,6 +350,7 @@ impl Sender {
             .start_stream(monotonic_now_ns());
         let counters = &self.shared.counters;
         counters.set_offset(None);
+        self.shared.send_log.set_offset(None);
         counters.monotonic_clock.store(false, Ordering::Relaxed);
     }
 
@@ -361,6 +362,7 @@ impl Sender {
         let stamp = clock.stamp(capture_ns, monotonic_now_ns(), estimate);
         let counters = &shared.counters;
         counters.set_offset(clock.applied_offset_ns());
+        shared.send_log.set_offset(clock.applied_offset_ns());
         counters
             .monotonic_clock
             .store(clock.clock() == StreamClock::Monotonic, Ordering::Relaxed);
@@ -477,6 +479,11 @@ impl Sender {
         if self.send(&message) {
             self.last_pose_sent = Some(Instant::now());
             bump(counter);
+            shared.send_log.push(SendRecord {
+                capture_ns: sample.capture_ns,
+                send_ns: monotonic_now_ns(),
+                timesync_offset_ns: shared.send_log.offset_ns(),
+            });
             counters
                 .reset_counter
                 .store(reset_counter, Ordering::Relaxed);

@@ -143,6 +143,18 @@ impl Keyframe {
         }
     }
 
+    /// The rendered intensities of the finest level (ideal pinhole, gray
+    /// levels 0..=255), as the last [`Keyframe::prepare`] left them.
+    pub fn gray(&self) -> &ImageF32 {
+        self.scratch.gray.level(0)
+    }
+
+    /// The rendered metric depth of the finest level (meters; `NO_DEPTH`
+    /// where nothing was drawn), as the last [`Keyframe::prepare`] left it.
+    pub fn depth_m(&self) -> &ImageF32 {
+        &self.scratch.depth[0]
+    }
+
     /// Number of points at level `l`.
     pub fn point_count(&self, l: usize) -> usize {
         self.levels.get(l).map_or(0, |lv| lv.points.len())

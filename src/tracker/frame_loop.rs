@@ -33,6 +33,8 @@ use crate::ipc::{
 use crate::localizer::{FrameOutput, Localizer, LocalizerError, TrackState};
 use crate::mavlink_io::frames::{twist_covariance_world_from_camera, upper_triangle};
 use crate::mavlink_io::{LinkStats, MavlinkHandle, PoseSample};
+use crate::output::view::Alignment;
+use crate::output::{FramePixels, FrameRow, KeyframeView, RecordSink, RecordSummary};
 use crate::service::{Service, ServiceState, StatusBoard, Watchdog};
 
 /// Longest wait on the frame event before the loop checks its flags again.
@@ -80,6 +82,8 @@ pub struct StopWhen {
     /// Stream the tracked poses to this file (created before the loop
     /// starts, so a bad path fails at start, not at the end).
     pub trajectory: Option<TrajectoryWriter>,
+    /// The flight log (`--record DIR`), started before the loop.
+    pub record: Option<RecordSink>,
 }
 
 /// What the loop did.
@@ -113,6 +117,8 @@ pub struct TrackSummary {
     /// Why the loop ended (`None` only for a summary not made by
     /// [`Tracker::run`]).
     pub stop_reason: Option<StopReason>,
+    /// What the flight log recorded, when one was kept.
+    pub record: Option<RecordSummary>,
 }
 
 /// Frames refused because their size is not the calibration's: a camera
@@ -214,6 +220,9 @@ impl Tracker {
     /// Runs until SIGTERM/SIGINT or a `stop` condition: [`Tracker::step`]
     /// until it returns [`Step::Stop`], then [`Tracker::finish`].
     pub fn run(mut self, stop: &mut StopWhen) -> Result<TrackSummary> {
+        if let (Some(record), Some(link)) = (stop.record.as_mut(), &self.mavlink) {
+            record.attach_mavlink(link.send_log());
+        }
         let reason = loop {
             if let Step::Stop(reason) = self.step(stop)? {
                 break reason;
@@ -345,6 +354,7 @@ impl Tracker {
             writer.flush().context("trajectory file")?;
             summary.trajectory_poses = Some(writer.poses());
         }
+        summary.record = stop.record.take().map(RecordSink::finish);
         Ok(summary)
     }
 
@@ -352,6 +362,7 @@ impl Tracker {
     fn process(&mut self, view: &FrameView<'_>, stop: &mut StopWhen) -> Step {
         let header = view.header;
         let state = &mut self.looping;
+        let started = Instant::now();
         let out = match self.localizer.process_frame(
             view.pixels,
             view.width(),
@@ -391,6 +402,7 @@ impl Tracker {
                 return Step::Rejected;
             }
         };
+        let track_ms = started.elapsed().as_secs_f64() * 1e3;
         state.frames += 1;
         if out.keyframe_id != state.keyframe_id {
             state.keyframe_id = out.keyframe_id;
@@ -404,16 +416,40 @@ impl Tracker {
             .or(state.world_from_camera_last)
             .unwrap_or(self.world_from_camera_start);
         let covariance_world = twist_covariance_world_from_camera(&pose, &out.covariance);
+        let stamp_s = if header.dataset_stamp_ns == NO_DATASET_STAMP {
+            header.capture_ns as f64 * 1e-9
+        } else {
+            header.dataset_stamp_ns as f64 * 1e-9
+        };
+        if let Some(record) = stop.record.as_mut() {
+            let keyframe = self.localizer.keyframe();
+            let alignment = out
+                .world_from_camera
+                .filter(|_| tracking)
+                .map(|w| Alignment {
+                    camera_from_keyframe: w.inverse() * keyframe.world_from_keyframe,
+                    gain: out.gain,
+                    bias: out.bias,
+                });
+            record.frame(
+                &FrameRow::new(&out, stamp_s, track_ms),
+                FramePixels {
+                    pixels: view.pixels,
+                    width: view.width(),
+                    height: view.height(),
+                    stride: header.stride as usize,
+                },
+                Some(KeyframeView {
+                    keyframe,
+                    alignment,
+                }),
+            );
+        }
         if tracking {
             state.tracked += 1;
             state.world_from_camera_last = Some(pose);
             state.status.set_state(ServiceState::Tracking);
             if let Some(writer) = stop.trajectory.as_mut() {
-                let stamp_s = if header.dataset_stamp_ns == NO_DATASET_STAMP {
-                    header.capture_ns as f64 * 1e-9
-                } else {
-                    header.dataset_stamp_ns as f64 * 1e-9
-                };
                 if let Err(e) = writer.push(stamp_s, &pose) {
                     state.trajectory_errors += 1;
                     if state.trajectory_errors.is_power_of_two() {
