@@ -112,9 +112,9 @@ pub struct OfflineReport {
     pub integrity: Option<Integrity>,
     /// Wall time from the start of the run to the first pose output, s.
     pub first_pose_wall_s: Option<f64>,
-    /// With a flight log: per processed frame, the time the tracker
-    /// spent handing it to the log (row, and every Nth frame the picture
-    /// copy), ms.
+    /// With a flight log or the live view: per processed frame, the time
+    /// the tracker spent handing it over (row, and every Nth frame the
+    /// picture copy), ms.
     pub record_ms: Vec<f64>,
 }
 
@@ -190,15 +190,47 @@ pub fn localize_dataset(
     localize_dataset_recorded(dataset, renderer, config, options, on_frame, None)
 }
 
-/// [`localize_dataset`], also handing every processed frame to a flight
-/// log (`star localize --record`), stamped with dataset time.
+/// Where an offline run hands its frames besides its report: the flight
+/// log (`--record`) and the live view (`--rerun`).
+#[derive(Default)]
+pub struct OfflineSinks {
+    /// The flight log.
+    pub record: Option<RecordSink>,
+    /// The live view.
+    #[cfg(feature = "rerun")]
+    pub rerun: Option<crate::output::rerun_log::RerunSink>,
+}
+
+impl OfflineSinks {
+    /// The flight log alone (the live view, with the `rerun` feature, is
+    /// set after).
+    pub fn with_record(record: Option<RecordSink>) -> Self {
+        Self {
+            record,
+            #[cfg(feature = "rerun")]
+            rerun: None,
+        }
+    }
+
+    /// True when nothing is on.
+    pub fn is_empty(&self) -> bool {
+        #[cfg(feature = "rerun")]
+        if self.rerun.is_some() {
+            return false;
+        }
+        self.record.is_none()
+    }
+}
+
+/// [`localize_dataset`], also handing every processed frame to `sinks`
+/// (`star localize --record`, `--rerun`), stamped with dataset time.
 pub fn localize_dataset_recorded(
     dataset: &Dataset,
     renderer: Box<dyn Renderer>,
     config: &Config,
     options: &OfflineOptions,
     mut on_frame: impl FnMut(usize),
-    mut record: Option<&mut RecordSink>,
+    mut sinks: Option<&mut OfflineSinks>,
 ) -> Result<OfflineReport, OfflineError> {
     let camera = *dataset.camera();
     let n = options
@@ -265,7 +297,7 @@ pub fn localize_dataset_recorded(
         evaluation: None,
         integrity: None,
         first_pose_wall_s: None,
-        record_ms: Vec::with_capacity(if record.is_some() { n } else { 0 }),
+        record_ms: Vec::with_capacity(if sinks.is_some() { n } else { 0 }),
     };
     let levels = config.tracker.pyramid_levels as usize;
     let mut points: Vec<Vec<u32>> = vec![Vec::with_capacity(n); levels];
@@ -304,31 +336,33 @@ pub fn localize_dataset_recorded(
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         match out {
             Ok(out) => {
-                if let Some(record) = record.as_deref_mut() {
+                if let Some(sinks) = sinks.as_deref_mut() {
                     let keyframe = localizer.keyframe();
-                    let tracking = out.state == TrackState::Tracking;
-                    let alignment = out
-                        .world_from_camera
-                        .filter(|_| tracking)
-                        .map(|w| Alignment {
-                            camera_from_keyframe: w.inverse() * keyframe.world_from_keyframe,
-                            gain: out.gain,
-                            bias: out.bias,
-                        });
+                    let alignment = Alignment::of(&out, keyframe);
+                    let row = FrameRow::new(&out, stamp_s, ms);
+                    let pixels = FramePixels {
+                        pixels: image.data(),
+                        width: image.width(),
+                        height: image.height(),
+                        stride: image.width(),
+                    };
                     let handed_at = Instant::now();
-                    record.frame(
-                        &FrameRow::new(&out, stamp_s, ms),
-                        FramePixels {
-                            pixels: image.data(),
-                            width: image.width(),
-                            height: image.height(),
-                            stride: image.width(),
-                        },
-                        Some(KeyframeView {
-                            keyframe,
-                            alignment,
-                        }),
-                    );
+                    if let Some(record) = sinks.record.as_mut() {
+                        record.frame(
+                            &row,
+                            pixels,
+                            Some(KeyframeView {
+                                keyframe,
+                                alignment,
+                            }),
+                        );
+                    }
+                    #[cfg(feature = "rerun")]
+                    if let Some(rerun) = sinks.rerun.as_mut() {
+                        rerun.frame(&row, pixels, keyframe, alignment);
+                        let attempts = localizer.stats().reloc_attempts;
+                        rerun.reloc_attempt(attempts, localizer.last_reloc_attempt());
+                    }
                     report
                         .record_ms
                         .push(handed_at.elapsed().as_secs_f64() * 1e3);

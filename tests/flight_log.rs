@@ -284,3 +284,25 @@ fn eval_plot_writes_a_png_of_the_requested_size() {
     assert!(!o.status.success());
     assert!(text(&o.stderr).contains("900by500"), "{}", text(&o.stderr));
 }
+
+/// Without the `rerun` feature, `--rerun` is refused at start, saying how
+/// to get it (with it, `tests/rerun_log.rs` runs it).
+#[cfg(not(feature = "rerun"))]
+#[test]
+fn rerun_without_the_feature_is_refused_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let est = dir.path().join("est.txt");
+    let o = star(&[
+        "localize",
+        dataset().to_str().unwrap(),
+        "-o",
+        est.to_str().unwrap(),
+        "--rerun",
+        "save:x.rrd",
+    ]);
+    let err = text(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("--features rerun"), "{err}");
+    let o = star(&["localize", dataset().to_str().unwrap(), "--rerun", "udp:x"]);
+    assert!(text(&o.stderr).contains("expected save:FILE.rrd or connect:"));
+}

@@ -304,7 +304,7 @@ fn step_until_done(tracker: &mut Tracker, stop: &mut StopWhen, processed: &Atomi
 
 #[test]
 fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
-    tracker_loop("trkalloc", false);
+    tracker_loop("trkalloc", false, false);
 }
 
 /// The same with the flight log on (`--record`, a frame PNG and a view
@@ -313,10 +313,19 @@ fn tracker_loop_allocates_only_iceoryx2_pose_loans() {
 /// tracker's.
 #[test]
 fn tracker_loop_with_the_flight_log_allocates_only_iceoryx2_pose_loans() {
-    tracker_loop("trkallocrec", true);
+    tracker_loop("trkallocrec", true, false);
 }
 
-fn tracker_loop(tag: &str, record: bool) {
+/// The same with the live view on (`--rerun save:`, pictures every 10th
+/// frame): rows, pictures and the keyframe's points go to the logging
+/// thread without an allocation on the tracker's.
+#[cfg(feature = "rerun")]
+#[test]
+fn tracker_loop_with_the_live_view_allocates_only_iceoryx2_pose_loans() {
+    tracker_loop("trkallocrr", false, true);
+}
+
+fn tracker_loop(tag: &str, record: bool, rerun: bool) {
     let _cleanup = common::Cleanup(common::prefix(tag));
     let dir = tempfile::tempdir().expect("tempdir");
     let mesh_path = star::map::write_obj(&wall(), dir.path(), "wall").expect("write the map");
@@ -378,8 +387,21 @@ fn tracker_loop(tag: &str, record: bool) {
             sink.attach_mavlink(tracker.mavlink.as_ref().expect("MAVLink").send_log());
             sink
         }),
+        #[cfg(feature = "rerun")]
+        rerun: rerun.then(|| {
+            star::output::rerun_log::RerunSink::start(
+                &star::output::rerun_target::RerunTarget::Save(dir.path().join("live.rrd")),
+                &camera(),
+                &config.tracker,
+                10,
+                star::output::rerun_log::RerunStatics::default(),
+            )
+            .expect("live view")
+        }),
         ..StopWhen::default()
     };
+    #[cfg(not(feature = "rerun"))]
+    let _ = rerun;
     let processed = Arc::new(AtomicU64::new(0));
     let camera = {
         let processed = processed.clone();
@@ -473,6 +495,14 @@ fn tracker_loop(tag: &str, record: bool) {
             .all(|after| after));
     } else {
         assert_eq!(summary.record, None);
+    }
+    #[cfg(feature = "rerun")]
+    if rerun {
+        let live = summary.rerun.as_ref().expect("a live view summary");
+        assert_eq!(live.rows, WARMUP + COUNTED, "{live:?}");
+        assert_eq!(live.rows_dropped, 0, "{live:?}");
+        assert!(live.pictures > 0, "{live:?}");
+        assert_eq!(live.log_errors, 0, "{live:?}");
     }
 
     // The one known cost: iceoryx2 0.10 allocates one `Rc` per loaned pose

@@ -12,12 +12,13 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::config::Config;
 use crate::dataset::Dataset;
 use crate::offline::{
-    localize_dataset_recorded, median_p99, OfflineOptions, OfflineReport, StartMode,
+    localize_dataset_recorded, median_p99, OfflineOptions, OfflineReport, OfflineSinks, StartMode,
 };
 use crate::reloc::{map_fingerprint, RelocDatabase, Relocalizer};
 
 use super::pose_arg::parse_pose;
 use super::record_arg::{print_record_summary, RecordArgs};
+use super::rerun_arg::RerunArgs;
 
 /// Arguments of `star localize`.
 #[derive(Debug, clap::Args)]
@@ -55,6 +56,9 @@ pub struct LocalizeArgs {
     /// The flight log.
     #[command(flatten)]
     pub record: RecordArgs,
+    /// The live view.
+    #[command(flatten)]
+    pub rerun: RerunArgs,
 }
 
 /// `--start`.
@@ -76,7 +80,8 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
     };
     let dataset = Dataset::open(&args.dataset)
         .with_context(|| format!("opening dataset {}", args.dataset.display()))?;
-    let mut record = args.record.start(&config, dataset.camera())?;
+    args.rerun.target()?;
+    let mut sinks = OfflineSinks::with_record(args.record.start(&config, dataset.camera())?);
     let map_path = args
         .map
         .clone()
@@ -95,6 +100,15 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         }
         None => None,
     };
+    #[cfg(feature = "rerun")]
+    {
+        sinks.rerun = args.rerun.start(dataset.camera(), &config.tracker, || {
+            Ok(crate::output::rerun_log::RerunStatics {
+                mesh: Some(mesh.clone()),
+                ground_truth: dataset.ground_truth.clone(),
+            })
+        })?;
+    }
     let kind = config.render.renderer;
     let renderer = crate::render::select::make_renderer(kind, mesh)
         .with_context(|| format!("starting the `{kind:?}` renderer"))?;
@@ -127,23 +141,34 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         &config,
         &options,
         |_| bar.inc(1),
-        record.as_mut(),
+        (!sinks.is_empty()).then_some(&mut sinks),
     )?;
     bar.finish_and_clear();
-    let record = record.map(crate::output::RecordSink::finish);
+    let record = sinks.record.take().map(crate::output::RecordSink::finish);
+    #[cfg(feature = "rerun")]
+    let rerun = sinks
+        .rerun
+        .take()
+        .map(crate::output::rerun_log::RerunSink::finish);
     report
         .estimate
         .write(&args.output)
         .with_context(|| format!("writing {}", args.output.display()))?;
     print_summary(&report, &args.output);
-    if let Some(record) = &record {
+    if !report.record_ms.is_empty() {
         let (median_ms, p99_ms) = median_p99(&report.record_ms);
         println!(
-            "  flight log hand-off per frame: median {:.1} us, p99 {:.1} us",
+            "  flight log / live view hand-off per frame: median {:.1} us, p99 {:.1} us",
             median_ms * 1e3,
             p99_ms * 1e3
         );
+    }
+    if let Some(record) = &record {
         print_record_summary("localize", record);
+    }
+    #[cfg(feature = "rerun")]
+    if let Some(rerun) = &rerun {
+        super::rerun_arg::print_rerun_summary("localize", rerun);
     }
     check_report(&report)
 }

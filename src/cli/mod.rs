@@ -21,6 +21,7 @@ mod record_arg;
 mod reloc;
 mod render;
 mod replay;
+mod rerun_arg;
 mod run;
 mod synth;
 mod track;

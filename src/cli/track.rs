@@ -24,6 +24,7 @@ use crate::tracker::{start, StopReason, StopWhen, StoppedDuringStart, TrackSumma
 
 use super::pose_arg::parse_pose;
 use super::record_arg::{print_record_summary, RecordArgs};
+use super::rerun_arg::RerunArgs;
 
 /// Options shared by `star track` and `star run`.
 #[derive(Debug, Clone, clap::Args)]
@@ -59,6 +60,9 @@ pub struct TrackArgs {
     /// The flight log.
     #[command(flatten)]
     pub record: RecordArgs,
+    /// The live view.
+    #[command(flatten)]
+    pub rerun: RerunArgs,
 }
 
 /// The initial pose hint: `--init-pose`, else `tracker.init_pose`, else
@@ -112,9 +116,11 @@ pub fn load_config(args: &TrackArgs) -> Result<Config> {
 }
 
 /// The stop conditions given on the command line; creates the trajectory
-/// file and starts the flight log, so a bad `--trajectory` or `--record`
-/// path fails before the run, not after it.
+/// file and starts the flight log and the live view, so a bad
+/// `--trajectory`, `--record` or `--rerun` fails before the run, not after
+/// it.
 pub fn stop_when(args: &TrackArgs, config: &Config) -> Result<StopWhen> {
+    args.rerun.target()?;
     let trajectory = match &args.trajectory {
         Some(path) => Some(
             TrajectoryWriter::create(path)
@@ -128,6 +134,19 @@ pub fn stop_when(args: &TrackArgs, config: &Config) -> Result<StopWhen> {
         source_done: None,
         trajectory,
         record: args.record.start(config, &config.camera.intrinsics)?,
+        #[cfg(feature = "rerun")]
+        rerun: args
+            .rerun
+            .start(&config.camera.intrinsics, &config.tracker, || {
+                // The tracker loads the map too; the live view shows it once.
+                let mesh = config.map.load_mesh().with_context(|| {
+                    format!("loading map {} for --rerun", config.map.mesh.display())
+                })?;
+                Ok(crate::output::rerun_log::RerunStatics {
+                    mesh: Some(std::sync::Arc::new(mesh)),
+                    ground_truth: None,
+                })
+            })?,
     })
 }
 
@@ -156,6 +175,10 @@ pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
     }
     if let Some(record) = &summary.record {
         print_record_summary("track", record);
+    }
+    #[cfg(feature = "rerun")]
+    if let Some(rerun) = &summary.rerun {
+        super::rerun_arg::print_rerun_summary("track", rerun);
     }
     let rate = if summary.frames > 0 {
         100.0 * summary.tracked as f64 / summary.frames as f64

@@ -114,6 +114,56 @@ pub struct FrameOutput {
     pub searching: bool,
 }
 
+/// Candidates of a relocalization attempt kept for the logs
+/// ([`Localizer::last_reloc_attempt`]); an attempt that tries more keeps
+/// the first ones.
+pub const ATTEMPT_CANDIDATES: usize = 16;
+
+/// One candidate a relocalization attempt tried, and the gate's verdict.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RelocCandidate {
+    /// The candidate's pose (the refined pose when the gate accepted it).
+    pub world_from_camera: Pose,
+    /// From the landmark matches (P3P), not from the database's views.
+    pub from_landmarks: bool,
+    /// The gate accepted it.
+    pub accepted: bool,
+}
+
+/// What the last relocalization attempt tried. Fixed size, copied out
+/// without allocating.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RelocAttempt {
+    /// Capture time of the lost frame searched, CLOCK_MONOTONIC ns.
+    pub capture_ns: u64,
+    /// Candidates tried (all of them, also beyond [`ATTEMPT_CANDIDATES`]).
+    pub tried: usize,
+    /// The first candidates tried, in order; `min(tried,
+    /// ATTEMPT_CANDIDATES)` of them are valid.
+    pub candidates: [RelocCandidate; ATTEMPT_CANDIDATES],
+}
+
+impl Default for RelocAttempt {
+    fn default() -> Self {
+        Self {
+            capture_ns: 0,
+            tried: 0,
+            candidates: [RelocCandidate {
+                world_from_camera: Pose::identity(),
+                from_landmarks: false,
+                accepted: false,
+            }; ATTEMPT_CANDIDATES],
+        }
+    }
+}
+
+impl RelocAttempt {
+    /// The valid candidates.
+    pub fn candidates(&self) -> &[RelocCandidate] {
+        &self.candidates[..self.tried.min(ATTEMPT_CANDIDATES)]
+    }
+}
+
 /// Running counters for the summary.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct LoopStats {
@@ -177,6 +227,8 @@ pub struct Localizer {
     /// Gate settings for a verified start without a database
     /// ([`Localizer::verify_start`]).
     start_gate: Option<crate::reloc::RelocConfig>,
+    /// The candidates of the last relocalization attempt, for the logs.
+    last_attempt: RelocAttempt,
 }
 
 impl Localizer {
@@ -242,6 +294,7 @@ impl Localizer {
             verify_left: 0,
             start_gate: None,
             attempt_budget_s: 0.0,
+            last_attempt: RelocAttempt::default(),
         })
     }
 
@@ -267,6 +320,12 @@ impl Localizer {
     pub fn forget_motion(&mut self) {
         self.velocity = nalgebra::Vector6::zeros();
         self.tracked_run = 0;
+    }
+
+    /// What the last relocalization attempt tried (the attempt whose
+    /// number is `stats().reloc_attempts`); empty before the first.
+    pub fn last_reloc_attempt(&self) -> &RelocAttempt {
+        &self.last_attempt
     }
 
     /// The keyframe currently tracked against.

@@ -206,6 +206,8 @@ impl Localizer {
             return;
         };
         self.stats.reloc_attempts += 1;
+        self.last_attempt.capture_ns = capture_ns;
+        self.last_attempt.tried = 0;
         let started = std::time::Instant::now();
         // The render thread must be idle: take (and drop) a pending keyframe.
         if self.pending {
@@ -317,6 +319,17 @@ impl Localizer {
                     &mut render,
                     &mut |kf| worker.recycle(kf),
                 );
+                let attempt = &mut self.last_attempt;
+                if let Some(slot) = attempt.candidates.get_mut(attempt.tried) {
+                    *slot = super::RelocCandidate {
+                        world_from_camera: found
+                            .as_ref()
+                            .map_or(candidate.world_from_camera, |(v, _)| v.world_from_camera),
+                        from_landmarks: matches!(source, Source::Landmark),
+                        accepted: found.is_some(),
+                    };
+                }
+                attempt.tried += 1;
                 let Some((v, kf)) = found else {
                     if refused {
                         break;

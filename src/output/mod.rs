@@ -8,7 +8,8 @@
 //! recorder thread, which writes `trajectory.txt`, `frames.csv` and PNGs,
 //! rotates files by size and stops at a free-space floor; reading the log
 //! back ([`read_frames_log`], [`FrameLogSummary`]); the residual and view
-//! strip ([`view`]); the trajectory plot ([`plot`]). Takes the localizer's
+//! strip ([`view`]); the trajectory plot ([`plot`]); with the cargo
+//! feature `rerun`, the live view in Rerun (`rerun_log`, `--rerun`). Takes the localizer's
 //! per-frame output and keyframe, the MAVLink link's send log and TUM
 //! trajectories; gives out files.
 
@@ -18,6 +19,11 @@ pub mod frames_log;
 pub mod plot;
 pub mod record;
 mod record_writer;
+#[cfg(feature = "rerun")]
+pub mod rerun_log;
+#[cfg(feature = "rerun")]
+mod rerun_logger;
+pub mod rerun_target;
 pub mod row;
 pub mod view;
 

@@ -12,7 +12,9 @@ use nalgebra::Vector3;
 
 use crate::geometry::{PinholeCamera, Pose};
 use crate::imgproc::{ImageF32, ImageU8};
+use crate::localizer::{FrameOutput, TrackState};
 use crate::render::NO_DEPTH;
+use crate::track::Keyframe;
 
 /// Gray levels of residual per gray level of the picture: the residual is
 /// drawn as `128 + RESIDUAL_GAIN * (frame - (gain * keyframe + bias))`, so
@@ -64,6 +66,19 @@ pub struct Alignment {
     pub gain: f32,
     /// Photometric bias, gray levels.
     pub bias: f32,
+}
+
+impl Alignment {
+    /// The alignment of a tracked frame against `keyframe` (the keyframe
+    /// it was tracked against); `None` for a frame without a pose.
+    pub fn of(out: &FrameOutput, keyframe: &Keyframe) -> Option<Self> {
+        let world_from_camera = out.world_from_camera?;
+        (out.state == TrackState::Tracking).then(|| Self {
+            camera_from_keyframe: world_from_camera.inverse() * keyframe.world_from_keyframe,
+            gain: out.gain,
+            bias: out.bias,
+        })
+    }
 }
 
 /// Warps `frame` into the keyframe: for each keyframe pixel with depth,

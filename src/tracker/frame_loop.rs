@@ -84,6 +84,23 @@ pub struct StopWhen {
     pub trajectory: Option<TrajectoryWriter>,
     /// The flight log (`--record DIR`), started before the loop.
     pub record: Option<RecordSink>,
+    /// The live view (`--rerun`), started before the loop.
+    #[cfg(feature = "rerun")]
+    pub rerun: Option<crate::output::rerun_log::RerunSink>,
+}
+
+impl StopWhen {
+    /// Whether the live view is on.
+    #[cfg(feature = "rerun")]
+    fn has_rerun(&self) -> bool {
+        self.rerun.is_some()
+    }
+
+    /// Whether the live view is on: never without the `rerun` feature.
+    #[cfg(not(feature = "rerun"))]
+    fn has_rerun(&self) -> bool {
+        false
+    }
 }
 
 /// What the loop did.
@@ -119,6 +136,9 @@ pub struct TrackSummary {
     pub stop_reason: Option<StopReason>,
     /// What the flight log recorded, when one was kept.
     pub record: Option<RecordSummary>,
+    /// What the live view logged, when it was on.
+    #[cfg(feature = "rerun")]
+    pub rerun: Option<crate::output::rerun_log::RerunSummary>,
 }
 
 /// Frames refused because their size is not the calibration's: a camera
@@ -355,6 +375,13 @@ impl Tracker {
             summary.trajectory_poses = Some(writer.poses());
         }
         summary.record = stop.record.take().map(RecordSink::finish);
+        #[cfg(feature = "rerun")]
+        {
+            summary.rerun = stop
+                .rerun
+                .take()
+                .map(crate::output::rerun_log::RerunSink::finish);
+        }
         Ok(summary)
     }
 
@@ -421,29 +448,32 @@ impl Tracker {
         } else {
             header.dataset_stamp_ns as f64 * 1e-9
         };
-        if let Some(record) = stop.record.as_mut() {
+        if stop.record.is_some() || stop.has_rerun() {
             let keyframe = self.localizer.keyframe();
-            let alignment = out
-                .world_from_camera
-                .filter(|_| tracking)
-                .map(|w| Alignment {
-                    camera_from_keyframe: w.inverse() * keyframe.world_from_keyframe,
-                    gain: out.gain,
-                    bias: out.bias,
-                });
-            record.frame(
-                &FrameRow::new(&out, stamp_s, track_ms),
-                FramePixels {
-                    pixels: view.pixels,
-                    width: view.width(),
-                    height: view.height(),
-                    stride: header.stride as usize,
-                },
-                Some(KeyframeView {
-                    keyframe,
-                    alignment,
-                }),
-            );
+            let alignment = Alignment::of(&out, keyframe);
+            let row = FrameRow::new(&out, stamp_s, track_ms);
+            let pixels = FramePixels {
+                pixels: view.pixels,
+                width: view.width(),
+                height: view.height(),
+                stride: header.stride as usize,
+            };
+            if let Some(record) = stop.record.as_mut() {
+                record.frame(
+                    &row,
+                    pixels,
+                    Some(KeyframeView {
+                        keyframe,
+                        alignment,
+                    }),
+                );
+            }
+            #[cfg(feature = "rerun")]
+            if let Some(rerun) = stop.rerun.as_mut() {
+                rerun.frame(&row, pixels, keyframe, alignment);
+                let attempts = self.localizer.stats().reloc_attempts;
+                rerun.reloc_attempt(attempts, self.localizer.last_reloc_attempt());
+            }
         }
         if tracking {
             state.tracked += 1;
