@@ -126,7 +126,12 @@ pub fn correlations(
         trimmed
     };
     let trimmed = trim(None, all);
-    let coarse = (level + 2).min(frame.len().min(keyframe.gray_pyramid().len()) - 1);
+    let coarse = (level + 2).min(
+        frame
+            .len()
+            .min(keyframe.gray_pyramid().len())
+            .saturating_sub(1),
+    );
     let local = (coarse > level)
         .then(|| {
             let contrast = Contrast {
