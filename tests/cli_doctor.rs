@@ -27,7 +27,18 @@ fn doctor_reports_adapters_and_auto_choice() {
     assert!(text.contains("test render (Auto): ok"), "{text}");
     if gpu::lavapipe_installed() {
         assert!(text.contains("[software #0]"), "{text}");
+    }
+    let hardware = gpu::list_adapters()
+        .iter()
+        .any(|a| a.class == gpu::AdapterClass::Hardware);
+    if hardware {
         assert!(text.contains("auto would choose: wgpu on"), "{text}");
+    } else {
+        assert!(
+            text.contains("auto would choose: the CPU rasterizer"),
+            "{text}"
+        );
+        assert!(text.contains("test render (Auto): ok on cpu"), "{text}");
     }
 }
 

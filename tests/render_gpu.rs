@@ -86,8 +86,12 @@ fn software_adapter_is_listed_when_lavapipe_is_installed() {
                 .any(|a| a.class == gpu::AdapterClass::Software),
             "lavapipe installed but not listed: {adapters:?}"
         );
-        assert!(gpu::auto_choice(&adapters).is_some());
     }
+    // Auto takes a hardware adapter, never a software one.
+    let hardware = adapters
+        .iter()
+        .any(|a| a.class == gpu::AdapterClass::Hardware);
+    assert_eq!(gpu::auto_choice(&adapters).is_some(), hardware);
 }
 
 #[test]

@@ -51,7 +51,10 @@ pub fn check_renderer(kind: RendererKind) -> Result<()> {
     );
     match gpu::auto_choice(&adapters) {
         Some(a) => println!("  auto would choose: wgpu on {} ({:?})", a.name, a.backend),
-        None => println!("  auto would choose: the CPU rasterizer (no usable wgpu adapter)"),
+        None => println!(
+            "  auto would choose: the CPU rasterizer (no hardware wgpu adapter; \
+             auto prefers it to a software adapter, which is slower)"
+        ),
     }
 
     // A quad in front of the camera, rendered by the configured kind.

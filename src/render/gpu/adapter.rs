@@ -145,8 +145,8 @@ pub fn enumerate(instance: &wgpu::Instance) -> Vec<wgpu::Adapter> {
 }
 
 /// Lists every adapter wgpu sees (Vulkan and GL), with its class and its
-/// rank within the class; the hardware adapter of rank 0, else the software
-/// adapter of rank 0, is what `renderer = "auto"` chooses.
+/// rank within the class; the hardware adapter of rank 0 is what
+/// `renderer = "auto"` chooses (without one, auto uses the CPU rasterizer).
 pub fn list_adapters() -> Vec<AdapterSummary> {
     let instance = new_instance(BACKENDS);
     let mut ranks = [0usize; 2];
@@ -173,11 +173,12 @@ pub fn list_adapters() -> Vec<AdapterSummary> {
 }
 
 /// The adapter `auto` would choose among `adapters` (as [`list_adapters`]
-/// returns them): the best hardware one, else the best software one; `None`
-/// means the CPU rasterizer.
+/// returns them): the best hardware one; `None` means the CPU rasterizer,
+/// which auto prefers to a software adapter (see [`crate::render::select`]).
 pub fn auto_choice(adapters: &[AdapterSummary]) -> Option<&AdapterSummary> {
-    let best = |class| adapters.iter().find(|a| a.class == class && a.rank == 0);
-    best(AdapterClass::Hardware).or_else(|| best(AdapterClass::Software))
+    adapters
+        .iter()
+        .find(|a| a.class == AdapterClass::Hardware && a.rank == 0)
 }
 
 /// True when Mesa's lavapipe Vulkan driver is installed, so a software
@@ -239,7 +240,7 @@ mod tests {
             device_type: wgpu::DeviceType::IntegratedGpu,
             ..sw.clone()
         };
-        assert_eq!(auto_choice(std::slice::from_ref(&sw)), Some(&sw));
+        assert_eq!(auto_choice(std::slice::from_ref(&sw)), None);
         assert_eq!(auto_choice(&[sw.clone(), hw.clone()]), Some(&hw));
         assert_eq!(auto_choice(&[]), None);
     }
