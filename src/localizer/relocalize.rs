@@ -22,7 +22,7 @@ use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MA
 use crate::reloc::{
     try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict,
 };
-use crate::track::correlation::correlation;
+use crate::track::correlation::correlations;
 
 use super::worker::RenderRequest;
 use super::{Localizer, TrackState};
@@ -100,26 +100,47 @@ impl Localizer {
     }
 
     /// With a gate (a database, a verified start, or [`Self::use_gate`]),
-    /// tracking also needs the keyframe points
-    /// to correlate with the frame at the aligned pose (`reloc.
-    /// track_min_correlation`): a frame from elsewhere (a teleport, a
-    /// look-alike wall) can pass the inlier test with an affine photometric
-    /// fit, but does not correlate.
+    /// tracking also needs the keyframe points to correlate with the frame
+    /// at the aligned pose, in intensity (`reloc.track_min_correlation`)
+    /// and in local contrast (`reloc.track_min_local_correlation`): a frame
+    /// from elsewhere (a teleport, a look-alike wall) can pass the inlier
+    /// test with an affine photometric fit, but does not correlate; an
+    /// alignment sliding along a one-way texture keeps the intensity
+    /// correlation but loses the fine texture.
     pub(super) fn correlation_ok(&self, camera_from_keyframe: &crate::geometry::Pose) -> bool {
         let Some(config) = gate_config(&self.reloc, &self.start_gate) else {
             return true;
         };
-        let ncc = correlation(
-            &self.keyframe,
-            &self.pyramid,
-            &self.camera,
-            camera_from_keyframe,
-            1,
-        );
-        tracing::trace!(?ncc, "tracking correlation");
-        let ok = ncc.is_some_and(|c| c >= config.track_min_correlation);
+        let at = |level| {
+            correlations(
+                &self.keyframe,
+                &self.pyramid,
+                &self.camera,
+                camera_from_keyframe,
+                level,
+            )
+        };
+        // The plain correlation at level 1 (what `track_min_correlation`
+        // was measured at); local contrast at its lowest over levels 0-2,
+        // as the relocalization gate reads it: a slide of a few pixels
+        // shows at the finest level first. `f32::min` skips a `NaN` level
+        // (no coarser level for the local mean); with none, it is not a
+        // refusal and the plain correlation decides.
+        let ncc = at(1).map(|c| (c.all, c.local));
+        let local = [at(0), at(2)]
+            .iter()
+            .flatten()
+            .fold(ncc.map_or(f32::NAN, |(_, l)| l), |m, c| m.min(c.local));
+        tracing::trace!(ncc = ncc.map(|c| c.0), local, "tracking correlation");
+        let ok = ncc.is_some_and(|(all, _)| {
+            all >= config.track_min_correlation && !(local < config.track_min_local_correlation)
+        });
         if !ok && self.state == TrackState::Tracking {
-            tracing::debug!(?ncc, "frame does not correlate with the keyframe");
+            tracing::debug!(
+                ncc = ncc.map(|c| c.0),
+                local,
+                "frame does not correlate with the keyframe"
+            );
         }
         ok
     }

@@ -280,6 +280,14 @@ mod tests {
     /// A keyframe of a textured fronto-parallel plane, and a frame of the
     /// same view with `edit` applied to its pixels.
     fn setup(edit: impl Fn(usize, usize, f32) -> f32) -> (Keyframe, Pyramid, PinholeCamera) {
+        setup_textured(|x, y| texture(x, y, 0.0), edit)
+    }
+
+    /// [`setup`] with the plane's texture `tex`.
+    fn setup_textured(
+        tex: impl Fn(usize, usize) -> f32,
+        edit: impl Fn(usize, usize, f32) -> f32,
+    ) -> (Keyframe, Pyramid, PinholeCamera) {
         let camera = PinholeCamera::new(160, 128, 120.0, 120.0, 79.5, 63.5);
         let config = TrackerConfig {
             pyramid_levels: 3,
@@ -289,7 +297,7 @@ mod tests {
         let mut frame = ImageF32::new(160, 128, 0.0);
         for y in 0..128 {
             for x in 0..160 {
-                let v = texture(x, y, 0.0);
+                let v = tex(x, y);
                 view.gray.row_mut(y)[x] = v;
                 frame.row_mut(y)[x] = edit(x, y, v);
             }
@@ -354,5 +362,28 @@ mod tests {
         let (kf, frame, camera) = setup(|_, _, v| v);
         let c = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("same");
         assert!(c.all > 0.99 && c.trimmed > 0.99 && c.kept > 0.95, "{c:?}");
+    }
+
+    #[test]
+    fn local_contrast_sees_a_slide_that_intensity_does_not() {
+        // Strong coarse shading (period ~40 px) over a fine grain (~4.5 px),
+        // as a floor's planks over the wood's grain; the frame is the same
+        // view slid 2 pixels. The coarse part dominates the intensity
+        // variance and barely moves; the grain is out of phase.
+        let tex = |x: usize, y: usize| {
+            let (x, y) = (x as f32, y as f32);
+            128.0
+                + 60.0 * (x * 0.157).sin() * (y * 0.05).cos()
+                + 15.0 * (x * 1.4).sin() * (y * 1.3).sin()
+        };
+        let (kf, frame, camera) = setup_textured(tex, |x, y, _| tex(x + 2, y));
+        let plain = correlations(&kf, &frame, &camera, &Pose::identity(), 1).expect("level 1");
+        let local = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("slid");
+        assert!(plain.all > 0.6, "{plain:?}");
+        assert!(local.local < 0.3, "{local:?}");
+        // In place, both agree that it fits.
+        let (kf, frame, camera) = setup_textured(tex, |_, _, v| v);
+        let c = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("in place");
+        assert!(c.local > 0.95 && c.all > 0.95, "{c:?}");
     }
 }
