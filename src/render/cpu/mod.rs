@@ -9,7 +9,8 @@
 //!
 //! At construction the mesh is split into spatial chunks
 //! ([`crate::render::chunks`]); a render sets up only the chunks whose box
-//! meets the view frustum, so its cost follows what is visible.
+//! meets the view frustum (cut at the far limit, when one is set with
+//! [`CpuRenderer::set_far_m`]), so its cost follows what is visible.
 //!
 //! Pipeline, each stage parallel over fixed work units (rayon):
 //! 1. [`setup`], per visible chunk: its vertices into the camera frame
@@ -73,6 +74,8 @@ pub struct CpuRenderer {
     cull: bool,
     /// Counts of the last render's frustum test.
     stats: CullStats,
+    /// Far limit along the optical axis, meters; `None`: none.
+    far_m: Option<f64>,
 }
 
 impl std::fmt::Debug for CpuRenderer {
@@ -112,6 +115,7 @@ impl CpuRenderer {
             tri_order: Vec::new(),
             cull: true,
             stats: CullStats::default(),
+            far_m: None,
         })
     }
 
@@ -151,6 +155,26 @@ impl CpuRenderer {
     pub fn cull_stats(&self) -> CullStats {
         self.stats
     }
+
+    /// Sets the far limit (`None`, the default: none): pixels deeper than
+    /// `far_m` along the optical axis render as no hit, and chunks wholly
+    /// beyond it are not set up.
+    pub fn set_far_m(&mut self, far_m: Option<f64>) {
+        self.far_m = far_m.filter(|f| f.is_finite() && *f > f64::from(NEAR_M));
+    }
+
+    /// Bytes the renderer holds for the mesh: the chunked copy (vertices,
+    /// indices, triangle numbers) plus the shared mesh's textures.
+    pub fn mesh_bytes(&self) -> u64 {
+        let c = &self.chunked;
+        let texels: usize = self.mesh.textures.iter().map(|t| t.texels.len()).sum();
+        (c.positions.len() * 12
+            + c.gray.len() * 4
+            + c.uvs.len() * 8
+            + c.indices.len() * 4
+            + c.source_triangle.len() * 4
+            + texels * 4) as u64
+    }
 }
 
 impl Renderer for CpuRenderer {
@@ -166,8 +190,9 @@ impl Renderer for CpuRenderer {
     ) -> Result<(), RenderError> {
         check_request(world_from_camera, camera)?;
         out.check_size(camera)?;
-        let view = View::new(world_from_camera, camera);
-        let frustum = Frustum::new(world_from_camera, camera, f64::from(NEAR_M));
+        let view = View::new(world_from_camera, camera).with_far(self.far_m);
+        let frustum = Frustum::new(world_from_camera, camera, f64::from(NEAR_M))
+            .with_far(world_from_camera, self.far_m);
         let Self {
             mesh,
             chunked,
@@ -233,6 +258,15 @@ fn draw(
         .zip(tri_order.par_chunks_mut(band_len))
         .enumerate()
         .for_each(|(band, ((gray, depth_m), order))| {
-            raster::draw_band(band, view.width, chunks, textures, gray, depth_m, order);
+            raster::draw_band(
+                band,
+                view.width,
+                view.min_inv_z,
+                chunks,
+                textures,
+                gray,
+                depth_m,
+                order,
+            );
         });
 }
