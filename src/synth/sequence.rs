@@ -32,7 +32,7 @@ use super::scanned::fusion::FusionStats;
 use super::scanned::lighting::{depth_normals, shade};
 use super::scanned::{build_scanned_map, star_toml_text, ScanTools, ScannedError};
 use super::scene::{build_scene, Scene, SceneParams};
-use super::trajectory::{RoomBox, SynthTrajectory, TrajectoryError};
+use super::trajectory::{RoomBox, SynthTrajectory, TrajectoryError, TrajectoryKind};
 use crate::dataset::{CameraFile, DatasetError, DatasetWriter, Trajectory};
 use crate::imgproc::{ImageF32, ImageU8};
 use crate::map::MapError;
@@ -41,6 +41,13 @@ use crate::render::RenderError;
 /// First TUM timestamp of a synthetic sequence, seconds (any positive
 /// value works; a realistic one catches tools that assume small stamps).
 pub const START_STAMP_S: f64 = 1_000.0;
+/// Why the scanned variant of a building is refused (see
+/// `docs/building-scale.md`).
+pub const SCANNED_BUILDING: &str = "the scanned variant of a building is not supported: one TSDF \
+     volume at the scanned preset's 1 cm voxels over a whole floor needs far more memory \
+     and time than this machine class has (docs/building-scale.md); synthesize the \
+     building without --scanned";
+
 /// Most frames one sequence may have (10 minutes at 50 Hz).
 pub const MAX_FRAMES: usize = 30_000;
 
@@ -84,6 +91,12 @@ pub enum SequenceError {
     /// Building the scanned map failed.
     #[error("building the scanned map")]
     Scanned(#[from] ScannedError),
+    /// The preset combines what is not supported together.
+    #[error("{0}")]
+    Unsupported(&'static str),
+    /// The building parameters are out of range.
+    #[error("invalid building")]
+    Building(#[from] super::scene::building::BuildingSpecError),
     /// Writing `synth.toml` failed.
     #[error("writing {path}")]
     Io {
@@ -127,8 +140,13 @@ pub struct ScannedSummary {
     pub fusion: FusionStats,
 }
 
-/// The scene of `preset` for `seed`.
+/// The scene of `preset` for `seed`: the building when the preset has one
+/// (its spec must be valid; a building has its look-alikes built in and
+/// ignores `texture_seed`), else the one room.
 pub fn preset_scene(preset: &Preset, seed: u64) -> Scene {
+    if let Some(spec) = &preset.scene.building {
+        return super::scene::building::build_building(spec, seed);
+    }
     build_scene(&SceneParams {
         seed,
         texture_seed: preset.scene.texture_seed,
@@ -148,6 +166,14 @@ pub fn preset_trajectory(
     seed: u64,
     duration_s: f64,
 ) -> Result<SynthTrajectory, TrajectoryError> {
+    let is_free =
+        |p: &Vector3<f64>, clearance_m| scene.is_free([p.x, p.y, p.z], clearance_m);
+    if preset.trajectory == TrajectoryKind::RoomToRoom {
+        let Some(plan) = &scene.plan else {
+            return Err(TrajectoryError::NoRooms);
+        };
+        return SynthTrajectory::generate_tour(&plan.routes(), seed, duration_s, &is_free);
+    }
     let room = RoomBox {
         min_m: Vector3::zeros(),
         max_m: Vector3::from(scene.room_size_m),
@@ -157,7 +183,7 @@ pub fn preset_trajectory(
         &room,
         seed,
         duration_s,
-        &|p: &Vector3<f64>, clearance_m| scene.is_free([p.x, p.y, p.z], clearance_m),
+        &is_free,
     )
 }
 
@@ -238,6 +264,12 @@ pub fn write_sequence_with(
         return Err(SequenceError::FrameCount {
             found: options.frames,
         });
+    }
+    if let Some(spec) = &preset.scene.building {
+        spec.validate()?;
+        if preset.scanned.is_some() {
+            return Err(SequenceError::Unsupported(SCANNED_BUILDING));
+        }
     }
     let duration_s = options.frames as f64 / preset.rate_hz;
     let (scene, trajectory, scene_seed) = scene_with_trajectory(preset, options.seed, duration_s)?;
