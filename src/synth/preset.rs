@@ -301,7 +301,10 @@ mod tests {
         spec.validate().expect("valid");
         assert!(spec.rooms >= 20);
         let text = b.to_toml();
-        assert!(text.contains("[scene.building]") && text.contains("rooms = 22"), "{text}");
+        assert!(
+            text.contains("[scene.building]") && text.contains("rooms = 22"),
+            "{text}"
+        );
     }
 
     #[test]

@@ -16,8 +16,8 @@
 //! (two directional lights and darkening near room edges). Same seed, same
 //! meshes, bit for bit, on every platform.
 
-pub mod building;
 mod build;
+pub mod building;
 mod objects;
 mod params;
 

@@ -166,8 +166,7 @@ pub fn preset_trajectory(
     seed: u64,
     duration_s: f64,
 ) -> Result<SynthTrajectory, TrajectoryError> {
-    let is_free =
-        |p: &Vector3<f64>, clearance_m| scene.is_free([p.x, p.y, p.z], clearance_m);
+    let is_free = |p: &Vector3<f64>, clearance_m| scene.is_free([p.x, p.y, p.z], clearance_m);
     if preset.trajectory == TrajectoryKind::RoomToRoom {
         let Some(plan) = &scene.plan else {
             return Err(TrajectoryError::NoRooms);
@@ -178,13 +177,7 @@ pub fn preset_trajectory(
         min_m: Vector3::zeros(),
         max_m: Vector3::from(scene.room_size_m),
     };
-    SynthTrajectory::generate(
-        preset.trajectory,
-        &room,
-        seed,
-        duration_s,
-        &is_free,
-    )
+    SynthTrajectory::generate(preset.trajectory, &room, seed, duration_s, &is_free)
 }
 
 /// Most scene layouts tried by [`scene_with_trajectory`].

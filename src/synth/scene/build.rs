@@ -86,17 +86,11 @@ impl MeshBuilder {
         self.mesh.gray.extend_from_slice(&mesh.gray);
         self.mesh.uvs.extend_from_slice(&mesh.uvs);
         for group in &mesh.groups {
-            let Some(bucket) = group
-                .texture
-                .and_then(|t| self.buckets.get_mut(t as usize))
-            else {
+            let Some(bucket) = group.texture.and_then(|t| self.buckets.get_mut(t as usize)) else {
                 continue;
             };
             let first = group.first_index as usize;
-            let Some(indices) = mesh
-                .indices
-                .get(first..first + group.index_count as usize)
-            else {
+            let Some(indices) = mesh.indices.get(first..first + group.index_count as usize) else {
                 continue;
             };
             bucket.extend(indices.iter().map(|i| i + base));

@@ -141,7 +141,11 @@ impl Tour {
     /// point, unit direction, and the integrals at its start.
     fn segment(&self, s: f64) -> (f64, [f64; 2], [f64; 2], [f64; 2], [f64; 2]) {
         let last = self.points.len().saturating_sub(1);
-        let i = self.s.partition_point(|&v| v <= s).saturating_sub(1).min(last);
+        let i = self
+            .s
+            .partition_point(|&v| v <= s)
+            .saturating_sub(1)
+            .min(last);
         let p = self.points.get(i).copied().unwrap_or([0.0; 2]);
         let d = match self.points.get(i + 1) {
             Some(&q) if i < last => {
@@ -162,7 +166,10 @@ impl Tour {
     fn integrals(&self, s: f64) -> ([f64; 2], [f64; 2]) {
         let p0 = self.points.first().copied().unwrap_or([0.0; 2]);
         if s < 0.0 {
-            return ([p0[0] * s, p0[1] * s], [p0[0] * s * s / 2.0, p0[1] * s * s / 2.0]);
+            return (
+                [p0[0] * s, p0[1] * s],
+                [p0[0] * s * s / 2.0, p0[1] * s * s / 2.0],
+            );
         }
         let (s0, p, d, ip, kp) = self.segment(s);
         let u = s - s0;

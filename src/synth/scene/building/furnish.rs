@@ -86,9 +86,18 @@ pub(super) fn place(
                 let off = half[1] + 0.02;
                 // Right, back or left wall; never the door wall.
                 let (center, yaw) = match rng.below(3) {
-                    0 => ([w - off, rng.range(half[0] + 0.05, d - half[0] - 0.05)], [0.0, 1.0]),
-                    1 => ([rng.range(half[0] + 0.05, w - half[0] - 0.05), d - off], [1.0, 0.0]),
-                    _ => ([off, rng.range(half[0] + 0.05, d - half[0] - 0.05)], [0.0, 1.0]),
+                    0 => (
+                        [w - off, rng.range(half[0] + 0.05, d - half[0] - 0.05)],
+                        [0.0, 1.0],
+                    ),
+                    1 => (
+                        [rng.range(half[0] + 0.05, w - half[0] - 0.05), d - off],
+                        [1.0, 0.0],
+                    ),
+                    _ => (
+                        [off, rng.range(half[0] + 0.05, d - half[0] - 0.05)],
+                        [0.0, 1.0],
+                    ),
                 };
                 SceneBox {
                     center_xy_m: center,

@@ -174,7 +174,12 @@ impl FloorPlan {
             corridor_max_m: [length, corridor_y1],
             size_m: [
                 length,
-                corridor_y1 + if north.is_empty() { 0.0 } else { t + north_depth },
+                corridor_y1
+                    + if north.is_empty() {
+                        0.0
+                    } else {
+                        t + north_depth
+                    },
                 spec.height_m,
             ],
         }

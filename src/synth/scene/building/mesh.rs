@@ -70,15 +70,27 @@ pub(super) fn build_meshes(plan: &FloorPlan, seed: u64) -> (Mesh, Mesh) {
     let cw = spec.corridor_width_m;
     let mut kinds = Vec::with_capacity(ids.count());
     for _ in 0..ids.sets {
-        kinds.push((SurfaceKind::Floor, ROOM_FLOOR_TEXTURE_M, ROOM_FLOOR_TEXTURE_M));
-        kinds.push((SurfaceKind::Ceiling, ROOM_FLOOR_TEXTURE_M, ROOM_FLOOR_TEXTURE_M));
+        kinds.push((
+            SurfaceKind::Floor,
+            ROOM_FLOOR_TEXTURE_M,
+            ROOM_FLOOR_TEXTURE_M,
+        ));
+        kinds.push((
+            SurfaceKind::Ceiling,
+            ROOM_FLOOR_TEXTURE_M,
+            ROOM_FLOOR_TEXTURE_M,
+        ));
         kinds.push((SurfaceKind::Wall, STRIP_TEXTURE_M, h));
     }
     kinds.push((SurfaceKind::Floor, STRIP_TEXTURE_M, cw));
     kinds.push((SurfaceKind::Ceiling, STRIP_TEXTURE_M, cw));
     kinds.push((SurfaceKind::Wall, STRIP_TEXTURE_M, h));
     kinds.push((SurfaceKind::Furniture, FURNITURE_ATLAS_M, FURNITURE_ATLAS_M));
-    kinds.push((SurfaceKind::Occluder, OCCLUDER_ATLAS_M[0], OCCLUDER_ATLAS_M[1]));
+    kinds.push((
+        SurfaceKind::Occluder,
+        OCCLUDER_ATLAS_M[0],
+        OCCLUDER_ATLAS_M[1],
+    ));
     let texture_root = SplitMix64::new(seed).fork(7);
     let textures: Vec<GrayTexture> = {
         use rayon::prelude::*;
@@ -216,33 +228,133 @@ fn design_meshes(
     let wall_uv = repeat(STRIP_TEXTURE_M, h);
     let up = [0.0, 0.0, 1.0];
     let floor = face([0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [w, depth], up);
-    part(&mut b, &floor, [0.0, w], [0.0, depth], ids.floor(set), floor_uv, &lit(up));
-    let ceiling = face([0.0, 0.0, h], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [w, depth], down);
-    part(&mut b, &ceiling, [0.0, w], [0.0, depth], ids.ceiling(set), floor_uv, &lit(down));
+    part(
+        &mut b,
+        &floor,
+        [0.0, w],
+        [0.0, depth],
+        ids.floor(set),
+        floor_uv,
+        &lit(up),
+    );
+    let ceiling = face(
+        [0.0, 0.0, h],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [w, depth],
+        down,
+    );
+    part(
+        &mut b,
+        &ceiling,
+        [0.0, w],
+        [0.0, depth],
+        ids.ceiling(set),
+        floor_uv,
+        &lit(down),
+    );
     let door = [d.door_center_m - 0.5 * dw, d.door_center_m + 0.5 * dw];
     let walls = [
         // Door wall, facing into the room (+y).
-        (face([0.0, 0.0, h], [1.0, 0.0, 0.0], down, [w, h], [0.0, 1.0, 0.0]), Some(door)),
-        (face([w, 0.0, h], [0.0, 1.0, 0.0], down, [depth, h], [-1.0, 0.0, 0.0]), None),
-        (face([w, depth, h], [-1.0, 0.0, 0.0], down, [w, h], [0.0, -1.0, 0.0]), None),
-        (face([0.0, depth, h], [0.0, -1.0, 0.0], down, [depth, h], [1.0, 0.0, 0.0]), None),
+        (
+            face(
+                [0.0, 0.0, h],
+                [1.0, 0.0, 0.0],
+                down,
+                [w, h],
+                [0.0, 1.0, 0.0],
+            ),
+            Some(door),
+        ),
+        (
+            face(
+                [w, 0.0, h],
+                [0.0, 1.0, 0.0],
+                down,
+                [depth, h],
+                [-1.0, 0.0, 0.0],
+            ),
+            None,
+        ),
+        (
+            face(
+                [w, depth, h],
+                [-1.0, 0.0, 0.0],
+                down,
+                [w, h],
+                [0.0, -1.0, 0.0],
+            ),
+            None,
+        ),
+        (
+            face(
+                [0.0, depth, h],
+                [0.0, -1.0, 0.0],
+                down,
+                [depth, h],
+                [1.0, 0.0, 0.0],
+            ),
+            None,
+        ),
     ];
     for (f, opening) in &walls {
         let openings: Vec<[f64; 2]> = opening.iter().copied().collect();
-        wall(&mut b, f, &openings, dh, ids.wall(set), wall_uv, &lit(f.normal));
+        wall(
+            &mut b,
+            f,
+            &openings,
+            dh,
+            ids.wall(set),
+            wall_uv,
+            &lit(f.normal),
+        );
     }
     // The doorway's reveal through the wall (y from -t to 0).
     let [a, e] = door;
     let reveal = [
-        face([a, 0.0, dh], [0.0, -1.0, 0.0], down, [t, dh], [1.0, 0.0, 0.0]),
-        face([e, -t, dh], [0.0, 1.0, 0.0], down, [t, dh], [-1.0, 0.0, 0.0]),
-        face([a, 0.0, dh], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [dw, t], down),
+        face(
+            [a, 0.0, dh],
+            [0.0, -1.0, 0.0],
+            down,
+            [t, dh],
+            [1.0, 0.0, 0.0],
+        ),
+        face(
+            [e, -t, dh],
+            [0.0, 1.0, 0.0],
+            down,
+            [t, dh],
+            [-1.0, 0.0, 0.0],
+        ),
+        face(
+            [a, 0.0, dh],
+            [1.0, 0.0, 0.0],
+            [0.0, -1.0, 0.0],
+            [dw, t],
+            down,
+        ),
     ];
     for f in &reveal {
-        part(&mut b, f, [0.0, f.u_len_m], [0.0, f.v_len_m], ids.wall(set), wall_uv, &lit(f.normal));
+        part(
+            &mut b,
+            f,
+            [0.0, f.u_len_m],
+            [0.0, f.v_len_m],
+            ids.wall(set),
+            wall_uv,
+            &lit(f.normal),
+        );
     }
     let threshold = face([a, -t, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [dw, t], up);
-    part(&mut b, &threshold, [0.0, dw], [0.0, t], ids.floor(set), floor_uv, &lit(up));
+    part(
+        &mut b,
+        &threshold,
+        [0.0, dw],
+        [0.0, t],
+        ids.floor(set),
+        floor_uv,
+        &lit(up),
+    );
     for bx in &d.furniture {
         add_box(
             &mut b,
@@ -275,10 +387,38 @@ fn corridor(b: &mut MeshBuilder, plan: &FloorPlan, ids: &TextureIds) {
     let up = [0.0, 0.0, 1.0];
     let strip_uv = repeat(STRIP_TEXTURE_M, cw);
     let wall_uv = repeat(STRIP_TEXTURE_M, h);
-    let floor = face([x0, y0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [len, cw], up);
-    part(b, &floor, [0.0, len], [0.0, cw], floor_t, strip_uv, &lit(up));
-    let ceiling = face([x0, y0, h], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [len, cw], down);
-    part(b, &ceiling, [0.0, len], [0.0, cw], ceiling_t, strip_uv, &lit(down));
+    let floor = face(
+        [x0, y0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [len, cw],
+        up,
+    );
+    part(
+        b,
+        &floor,
+        [0.0, len],
+        [0.0, cw],
+        floor_t,
+        strip_uv,
+        &lit(up),
+    );
+    let ceiling = face(
+        [x0, y0, h],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [len, cw],
+        down,
+    );
+    part(
+        b,
+        &ceiling,
+        [0.0, len],
+        [0.0, cw],
+        ceiling_t,
+        strip_uv,
+        &lit(down),
+    );
     // Doorways: x ranges on the south (y0) and north (y1) walls.
     let half = 0.5 * spec.door_width_m;
     let mut south = Vec::new();
@@ -298,14 +438,54 @@ fn corridor(b: &mut MeshBuilder, plan: &FloorPlan, ids: &TextureIds) {
     south.sort_by(|a, b| a[0].total_cmp(&b[0]));
     north.sort_by(|a, b| a[0].total_cmp(&b[0]));
     let dh = spec.door_height_m;
-    let south_wall = face([x0, y0, h], [1.0, 0.0, 0.0], down, [len, h], [0.0, 1.0, 0.0]);
-    wall(b, &south_wall, &south, dh, wall_t, wall_uv, &lit(south_wall.normal));
-    let north_wall = face([x1, y1, h], [-1.0, 0.0, 0.0], down, [len, h], [0.0, -1.0, 0.0]);
-    wall(b, &north_wall, &north, dh, wall_t, wall_uv, &lit(north_wall.normal));
+    let south_wall = face(
+        [x0, y0, h],
+        [1.0, 0.0, 0.0],
+        down,
+        [len, h],
+        [0.0, 1.0, 0.0],
+    );
+    wall(
+        b,
+        &south_wall,
+        &south,
+        dh,
+        wall_t,
+        wall_uv,
+        &lit(south_wall.normal),
+    );
+    let north_wall = face(
+        [x1, y1, h],
+        [-1.0, 0.0, 0.0],
+        down,
+        [len, h],
+        [0.0, -1.0, 0.0],
+    );
+    wall(
+        b,
+        &north_wall,
+        &north,
+        dh,
+        wall_t,
+        wall_uv,
+        &lit(north_wall.normal),
+    );
     let end_uv = repeat(STRIP_TEXTURE_M, h);
     for f in [
-        face([x0, y1, h], [0.0, -1.0, 0.0], down, [cw, h], [1.0, 0.0, 0.0]),
-        face([x1, y0, h], [0.0, 1.0, 0.0], down, [cw, h], [-1.0, 0.0, 0.0]),
+        face(
+            [x0, y1, h],
+            [0.0, -1.0, 0.0],
+            down,
+            [cw, h],
+            [1.0, 0.0, 0.0],
+        ),
+        face(
+            [x1, y0, h],
+            [0.0, 1.0, 0.0],
+            down,
+            [cw, h],
+            [-1.0, 0.0, 0.0],
+        ),
     ] {
         part(b, &f, [0.0, cw], [0.0, h], wall_t, end_uv, &lit(f.normal));
     }

@@ -102,12 +102,36 @@ impl BuildingSpec {
         let checks: [(&'static str, f64, f64, f64, &'static str); 9] = [
             ("rooms", self.rooms as f64, 1.0, MAX_ROOMS as f64, "1..=64"),
             ("height_m", self.height_m, 2.6, 6.0, "2.6..=6 m"),
-            ("corridor_width_m", self.corridor_width_m, 1.8, 6.0, "1.8..=6 m"),
-            ("wall_thickness_m", self.wall_thickness_m, 0.05, 0.5, "0.05..=0.5 m"),
+            (
+                "corridor_width_m",
+                self.corridor_width_m,
+                1.8,
+                6.0,
+                "1.8..=6 m",
+            ),
+            (
+                "wall_thickness_m",
+                self.wall_thickness_m,
+                0.05,
+                0.5,
+                "0.05..=0.5 m",
+            ),
             ("door_width_m", self.door_width_m, 1.2, 2.0, "1.2..=2 m"),
-            ("door_height_m", self.door_height_m, 2.1, self.height_m - 0.2, "2.1 m..=height_m - 0.2 m"),
+            (
+                "door_height_m",
+                self.door_height_m,
+                2.1,
+                self.height_m - 0.2,
+                "2.1 m..=height_m - 0.2 m",
+            ),
             ("designs", self.designs as f64, 1.0, 64.0, "1..=64"),
-            ("texture_sets", self.texture_sets as f64, 1.0, 16.0, "1..=16"),
+            (
+                "texture_sets",
+                self.texture_sets as f64,
+                1.0,
+                16.0,
+                "1..=16",
+            ),
             ("cell_m", self.cell_m, 0.02, 0.5, "0.02..=0.5 m"),
         ];
         for (field, value, lo, hi, expected) in checks {
