@@ -12,7 +12,8 @@
 //! where the folder has one (placed by `[map.world_from_mesh]`), else
 //! `map/map.obj` as stored; the camera is its `camera.toml`. Both renderers
 //! render with the far limit of that `star.toml`'s `[render] far_m` (else
-//! the default, 30 m), as `star track` would.
+//! the default, 30 m), as `star track` would; `STAR_BENCH_FAR_M=X`
+//! overrides it (0: none).
 //!
 //! Also printed: the map's load time, the process's resident memory
 //! (VmRSS) after loading and with each renderer built, and the wgpu
@@ -84,6 +85,13 @@ fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>, Option<f64>) {
         .take(MAX_POSES)
         .copied()
         .collect();
+    let far_m = match std::env::var("STAR_BENCH_FAR_M") {
+        Ok(v) => {
+            let f: f64 = v.parse().expect("STAR_BENCH_FAR_M: meters");
+            (f > 0.0).then_some(f)
+        }
+        Err(_) => far_m,
+    };
     (mesh, camera, poses, far_m)
 }
 
