@@ -3,8 +3,8 @@
 //! the map of a dataset, at 50 poses evenly strided through its
 //! `groundtruth.txt` (every 10th of 500; each rendered `ROUNDS` times): median and p95, with the
 //! mesh size and the share of triangles in chunks that pass the frustum
-//! test (what the renderers set up and draw), mean and range over the
-//! poses. Both renderers are also timed with the chunk cull off (every
+//! test (what the renderers set up and draw; for the CPU rasterizer less
+//! the chunks its occlusion cull skips), mean and range over the poses. Both renderers are also timed with the chunk cull off (every
 //! triangle set up and drawn, as before the cull), for a comparison within
 //! one run.
 //!
@@ -178,13 +178,18 @@ fn bench_dataset(dir: &Path) {
         100.0 * fractions.iter().copied().fold(f64::INFINITY, f64::min),
         100.0 * fractions.iter().copied().fold(0.0, f64::max),
     );
-    for cull in [true, false] {
+    // Frustum and occlusion cull (the default), frustum only, none.
+    for (cull, occlusion, what) in [
+        (true, true, "frustum + occlusion"),
+        (true, false, "frustum only"),
+        (false, false, "off"),
+    ] {
         cpu.set_frustum_cull(cull);
+        cpu.set_occlusion_cull(occlusion);
         let (median, p95, n) = time_renders(&mut cpu, &camera, &poses);
         println!(
-            "  cpu ({} threads, cull {}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
+            "  cpu ({} threads, cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
             cpu.threads(),
-            if cull { "on" } else { "off" },
         );
     }
     drop(cpu);

@@ -183,6 +183,11 @@ pub fn run(args: &SynthArgs) -> Result<()> {
         summary.map_path.display(),
         summary.map_triangles
     );
+    if let Some((rooms, area_m2, [x_m, y_m])) = summary.building {
+        println!(
+            "building: {rooms} rooms and a corridor, {area_m2:.0} m² of floor on a {x_m:.1} m x {y_m:.1} m footprint"
+        );
+    }
     if let Some(scanned) = &summary.scanned {
         let f = &scanned.fusion;
         println!(

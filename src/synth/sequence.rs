@@ -123,6 +123,9 @@ pub struct SequenceSummary {
     pub renders: usize,
     /// What the scanned variant built; `None` for a closed-world preset.
     pub scanned: Option<ScannedSummary>,
+    /// The building's rooms, floor area (m²) and footprint `[x, y]` (m);
+    /// `None` for the one room.
+    pub building: Option<(usize, f64, [f64; 2])>,
 }
 
 /// What the scanned variant built.
@@ -440,6 +443,10 @@ pub fn write_sequence_with(
         map_triangles,
         renders,
         scanned: scanned.map(|(summary, _)| summary),
+        building: scene
+            .plan
+            .as_ref()
+            .map(|p| (p.rooms.len(), p.floor_area_m2(), [p.size_m[0], p.size_m[1]])),
     })
 }
 

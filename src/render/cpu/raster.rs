@@ -20,22 +20,27 @@ use crate::render::NO_DEPTH;
 /// Draws band `band` (rows `band * BAND_ROWS ..`) of a `width`-wide image
 /// into `gray` and `depth_m` (the band's rows only), with `order` (as many
 /// pixels) as scratch for the depth tie-break; pixels with `1/z` below
-/// `min_inv_z` are not drawn.
+/// `min_inv_z` are not drawn. A render may draw a band in several passes
+/// (one per batch of chunks): `first` clears it, `last` turns its `1/z`
+/// into metric depth; in between `depth_m` holds `1/z`.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn draw_band(
     band: usize,
     width: usize,
     min_inv_z: f32,
+    (first, last): (bool, bool),
     chunks: &[Chunk],
     textures: &[GrayTexture],
     gray: &mut [f32],
     depth_m: &mut [f32],
     order: &mut [u32],
 ) {
-    gray.fill(0.0);
-    depth_m.fill(0.0);
-    // With depth 0 (empty) no triangle number is below 0: no tie to win.
-    order.fill(0);
+    if first {
+        gray.fill(0.0);
+        depth_m.fill(0.0);
+        // With depth 0 (empty) no triangle number is below 0: no tie to win.
+        order.fill(0);
+    }
     let rows = gray.len() / width.max(1);
     let mut target = Band {
         y0: band * BAND_ROWS,
@@ -55,8 +60,10 @@ pub(super) fn draw_band(
             }
         }
     }
-    for d in target.inv_z.iter_mut() {
-        *d = if *d > 0.0 { 1.0 / *d } else { NO_DEPTH };
+    if last {
+        for d in target.inv_z.iter_mut() {
+            *d = if *d > 0.0 { 1.0 / *d } else { NO_DEPTH };
+        }
     }
 }
 

@@ -132,6 +132,16 @@ impl View {
         self
     }
 
+    /// Pixel coordinates of a camera-frame point in front of the camera,
+    /// `f32` (for conservative screen rectangles, not for rasterization).
+    pub fn pixel_f32(&self, p: Vec3A) -> (f32, f32) {
+        let (x, y, z) = (f64::from(p.x), f64::from(p.y), f64::from(p.z));
+        (
+            (self.fx * x / z + self.cx) as f32,
+            (self.fy * y / z + self.cy) as f32,
+        )
+    }
+
     /// Signed distance-like value of `p` to plane `i` (negative: outside).
     #[inline]
     pub fn plane_value(&self, i: usize, p: Vec3A) -> f32 {
