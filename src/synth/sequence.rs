@@ -537,6 +537,111 @@ mod tests {
         }
     }
 
+    /// The building preset at a coarse tessellation (fast to build).
+    fn small_building(rooms: usize) -> Preset {
+        let mut preset = Preset::by_name("building").expect("preset");
+        if let Some(spec) = preset.scene.building.as_mut() {
+            spec.rooms = rooms;
+            spec.cell_m = 0.25;
+            spec.texture_px_per_m = 32.0;
+        }
+        preset
+    }
+
+    #[test]
+    fn building_tours_go_room_to_room_in_free_space() {
+        for seed in [1, 2, 3] {
+            let preset = small_building(6);
+            let (scene, trajectory, _) =
+                scene_with_trajectory(&preset, seed, 60.0).expect("placed");
+            let plan = scene.plan.as_ref().expect("a building");
+            let visited = trajectory.rooms_visited();
+            assert!(visited.len() >= 3, "seed {seed}: {visited:?}");
+            assert!(visited.windows(2).all(|w| w[0] != w[1]));
+            // Every 10 ms of the first minute is clear of walls, doors and
+            // boxes, and the camera is in the corridor at some times and in
+            // rooms at others.
+            let (mut in_corridor, mut in_room) = (0, 0);
+            for i in 0..6000 {
+                let t = i as f64 * 0.01;
+                let p = trajectory.position_at(t);
+                assert!(
+                    scene.is_free([p.x, p.y, p.z], 0.25),
+                    "seed {seed}, t {t} s: {p:?}"
+                );
+                if p.y > plan.corridor_min_m[1] && p.y < plan.corridor_max_m[1] {
+                    in_corridor += 1;
+                } else {
+                    in_room += 1;
+                }
+                // Looking roughly along the direction of travel.
+                let ahead = trajectory.position_at(t + 0.2) - p;
+                if ahead.xy().norm() > 0.05 {
+                    let (yaw, _, _) = trajectory.yaw_pitch_roll_at(t);
+                    let heading = ahead.y.atan2(ahead.x);
+                    let off = (yaw - heading + std::f64::consts::PI)
+                        .rem_euclid(std::f64::consts::TAU)
+                        - std::f64::consts::PI;
+                    assert!(
+                        off.abs() < 50f64.to_radians(),
+                        "seed {seed}, t {t} s: {off}"
+                    );
+                }
+            }
+            assert!(
+                in_corridor > 200 && in_room > 200,
+                "{in_corridor} / {in_room}"
+            );
+        }
+    }
+
+    #[test]
+    fn building_sequences_are_the_same_bytes() {
+        let run = |dir: &Path| {
+            let options = SequenceOptions {
+                preset: small_building(2),
+                seed: 5,
+                frames: 2,
+                write_depth: true,
+            };
+            write_sequence(dir, &options, &mut |_| {}).expect("written")
+        };
+        let (a, b) = (
+            tempfile::tempdir().expect("tmp"),
+            tempfile::tempdir().expect("tmp"),
+        );
+        let summary = run(a.path());
+        run(b.path());
+        assert_eq!(summary.building.map(|(rooms, _, _)| rooms), Some(2));
+        let ds = Dataset::open(a.path()).expect("open");
+        for entry in ds.frames.iter().chain(&ds.depth_frames) {
+            let x = std::fs::read(a.path().join(&entry.path)).expect("a");
+            let y = std::fs::read(b.path().join(&entry.path)).expect("b");
+            assert!(x == y, "{} differs", entry.path.display());
+        }
+        for file in ["map/map.obj", "groundtruth.txt", "synth.toml"] {
+            let x = std::fs::read(a.path().join(file)).expect("a");
+            assert!(
+                x == std::fs::read(b.path().join(file)).expect("b"),
+                "{file} differs"
+            );
+        }
+    }
+
+    #[test]
+    fn scanned_building_is_refused_clearly() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let options = SequenceOptions {
+            preset: small_building(1).scanned(),
+            seed: 1,
+            frames: 1,
+            write_depth: false,
+        };
+        let err = write_sequence(tmp.path(), &options, &mut |_| {}).unwrap_err();
+        assert!(matches!(err, SequenceError::Unsupported(_)), "{err}");
+        assert!(err.to_string().contains("building"), "{err}");
+    }
+
     #[test]
     fn zero_frames_is_an_error() {
         let tmp = tempfile::tempdir().expect("tmp");
