@@ -2,8 +2,8 @@
 //!
 //! Takes the chunks that passed the frustum test and the depth buffer as
 //! the render draws it; decides which chunks are hidden behind what has
-//! already been drawn. The visible chunks are drawn in [`BATCHES`] batches,
-//! nearest first (by the nearest camera depth of their box); after each
+//! already been drawn. The visible chunks are drawn in [`BATCHES`] batches
+//! (an eighth of them, an eighth, a quarter, the rest), nearest first (by the nearest camera depth of their box); after each
 //! batch every 16 x 16-pixel tile of the image gets the farthest depth
 //! drawn in it (as the smallest `1/z`, 0 when a pixel of it is still
 //! empty). A chunk of a later batch is skipped when, over every tile its
@@ -22,7 +22,7 @@ use crate::render::chunks::MeshChunk;
 /// Tile edge, pixels.
 pub(super) const TILE_PX: usize = 16;
 /// Batches of nearest-first chunks; the first is never culled.
-pub(super) const BATCHES: usize = 3;
+pub(super) const BATCHES: usize = 4;
 /// Relative margin of the depth comparison.
 const MARGIN: f32 = 1e-3;
 /// Padding of the boxes, meters (as the frustum test's).
@@ -131,11 +131,12 @@ impl Occlusion {
     /// The range of [`Occlusion::order`] in batch `batch`.
     pub fn batch(&self, batch: usize) -> std::ops::Range<usize> {
         let n = self.order.len();
-        // A quarter, a quarter, the rest.
+        // An eighth, an eighth, a quarter, the rest.
         let edge = |b: usize| match b {
             0 => 0,
-            1 => n / 4,
-            2 => n / 2,
+            1 => n / 8,
+            2 => n / 4,
+            3 => n / 2,
             _ => n,
         };
         edge(batch)..edge(batch + 1)
