@@ -321,6 +321,30 @@ mod tests {
     use super::*;
 
     #[test]
+    fn far_limit_defaults_to_30_m_and_is_validated() {
+        let c = RenderConfig::default();
+        assert_eq!(
+            (c.far_m, c.far_limit_m()),
+            (DEFAULT_FAR_M, Some(DEFAULT_FAR_M))
+        );
+        let off = RenderConfig {
+            far_m: 0.0,
+            ..RenderConfig::default()
+        };
+        off.validate().expect("0 turns it off");
+        assert_eq!(off.far_limit_m(), None);
+        for bad in [0.5, -3.0, f64::NAN, 1e9] {
+            let err = RenderConfig {
+                far_m: bad,
+                ..RenderConfig::default()
+            }
+            .validate()
+            .expect_err("out of range");
+            assert!(err.to_string().contains("far_m"), "{err}");
+        }
+    }
+
+    #[test]
     fn chains_end_with_the_cpu_rasterizer() {
         assert_eq!(chain(RendererKind::Auto), &[HARDWARE, SOFTWARE, Stage::Cpu]);
         assert_eq!(chain(RendererKind::Gpu), &[HARDWARE, SOFTWARE, Stage::Cpu]);
