@@ -3,17 +3,26 @@
 //! the map of a dataset, at 50 poses evenly strided through its
 //! `groundtruth.txt` (every 10th of 500; each rendered `ROUNDS` times): median and p95, with the
 //! mesh size and the share of triangles in chunks that pass the frustum
-//! test (what the renderers set up and draw), mean and range over the
-//! poses. Both renderers are also timed with the chunk cull off (every
+//! test (what the renderers set up and draw; for the CPU rasterizer less
+//! the chunks its occlusion cull skips), mean and range over the poses. Both renderers are also timed with the chunk cull off (every
 //! triangle set up and drawn, as before the cull), for a comparison within
 //! one run.
 //!
 //! Each argument is a dataset folder: its map is `star.toml`'s `[map]`
 //! where the folder has one (placed by `[map.world_from_mesh]`), else
-//! `map/map.obj` as stored; the camera is its `camera.toml`.
+//! `map/map.obj` as stored; the camera is its `camera.toml`. Both renderers
+//! render with the far limit of that `star.toml`'s `[render] far_m` (else
+//! the default, 30 m), as `star track` would; `STAR_BENCH_FAR_M=X`
+//! overrides it (0: none).
+//!
+//! Also printed: the map's load time, the process's resident memory
+//! (VmRSS) after loading and with each renderer built, and the wgpu
+//! renderer's device memory (mesh buffers, textures, targets).
 //!
 //! Run: `cargo bench --bench render_map -- /tmp/sc1 /tmp/rs1` (a TSDF map
-//! of `star synth --scanned`, and `star synth --preset realistic`).
+//! of `star synth --scanned`, and `star synth --preset realistic`); for
+//! the building scale figures, datasets of `star synth --preset building
+//! --rooms 1`, `--rooms 4` and the whole floor (docs/building-scale.md).
 
 #![allow(clippy::expect_used, clippy::unwrap_used)]
 
@@ -35,19 +44,34 @@ const ROUNDS: usize = 3;
 /// Poses rendered (fewer when the ground truth is shorter).
 const MAX_POSES: usize = 50;
 
-fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>) {
+/// A field of /proc/self/status, MB.
+fn status_mb(key: &str) -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find(|l| l.starts_with(key))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse::<f64>().ok())
+        .map_or(0.0, |kb| kb / 1024.0)
+}
+
+fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>, Option<f64>) {
     let config_path = dir.join("star.toml");
-    let mesh = if config_path.exists() {
-        Config::load(&config_path)
-            .expect("star.toml")
-            .map
-            .load_mesh()
-            .expect("map")
+    let (mesh, far_m) = if config_path.exists() {
+        let config = Config::load(&config_path).expect("star.toml");
+        (
+            config.map.load_mesh().expect("map"),
+            config.render.far_limit_m(),
+        )
     } else {
-        Config::default()
-            .map
-            .load_mesh_from(&dir.join("map/map.obj"))
-            .expect("map/map.obj")
+        let config = Config::default();
+        (
+            config
+                .map
+                .load_mesh_from(&dir.join("map/map.obj"))
+                .expect("map/map.obj"),
+            config.render.far_limit_m(),
+        )
     };
     let camera = CameraFile::read(&dir.join("camera.toml"))
         .expect("camera.toml")
@@ -61,7 +85,14 @@ fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>) {
         .take(MAX_POSES)
         .copied()
         .collect();
-    (mesh, camera, poses)
+    let far_m = match std::env::var("STAR_BENCH_FAR_M") {
+        Ok(v) => {
+            let f: f64 = v.parse().expect("STAR_BENCH_FAR_M: meters");
+            (f > 0.0).then_some(f)
+        }
+        Err(_) => far_m,
+    };
+    (mesh, camera, poses, far_m)
 }
 
 /// Median and p95 of `samples_ms` (sorted in place).
@@ -95,24 +126,40 @@ fn time_renders(
 }
 
 fn bench_dataset(dir: &Path) {
+    let rss_before_mb = status_mb("VmRSS:");
     let t = Instant::now();
-    let (mesh, camera, poses) = load(dir);
+    let (mesh, camera, poses, far_m) = load(dir);
     let triangles = mesh.triangle_count();
+    let texels: usize = mesh.textures.iter().map(|t| t.texels.len()).sum();
     println!(
-        "{}: {} triangles, {} vertices, {} poses, {}x{} (loaded in {:.1} s)",
+        "{}: {} triangles, {} vertices, {} textures ({:.1} Mtexels), {} poses, {}x{}, far limit {:?} m",
         dir.display(),
         triangles,
         mesh.positions.len(),
+        mesh.textures.len(),
+        texels as f64 / 1e6,
         poses.len(),
         camera.width,
         camera.height,
-        t.elapsed().as_secs_f64()
+        far_m,
+    );
+    println!(
+        "  map loaded in {:.2} s; resident memory {:.0} MB (+{:.0} MB for the map)",
+        t.elapsed().as_secs_f64(),
+        status_mb("VmRSS:"),
+        status_mb("VmRSS:") - rss_before_mb,
     );
     let mesh = Arc::new(mesh);
 
     let t = Instant::now();
     let mut cpu = CpuRenderer::new(Arc::clone(&mesh)).expect("valid mesh");
+    cpu.set_far_m(far_m);
     let built_s = t.elapsed().as_secs_f64();
+    println!(
+        "  cpu renderer: {:.0} MB for the chunked mesh and textures; resident memory {:.0} MB",
+        cpu.mesh_bytes() as f64 / 1e6,
+        status_mb("VmRSS:"),
+    );
     let split_vertices = ChunkedMesh::build(&mesh).expect("chunks").positions.len();
     let mut out = RenderedView::for_camera(&camera);
     let fractions: Vec<f64> = poses
@@ -131,13 +178,18 @@ fn bench_dataset(dir: &Path) {
         100.0 * fractions.iter().copied().fold(f64::INFINITY, f64::min),
         100.0 * fractions.iter().copied().fold(0.0, f64::max),
     );
-    for cull in [true, false] {
+    // Frustum and occlusion cull (the default), frustum only, none.
+    for (cull, occlusion, what) in [
+        (true, true, "frustum + occlusion"),
+        (true, false, "frustum only"),
+        (false, false, "off"),
+    ] {
         cpu.set_frustum_cull(cull);
+        cpu.set_occlusion_cull(occlusion);
         let (median, p95, n) = time_renders(&mut cpu, &camera, &poses);
         println!(
-            "  cpu ({} threads, cull {}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
+            "  cpu ({} threads, cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
             cpu.threads(),
-            if cull { "on" } else { "off" },
         );
     }
     drop(cpu);
@@ -145,8 +197,22 @@ fn bench_dataset(dir: &Path) {
     let t = Instant::now();
     match GpuRenderer::new(Arc::clone(&mesh), AdapterPreference::Software) {
         Ok(mut gpu) => {
+            gpu.set_far_m(far_m);
             let built_s = t.elapsed().as_secs_f64();
-            println!("  {} (built in {built_s:.2} s)", gpu.name());
+            let mut out = RenderedView::for_camera(&camera);
+            if let Some(p) = poses.first() {
+                gpu.render(p, &camera, &mut out).expect("render");
+            }
+            let memory = gpu.memory();
+            println!(
+                "  {} (built in {built_s:.2} s); device memory {:.0} MB (mesh buffers {:.0} MB, textures {:.0} MB, targets {:.1} MB); resident memory {:.0} MB",
+                gpu.name(),
+                memory.total_bytes() as f64 / 1e6,
+                memory.mesh_buffer_bytes as f64 / 1e6,
+                memory.texture_bytes as f64 / 1e6,
+                memory.target_bytes as f64 / 1e6,
+                status_mb("VmRSS:"),
+            );
             for cull in [true, false] {
                 gpu.set_frustum_cull(cull);
                 let (median, p95, n) = time_renders(&mut gpu, &camera, &poses);

@@ -104,9 +104,10 @@ impl Config {
 
     /// Checks every section; the error names the file and the dotted key.
     pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
-        let sections: [(&str, Result<(), SettingError>); 8] = [
+        let sections: [(&str, Result<(), SettingError>); 9] = [
             ("camera", self.camera.validate()),
             ("map", self.map.validate()),
+            ("render", self.render.validate()),
             ("ipc", self.ipc.validate()),
             ("tracker", self.tracker.validate()),
             ("keyframe", self.keyframe.validate()),

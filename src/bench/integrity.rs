@@ -368,7 +368,7 @@ impl Runner<'_> {
             .collect();
         ds.ground_truth = Some(truth);
         let renderer =
-            crate::render::select::make_renderer(self.config.render.renderer, self.mesh.clone())
+            crate::render::select::make_configured_renderer(&self.config.render, self.mesh.clone())
                 .context("renderer")?;
         let options = OfflineOptions {
             world_from_camera_start: hint,

@@ -110,7 +110,7 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         })?;
     }
     let kind = config.render.renderer;
-    let renderer = crate::render::select::make_renderer(kind, mesh)
+    let renderer = crate::render::select::make_configured_renderer(&config.render, mesh)
         .with_context(|| format!("starting the `{kind:?}` renderer"))?;
     let world_from_camera_start = args.init_pose.as_deref().map(parse_pose).transpose()?;
     let options = OfflineOptions {

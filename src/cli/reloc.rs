@@ -123,8 +123,9 @@ fn build(args: &BuildArgs) -> Result<()> {
         None => AlongTrajectory::default(),
     };
     let kind = config.render.renderer;
-    let mut renderer = crate::render::select::make_renderer(kind, mesh.clone())
-        .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+    let mut renderer =
+        crate::render::select::make_configured_renderer(&config.render, mesh.clone())
+            .with_context(|| format!("starting the `{kind:?}` renderer"))?;
     let bar = ProgressBar::new(0);
     bar.set_style(
         ProgressStyle::with_template(

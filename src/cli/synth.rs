@@ -4,6 +4,9 @@
 //! exact parameters. `--scanned` (or `--preset scanned`) rebuilds the map
 //! from a scanning run by TSDF fusion (Open3D, through Python) and writes
 //! `OUT/star.toml`, the config that places that map in the world.
+//! `--preset building` synthesizes a floor of rooms flown room to room;
+//! `--rooms N` sets how many rooms (the scanned variant of a building is
+//! refused, see `docs/building-scale.md`).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -46,6 +49,10 @@ pub struct SynthArgs {
     /// looks the same is not taken for the mapped one).
     #[arg(long)]
     pub texture_seed: Option<u64>,
+    /// Rooms of the `building` preset (1..=64; default 22): `--rooms 1` and
+    /// `--rooms 4` make the smaller floors of the size table.
+    #[arg(long)]
+    pub rooms: Option<usize>,
     /// TSDF voxel edge of the scanned map, meters (default: the preset's,
     /// 0.01); a coarser voxel is faster (for tests).
     #[arg(long)]
@@ -85,6 +92,18 @@ pub fn run(args: &SynthArgs) -> Result<()> {
         preset
     };
     preset.scene.texture_seed = args.texture_seed;
+    if let Some(rooms) = args.rooms {
+        let Some(spec) = preset.scene.building.as_mut() else {
+            bail!("--rooms applies to the building preset (--preset building)");
+        };
+        spec.rooms = rooms;
+    }
+    if let Some(spec) = &preset.scene.building {
+        spec.validate().context("--rooms")?;
+        if preset.scanned.is_some() {
+            bail!(crate::synth::sequence::SCANNED_BUILDING);
+        }
+    }
     if let Some(voxel_m) = args.scan_voxel_m {
         let Some(spec) = preset.scanned.as_mut() else {
             bail!("--scan-voxel-m applies to a scanned preset (--preset scanned or --scanned)");
@@ -164,6 +183,11 @@ pub fn run(args: &SynthArgs) -> Result<()> {
         summary.map_path.display(),
         summary.map_triangles
     );
+    if let Some((rooms, area_m2, [x_m, y_m])) = summary.building {
+        println!(
+            "building: {rooms} rooms and a corridor, {area_m2:.0} m² of floor on a {x_m:.1} m x {y_m:.1} m footprint"
+        );
+    }
     if let Some(scanned) = &summary.scanned {
         let f = &scanned.fusion;
         println!(

@@ -3,11 +3,15 @@
 //! ([`super::chunks`]) the renderers draw.
 //!
 //! Takes a pose and pinhole intrinsics; gives out [`Frustum`]: the near
-//! plane and the four image-side planes two pixels beyond the outermost
-//! pixel centers (one more than the CPU rasterizer's own triangle cull). A
-//! box is outside only when, padded by a millimeter, it lies wholly outside
-//! one plane: then every vertex in it lies outside that plane, and no
-//! triangle of it can cover a pixel center in either renderer.
+//! plane, the four image-side planes two pixels beyond the outermost
+//! pixel centers (one more than the CPU rasterizer's own triangle cull),
+//! and, with a far limit ([`Frustum::with_far`]), the far plane. A box is
+//! outside only when, padded by a millimeter, it lies wholly outside one
+//! plane: then every vertex in it lies outside that plane, and no triangle
+//! of it can cover a pixel center in either renderer (beyond the far plane
+//! every pixel a triangle covers is deeper than the limit, since depth
+//! over a triangle lies between its vertices' depths, and both renderers
+//! drop such pixels).
 
 use nalgebra::Vector3;
 
@@ -23,11 +27,23 @@ const BOX_PAD_M: f64 = 1e-3;
 /// The CPU rasterizer culls at one pixel; the test adds one more.
 const SIDE_MARGIN_PX: f64 = 2.0;
 
-/// The view volume of one render as five world-frame half-spaces
-/// `n . p + d >= 0`: near, then left, right, top, bottom.
+/// The view volume of one render as six world-frame half-spaces
+/// `n . p + d >= 0`: near, left, right, top, bottom, then far (a plane
+/// every point passes when there is no far limit).
 #[derive(Debug, Clone, Copy)]
 pub struct Frustum {
-    planes: [[f64; 4]; 5],
+    planes: [[f64; 4]; 6],
+}
+
+/// The far half-space when there is no far limit: `0 . p + 1 >= 0`.
+const NO_FAR: [f64; 4] = [0.0, 0.0, 0.0, 1.0];
+
+/// A camera-frame half-space `[a, b, c, d]` in the world frame:
+/// `p_camera = R^T (p_world - t)`, so `n_c . p_camera = (R n_c) . (p_world - t)`.
+fn to_world(world_from_camera: &Pose, [a, b, c, d]: [f64; 4]) -> [f64; 4] {
+    let n = world_from_camera.rotation * Vector3::new(a, b, c);
+    let t = world_from_camera.translation.vector;
+    [n.x, n.y, n.z, d - n.dot(&t)]
 }
 
 impl Frustum {
@@ -46,14 +62,23 @@ impl Frustum {
             [0.0, fy, cy - lo_v, 0.0],
             [0.0, -fy, hi_v - cy, 0.0],
         ];
-        // p_camera = R^T (p_world - t): n_c . p_camera = (R n_c) . (p_world - t).
-        let rotation = world_from_camera.rotation;
-        let t = world_from_camera.translation.vector;
-        let planes = camera_planes.map(|[a, b, c, d]| {
-            let n = rotation * Vector3::new(a, b, c);
-            [n.x, n.y, n.z, d - n.dot(&t)]
-        });
-        Self { planes }
+        let planes = camera_planes.map(|p| to_world(world_from_camera, p));
+        Self {
+            planes: [
+                planes[0], planes[1], planes[2], planes[3], planes[4], NO_FAR,
+            ],
+        }
+    }
+
+    /// This frustum cut at `far_m` along the optical axis (`None`: no
+    /// limit).
+    pub fn with_far(mut self, world_from_camera: &Pose, far_m: Option<f64>) -> Self {
+        self.planes[5] = match far_m {
+            // z <= far  <=>  -z + far >= 0.
+            Some(far_m) => to_world(world_from_camera, [0.0, 0.0, -1.0, far_m]),
+            None => NO_FAR,
+        };
+        self
     }
 
     /// False only when `bounds` (padded) lies wholly outside one plane.
@@ -109,5 +134,14 @@ mod tests {
         };
         assert!(fm.intersects(&cube(at([0.0, 0.0, 3.0]), 0.1)));
         assert!(!fm.intersects(&cube(at([0.0, 0.0, -3.0]), 0.1)));
+        // The far limit: boxes wholly beyond it go, boxes reaching it stay.
+        let far = fm.with_far(&moved, Some(10.0));
+        assert!(far.intersects(&cube(at([0.0, 0.0, 3.0]), 0.1)));
+        assert!(far.intersects(&cube(at([0.0, 0.0, 10.05]), 0.1)));
+        assert!(!far.intersects(&cube(at([0.0, 0.0, 10.2]), 0.1)));
+        assert!(fm.intersects(&cube(at([0.0, 0.0, 10.2]), 0.1)));
+        assert!(far
+            .with_far(&moved, None)
+            .intersects(&cube(at([0.0, 0.0, 10.2]), 0.1)));
     }
 }

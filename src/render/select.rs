@@ -50,12 +50,54 @@ pub enum RendererKind {
     Cpu,
 }
 
+/// Default of `render.far_m`, meters: beyond any one room, so a room-sized
+/// map renders exactly as without a far limit.
+pub const DEFAULT_FAR_M: f64 = 30.0;
+
+/// Accepted `render.far_m`, meters (0 turns the limit off).
+pub const FAR_M_RANGE: std::ops::RangeInclusive<f64> = 1.0..=10_000.0;
+
 /// `[render]`
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RenderConfig {
     /// `auto`, `gpu`, `software` or `cpu`.
     pub renderer: RendererKind,
+    /// Far limit of keyframe renders, meters along the optical axis:
+    /// surfaces beyond it render as "no depth" (never selected as tracking
+    /// points) and mesh chunks wholly beyond it are not drawn at all. 0
+    /// turns it off.
+    pub far_m: f64,
+}
+
+impl Default for RenderConfig {
+    fn default() -> Self {
+        Self {
+            renderer: RendererKind::default(),
+            far_m: DEFAULT_FAR_M,
+        }
+    }
+}
+
+impl RenderConfig {
+    /// Checks `far_m`: 0 (off) or within [`FAR_M_RANGE`].
+    pub fn validate(&self) -> Result<(), crate::settings::SettingError> {
+        crate::settings::first_failure([(
+            "far_m",
+            self.far_m == 0.0 || FAR_M_RANGE.contains(&self.far_m),
+            format!(
+                "expected 0 (no limit) or {}..={} m, found {}",
+                FAR_M_RANGE.start(),
+                FAR_M_RANGE.end(),
+                self.far_m
+            ),
+        )])
+    }
+
+    /// The far limit as the renderers take it: `None` when off.
+    pub fn far_limit_m(&self) -> Option<f64> {
+        (self.far_m > 0.0).then_some(self.far_m)
+    }
 }
 
 /// One renderer of a fallback chain.
@@ -97,13 +139,18 @@ enum Active {
 }
 
 impl Active {
-    fn start(stage: Stage, mesh: &Arc<Mesh>) -> Result<Self, RenderError> {
+    fn start(stage: Stage, mesh: &Arc<Mesh>, far_m: Option<f64>) -> Result<Self, RenderError> {
         match stage {
-            Stage::Gpu(which) => Ok(Active::Gpu(Box::new(GpuRenderer::new(
-                Arc::clone(mesh),
-                which,
-            )?))),
-            Stage::Cpu => Ok(Active::Cpu(Box::new(CpuRenderer::new(Arc::clone(mesh))?))),
+            Stage::Gpu(which) => {
+                let mut r = GpuRenderer::new(Arc::clone(mesh), which)?;
+                r.set_far_m(far_m);
+                Ok(Active::Gpu(Box::new(r)))
+            }
+            Stage::Cpu => {
+                let mut r = CpuRenderer::new(Arc::clone(mesh))?;
+                r.set_far_m(far_m);
+                Ok(Active::Cpu(Box::new(r)))
+            }
         }
     }
 
@@ -120,12 +167,14 @@ impl Active {
 #[derive(Debug)]
 pub struct FallbackRenderer {
     mesh: Arc<Mesh>,
+    far_m: Option<f64>,
     chain: &'static [Stage],
     index: usize,
     active: Active,
 }
 
-/// Builds the renderer `kind` asks for, boxed; see [`FallbackRenderer::new`].
+/// Builds the renderer `kind` asks for, boxed, without a far limit; see
+/// [`FallbackRenderer::new`].
 pub fn make_renderer(
     kind: RendererKind,
     mesh: Arc<Mesh>,
@@ -133,24 +182,47 @@ pub fn make_renderer(
     Ok(Box::new(FallbackRenderer::new(kind, mesh)?))
 }
 
+/// Builds the renderer `[render]` asks for (kind and far limit), boxed.
+pub fn make_configured_renderer(
+    config: &RenderConfig,
+    mesh: Arc<Mesh>,
+) -> Result<Box<dyn Renderer>, RenderError> {
+    Ok(Box::new(FallbackRenderer::with_far(
+        config.renderer,
+        mesh,
+        config.far_limit_m(),
+    )?))
+}
+
 impl FallbackRenderer {
     /// Starts the first renderer of `kind`'s chain that works. With `gpu`
     /// or `software` the first one must work: asking for it explicitly
     /// makes its absence an error. Logs the renderer chosen.
     pub fn new(kind: RendererKind, mesh: Arc<Mesh>) -> Result<Self, RenderError> {
+        Self::with_far(kind, mesh, None)
+    }
+
+    /// As [`FallbackRenderer::new`], every renderer of the chain with the
+    /// far limit `far_m` (see [`RenderConfig::far_m`]).
+    pub fn with_far(
+        kind: RendererKind,
+        mesh: Arc<Mesh>,
+        far_m: Option<f64>,
+    ) -> Result<Self, RenderError> {
         let chain = chain(kind);
         let strict = matches!(kind, RendererKind::Gpu | RendererKind::Software);
         let mut errors = Vec::new();
         for (index, &stage) in chain.iter().enumerate() {
-            match Active::start(stage, &mesh) {
+            match Active::start(stage, &mesh, far_m) {
                 Ok(active) => {
                     let mut renderer = Self {
                         mesh,
+                        far_m,
                         chain,
                         index,
                         active,
                     };
-                    tracing::info!(renderer = %renderer.active.renderer().name(), ?kind, "keyframe renderer chosen");
+                    tracing::info!(renderer = %renderer.active.renderer().name(), ?kind, far_m = ?far_m, "keyframe renderer chosen");
                     return Ok(renderer);
                 }
                 Err(e) => {
@@ -193,7 +265,7 @@ impl FallbackRenderer {
             let Some(&stage) = self.chain.get(index) else {
                 break;
             };
-            match Active::start(stage, &self.mesh) {
+            match Active::start(stage, &self.mesh, self.far_m) {
                 Ok(active) => {
                     self.active = active;
                     self.index = index;
@@ -253,6 +325,30 @@ impl Renderer for FallbackRenderer {
 #[allow(clippy::expect_used, clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn far_limit_defaults_to_30_m_and_is_validated() {
+        let c = RenderConfig::default();
+        assert_eq!(
+            (c.far_m, c.far_limit_m()),
+            (DEFAULT_FAR_M, Some(DEFAULT_FAR_M))
+        );
+        let off = RenderConfig {
+            far_m: 0.0,
+            ..RenderConfig::default()
+        };
+        off.validate().expect("0 turns it off");
+        assert_eq!(off.far_limit_m(), None);
+        for bad in [0.5, -3.0, f64::NAN, 1e9] {
+            let err = RenderConfig {
+                far_m: bad,
+                ..RenderConfig::default()
+            }
+            .validate()
+            .expect_err("out of range");
+            assert!(err.to_string().contains("far_m"), "{err}");
+        }
+    }
 
     #[test]
     fn chains_end_with_the_cpu_rasterizer() {

@@ -19,14 +19,24 @@
 //!   [`super::scanned`]). Any preset gets the same treatment with
 //!   [`Preset::scanned`] (`star synth --scanned`).
 //!
+//! - `building`: a floor of 22 rooms of varied size on both sides of a
+//!   corridor, joined to it by doorways, with look-alike rooms on purpose
+//!   (6 room designs, 4 texture sets; about 900 m² and 5.5 M map
+//!   triangles, see [`super::scene::building`]), flown room to room
+//!   through the doors (`room_to_room`, 0.5 m/s, looking along the
+//!   direction of travel) with the realistic corruptions; occluders in
+//!   every other room design, no map holes. `star synth --rooms N` builds
+//!   a floor of N rooms instead.
+//!
 //! All: 640x512, fx = fy = 420 px (74.6 x 62.7 degrees field of view),
-//! principal point at the image center, 50 Hz, an 8 x 6 x 3 m room with 6
-//! furniture boxes.
+//! principal point at the image center, 50 Hz; all but `building` an
+//! 8 x 6 x 3 m room with 6 furniture boxes.
 
 use serde::Serialize;
 
 use super::corrupt::{BlurSpec, PhotometricSpec};
 use super::scanned::ScannedSpec;
+use super::scene::building::BuildingSpec;
 use super::trajectory::{MotionSpec, TrajectoryKind};
 use crate::geometry::{Distortion, PinholeCamera};
 
@@ -43,7 +53,7 @@ pub enum ImageSource {
 /// The scene part of a preset (the seed comes from the command line).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ScenePreset {
-    /// Room size `[x, y, z]`, m.
+    /// Room size `[x, y, z]`, m (the one room; unused with `building`).
     pub room_size_m: [f64; 3],
     /// Furniture boxes (in map and truth).
     pub furniture_boxes: usize,
@@ -57,6 +67,10 @@ pub struct ScenePreset {
     /// (`star synth --texture-seed`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub texture_seed: Option<u64>,
+    /// A building floor instead of the one room: its own rooms, furniture
+    /// and occluders replace the fields above (but the texture seed).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub building: Option<BuildingSpec>,
 }
 
 /// A complete, exact description of a synthetic sequence.
@@ -92,7 +106,7 @@ pub struct Preset {
 }
 
 /// Names of all presets, in `--list-presets` order.
-pub const PRESET_NAMES: [&str; 4] = ["ideal", "realistic", "aggressive", "scanned"];
+pub const PRESET_NAMES: [&str; 5] = ["ideal", "realistic", "aggressive", "scanned", "building"];
 
 fn camera(distortion: Distortion) -> PinholeCamera {
     PinholeCamera {
@@ -131,6 +145,7 @@ const SCENE: ScenePreset = ScenePreset {
     map_hole_fraction: 0.0,
     texture_px_per_m: 128.0,
     texture_seed: None,
+    building: None,
 };
 
 impl Preset {
@@ -181,6 +196,19 @@ impl Preset {
                 name: "scanned",
                 description: "realistic, with a TSDF-fused map of a noisy scan (1 cm voxels, baked light, holes, scanner frame) and a moving light with auto-exposure steps in flight",
                 ..Preset::by_name("realistic")?.scanned()
+            }),
+            "building" => Some(Preset {
+                name: "building",
+                description: "a floor of 22 rooms (look-alikes on purpose) and a corridor, flown room to room through the doors, with the realistic corruptions",
+                scene: ScenePreset {
+                    occluders: 0,
+                    map_hole_fraction: 0.0,
+                    building: Some(BuildingSpec::default()),
+                    ..SCENE
+                },
+                trajectory: TrajectoryKind::RoomToRoom,
+                motion: TrajectoryKind::RoomToRoom.spec(),
+                ..Preset::by_name("realistic")?
             }),
             _ => None,
         }
@@ -257,6 +285,26 @@ mod tests {
         assert_eq!(aggr.photometric, real.photometric);
         assert_eq!(aggr.motion.max_angular_speed_dps, Some(200.0));
         assert!(ideal.scanned.is_none() && real.scanned.is_none() && aggr.scanned.is_none());
+        assert!(ideal.scene.building.is_none() && real.scene.building.is_none());
+    }
+
+    #[test]
+    fn building_is_realistic_room_to_room() {
+        let b = Preset::by_name("building").expect("exists");
+        let real = Preset::by_name("realistic").expect("exists");
+        assert_eq!(b.trajectory, TrajectoryKind::RoomToRoom);
+        assert_eq!(b.photometric, real.photometric);
+        assert_eq!(b.camera, real.camera);
+        assert_eq!(b.blur, real.blur);
+        assert_eq!(b.images_from, ImageSource::Truth);
+        let spec = b.scene.building.expect("building");
+        spec.validate().expect("valid");
+        assert!(spec.rooms >= 20);
+        let text = b.to_toml();
+        assert!(
+            text.contains("[scene.building]") && text.contains("rooms = 22"),
+            "{text}"
+        );
     }
 
     #[test]

@@ -17,8 +17,11 @@
 //! meshes, bit for bit, on every platform.
 
 mod build;
+pub mod building;
 mod objects;
 mod params;
+
+use std::sync::Arc;
 
 use build::{Face, MeshBuilder, UvMap};
 use objects::{add_box, place_boxes};
@@ -56,15 +59,22 @@ pub struct Scene {
     pub furniture: Vec<SceneBox>,
     /// Occluders (in `truth` only).
     pub occluders: Vec<SceneBox>,
+    /// The floor plan of a building scene ([`building`]); `None` for the
+    /// one room.
+    pub plan: Option<Arc<building::FloorPlan>>,
 }
 
 impl Scene {
-    /// True when `p_world` is inside the room by at least `margin_m` from
-    /// walls, floor and ceiling, and at least `margin_m` outside every
-    /// furniture box and occluder.
+    /// True when `p_world` is inside the room (or a building's rooms,
+    /// corridor and doorways) by at least `margin_m` from walls, floor and
+    /// ceiling, and at least `margin_m` outside every furniture box and
+    /// occluder.
     pub fn is_free(&self, p_world: [f64; 3], margin_m: f64) -> bool {
-        let inside =
-            (0..3).all(|k| p_world[k] >= margin_m && p_world[k] <= self.room_size_m[k] - margin_m);
+        let inside = match &self.plan {
+            Some(plan) => plan.is_free(p_world, margin_m),
+            None => (0..3)
+                .all(|k| p_world[k] >= margin_m && p_world[k] <= self.room_size_m[k] - margin_m),
+        };
         inside
             && !self
                 .furniture
@@ -203,6 +213,7 @@ pub fn build_scene(params: &SceneParams) -> Scene {
         room_size_m: params.room_size_m,
         furniture,
         occluders,
+        plan: None,
     }
 }
 

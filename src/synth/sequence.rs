@@ -32,7 +32,7 @@ use super::scanned::fusion::FusionStats;
 use super::scanned::lighting::{depth_normals, shade};
 use super::scanned::{build_scanned_map, star_toml_text, ScanTools, ScannedError};
 use super::scene::{build_scene, Scene, SceneParams};
-use super::trajectory::{RoomBox, SynthTrajectory, TrajectoryError};
+use super::trajectory::{RoomBox, SynthTrajectory, TrajectoryError, TrajectoryKind};
 use crate::dataset::{CameraFile, DatasetError, DatasetWriter, Trajectory};
 use crate::imgproc::{ImageF32, ImageU8};
 use crate::map::MapError;
@@ -41,6 +41,13 @@ use crate::render::RenderError;
 /// First TUM timestamp of a synthetic sequence, seconds (any positive
 /// value works; a realistic one catches tools that assume small stamps).
 pub const START_STAMP_S: f64 = 1_000.0;
+/// Why the scanned variant of a building is refused (see
+/// `docs/building-scale.md`).
+pub const SCANNED_BUILDING: &str = "the scanned variant of a building is not supported: one TSDF \
+     volume at the scanned preset's 1 cm voxels over a whole floor needs far more memory \
+     and time than this machine class has (docs/building-scale.md); synthesize the \
+     building without --scanned";
+
 /// Most frames one sequence may have (10 minutes at 50 Hz).
 pub const MAX_FRAMES: usize = 30_000;
 
@@ -84,6 +91,12 @@ pub enum SequenceError {
     /// Building the scanned map failed.
     #[error("building the scanned map")]
     Scanned(#[from] ScannedError),
+    /// The preset combines what is not supported together.
+    #[error("{0}")]
+    Unsupported(&'static str),
+    /// The building parameters are out of range.
+    #[error("invalid building")]
+    Building(#[from] super::scene::building::BuildingSpecError),
     /// Writing `synth.toml` failed.
     #[error("writing {path}")]
     Io {
@@ -110,6 +123,9 @@ pub struct SequenceSummary {
     pub renders: usize,
     /// What the scanned variant built; `None` for a closed-world preset.
     pub scanned: Option<ScannedSummary>,
+    /// The building's rooms, floor area (m²) and footprint `[x, y]` (m);
+    /// `None` for the one room.
+    pub building: Option<(usize, f64, [f64; 2])>,
 }
 
 /// What the scanned variant built.
@@ -127,8 +143,13 @@ pub struct ScannedSummary {
     pub fusion: FusionStats,
 }
 
-/// The scene of `preset` for `seed`.
+/// The scene of `preset` for `seed`: the building when the preset has one
+/// (its spec must be valid; a building has its look-alikes built in and
+/// ignores `texture_seed`), else the one room.
 pub fn preset_scene(preset: &Preset, seed: u64) -> Scene {
+    if let Some(spec) = &preset.scene.building {
+        return super::scene::building::build_building(spec, seed);
+    }
     build_scene(&SceneParams {
         seed,
         texture_seed: preset.scene.texture_seed,
@@ -148,17 +169,18 @@ pub fn preset_trajectory(
     seed: u64,
     duration_s: f64,
 ) -> Result<SynthTrajectory, TrajectoryError> {
+    let is_free = |p: &Vector3<f64>, clearance_m| scene.is_free([p.x, p.y, p.z], clearance_m);
+    if preset.trajectory == TrajectoryKind::RoomToRoom {
+        let Some(plan) = &scene.plan else {
+            return Err(TrajectoryError::NoRooms);
+        };
+        return SynthTrajectory::generate_tour(&plan.routes(), seed, duration_s, &is_free);
+    }
     let room = RoomBox {
         min_m: Vector3::zeros(),
         max_m: Vector3::from(scene.room_size_m),
     };
-    SynthTrajectory::generate(
-        preset.trajectory,
-        &room,
-        seed,
-        duration_s,
-        &|p: &Vector3<f64>, clearance_m| scene.is_free([p.x, p.y, p.z], clearance_m),
-    )
+    SynthTrajectory::generate(preset.trajectory, &room, seed, duration_s, &is_free)
 }
 
 /// Most scene layouts tried by [`scene_with_trajectory`].
@@ -238,6 +260,12 @@ pub fn write_sequence_with(
         return Err(SequenceError::FrameCount {
             found: options.frames,
         });
+    }
+    if let Some(spec) = &preset.scene.building {
+        spec.validate()?;
+        if preset.scanned.is_some() {
+            return Err(SequenceError::Unsupported(SCANNED_BUILDING));
+        }
     }
     let duration_s = options.frames as f64 / preset.rate_hz;
     let (scene, trajectory, scene_seed) = scene_with_trajectory(preset, options.seed, duration_s)?;
@@ -415,6 +443,10 @@ pub fn write_sequence_with(
         map_triangles,
         renders,
         scanned: scanned.map(|(summary, _)| summary),
+        building: scene
+            .plan
+            .as_ref()
+            .map(|p| (p.rooms.len(), p.floor_area_m2(), [p.size_m[0], p.size_m[1]])),
     })
 }
 
@@ -503,6 +535,111 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The building preset at a coarse tessellation (fast to build).
+    fn small_building(rooms: usize) -> Preset {
+        let mut preset = Preset::by_name("building").expect("preset");
+        if let Some(spec) = preset.scene.building.as_mut() {
+            spec.rooms = rooms;
+            spec.cell_m = 0.25;
+            spec.texture_px_per_m = 32.0;
+        }
+        preset
+    }
+
+    #[test]
+    fn building_tours_go_room_to_room_in_free_space() {
+        for seed in [1, 2, 3] {
+            let preset = small_building(6);
+            let (scene, trajectory, _) =
+                scene_with_trajectory(&preset, seed, 60.0).expect("placed");
+            let plan = scene.plan.as_ref().expect("a building");
+            let visited = trajectory.rooms_visited();
+            assert!(visited.len() >= 3, "seed {seed}: {visited:?}");
+            assert!(visited.windows(2).all(|w| w[0] != w[1]));
+            // Every 10 ms of the first minute is clear of walls, doors and
+            // boxes, and the camera is in the corridor at some times and in
+            // rooms at others.
+            let (mut in_corridor, mut in_room) = (0, 0);
+            for i in 0..6000 {
+                let t = i as f64 * 0.01;
+                let p = trajectory.position_at(t);
+                assert!(
+                    scene.is_free([p.x, p.y, p.z], 0.25),
+                    "seed {seed}, t {t} s: {p:?}"
+                );
+                if p.y > plan.corridor_min_m[1] && p.y < plan.corridor_max_m[1] {
+                    in_corridor += 1;
+                } else {
+                    in_room += 1;
+                }
+                // Looking roughly along the direction of travel.
+                let ahead = trajectory.position_at(t + 0.2) - p;
+                if ahead.xy().norm() > 0.05 {
+                    let (yaw, _, _) = trajectory.yaw_pitch_roll_at(t);
+                    let heading = ahead.y.atan2(ahead.x);
+                    let off = (yaw - heading + std::f64::consts::PI)
+                        .rem_euclid(std::f64::consts::TAU)
+                        - std::f64::consts::PI;
+                    assert!(
+                        off.abs() < 50f64.to_radians(),
+                        "seed {seed}, t {t} s: {off}"
+                    );
+                }
+            }
+            assert!(
+                in_corridor > 200 && in_room > 200,
+                "{in_corridor} / {in_room}"
+            );
+        }
+    }
+
+    #[test]
+    fn building_sequences_are_the_same_bytes() {
+        let run = |dir: &Path| {
+            let options = SequenceOptions {
+                preset: small_building(2),
+                seed: 5,
+                frames: 2,
+                write_depth: true,
+            };
+            write_sequence(dir, &options, &mut |_| {}).expect("written")
+        };
+        let (a, b) = (
+            tempfile::tempdir().expect("tmp"),
+            tempfile::tempdir().expect("tmp"),
+        );
+        let summary = run(a.path());
+        run(b.path());
+        assert_eq!(summary.building.map(|(rooms, _, _)| rooms), Some(2));
+        let ds = Dataset::open(a.path()).expect("open");
+        for entry in ds.frames.iter().chain(&ds.depth_frames) {
+            let x = std::fs::read(a.path().join(&entry.path)).expect("a");
+            let y = std::fs::read(b.path().join(&entry.path)).expect("b");
+            assert!(x == y, "{} differs", entry.path.display());
+        }
+        for file in ["map/map.obj", "groundtruth.txt", "synth.toml"] {
+            let x = std::fs::read(a.path().join(file)).expect("a");
+            assert!(
+                x == std::fs::read(b.path().join(file)).expect("b"),
+                "{file} differs"
+            );
+        }
+    }
+
+    #[test]
+    fn scanned_building_is_refused_clearly() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let options = SequenceOptions {
+            preset: small_building(1).scanned(),
+            seed: 1,
+            frames: 1,
+            write_depth: false,
+        };
+        let err = write_sequence(tmp.path(), &options, &mut |_| {}).unwrap_err();
+        assert!(matches!(err, SequenceError::Unsupported(_)), "{err}");
+        assert!(err.to_string().contains("building"), "{err}");
     }
 
     #[test]

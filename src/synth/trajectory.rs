@@ -7,7 +7,9 @@
 //!
 //! The camera circles the room center on an ellipse, looking across the room
 //! toward the center (so it sees the opposite walls and the furniture), with
-//! wobble in position, yaw, pitch and roll. Pitch stays within
+//! wobble in position, yaw, pitch and roll. The `room_to_room` kind instead
+//! follows a [`tour::Tour`] through the rooms and doors of a building floor,
+//! looking along the direction of travel, with the same kinds of wobble. Pitch stays within
 //! [`MAX_PITCH_DEG`] and every position within the first
 //! `max(duration, 60 s)` is checked free with the kind's clearance; a
 //! blocked candidate is redrawn with another ellipse size and phases.
@@ -16,6 +18,10 @@ use nalgebra::{Translation3, Vector3};
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::Serialize;
+
+pub mod tour;
+
+use std::sync::Arc;
 
 use crate::dataset::Trajectory;
 use crate::geometry::look::camera_rotation;
@@ -41,6 +47,9 @@ pub enum TrajectoryError {
         /// Clearance required around the camera.
         clearance_m: f64,
     },
+    /// A room-to-room trajectory was asked of a scene without rooms.
+    #[error("a room_to_room trajectory needs a building scene")]
+    NoRooms,
     /// No candidate stayed in free space.
     #[error("no {kind:?} trajectory for seed {seed} stays {clearance_m} m from obstacles after {attempts} attempts; last blocked at {blocked_at_m:?}")]
     NoFreePath {
@@ -65,6 +74,10 @@ pub enum TrajectoryKind {
     SlowLoop,
     /// A fast loop (about 1.5 m/s) with rotation rates up to 200 deg/s.
     Aggressive,
+    /// Room to room through doors on a building floor at about 0.5 m/s,
+    /// looking roughly along the direction of travel (`loop_speed_mps` is
+    /// the speed along the tour, `loop_fill` is unused).
+    RoomToRoom,
 }
 
 /// The motion design of a [`TrajectoryKind`]: exact parameters.
@@ -133,6 +146,21 @@ impl TrajectoryKind {
                 max_angular_speed_dps: Some(200.0),
                 clearance_m: 0.3,
             },
+            TrajectoryKind::RoomToRoom => MotionSpec {
+                loop_speed_mps: 0.5,
+                loop_fill: 0.0,
+                height_m: 1.4,
+                position_wobble_m: 0.05,
+                vertical_wobble_m: 0.1,
+                position_wobble_hz: (0.03, 0.1),
+                yaw_wobble_deg: 15.0,
+                pitch_bias_deg: -5.0,
+                pitch_wobble_deg: 8.0,
+                roll_wobble_deg: 3.0,
+                rotation_wobble_hz: (0.02, 0.08),
+                max_angular_speed_dps: None,
+                clearance_m: 0.3,
+            },
         }
     }
 }
@@ -188,6 +216,8 @@ pub struct SynthTrajectory {
     roll: [Sine; 2],
     pitch_bias_rad: f64,
     rotation_scale: f64,
+    /// The room-to-room path; `None` for the loops.
+    tour: Option<Arc<tour::Tour>>,
 }
 
 impl SynthTrajectory {
@@ -254,6 +284,7 @@ impl SynthTrajectory {
                 ),
                 pitch_bias_rad: spec.pitch_bias_deg.to_radians(),
                 rotation_scale: 1.0,
+                tour: None,
             };
             if let Some(max_dps) = spec.max_angular_speed_dps {
                 candidate.cap_angular_speed(max_dps);
@@ -275,6 +306,81 @@ impl SynthTrajectory {
         })
     }
 
+    /// A `room_to_room` trajectory through the rooms of `routes` (in
+    /// corridor order), free for at least `max(duration_s, 60 s)`
+    /// according to `is_free(point, clearance_m)`. Each attempt draws
+    /// another start room, direction and wobble.
+    pub fn generate_tour(
+        routes: &[tour::RoomRoute],
+        seed: u64,
+        duration_s: f64,
+        is_free: &dyn Fn(&Vector3<f64>, f64) -> bool,
+    ) -> Result<Self, TrajectoryError> {
+        let kind = TrajectoryKind::RoomToRoom;
+        let spec = kind.spec();
+        let horizon_s = duration_s.max(CHECK_HORIZON_S);
+        // The wobble and the smoothing never reach this far past the end.
+        let length_m = spec.loop_speed_mps * horizon_s + 4.0;
+        let mut blocked_at_m = [f64::NAN; 3];
+        for attempt in 0..MAX_ATTEMPTS {
+            let attempt_seed = seed ^ attempt.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+            let Some(path) = tour::Tour::through(routes, attempt_seed, length_m) else {
+                break;
+            };
+            let mut rng = StdRng::seed_from_u64(attempt_seed);
+            let candidate = Self {
+                kind,
+                center_m: Vector3::new(0.0, 0.0, spec.height_m),
+                radii_m: (0.0, 0.0),
+                loop_rate_rad_s: spec.loop_speed_mps,
+                theta0_rad: 0.0,
+                position: [
+                    draw_wobble(&mut rng, spec.position_wobble_m, spec.position_wobble_hz),
+                    draw_wobble(&mut rng, spec.position_wobble_m, spec.position_wobble_hz),
+                    draw_wobble(&mut rng, spec.vertical_wobble_m, spec.position_wobble_hz),
+                ],
+                yaw: draw_wobble(
+                    &mut rng,
+                    spec.yaw_wobble_deg.to_radians(),
+                    spec.rotation_wobble_hz,
+                ),
+                pitch: draw_wobble(
+                    &mut rng,
+                    spec.pitch_wobble_deg.to_radians(),
+                    spec.rotation_wobble_hz,
+                ),
+                roll: draw_wobble(
+                    &mut rng,
+                    spec.roll_wobble_deg.to_radians(),
+                    spec.rotation_wobble_hz,
+                ),
+                pitch_bias_rad: spec.pitch_bias_deg.to_radians(),
+                rotation_scale: 1.0,
+                tour: Some(Arc::new(path)),
+            };
+            match candidate.first_blocked(horizon_s, spec.clearance_m, is_free) {
+                None => {
+                    tracing::debug!(?kind, seed, attempt, "tour generated");
+                    return Ok(candidate);
+                }
+                Some(p) => blocked_at_m = p.into(),
+            }
+        }
+        Err(TrajectoryError::NoFreePath {
+            kind,
+            seed,
+            attempts: MAX_ATTEMPTS,
+            clearance_m: spec.clearance_m,
+            blocked_at_m,
+        })
+    }
+
+    /// The rooms a `room_to_room` trajectory visits, in order (empty for
+    /// a loop).
+    pub fn rooms_visited(&self) -> &[usize] {
+        self.tour.as_ref().map_or(&[], |t| t.rooms())
+    }
+
     /// The kind this trajectory was generated as.
     pub fn kind(&self) -> TrajectoryKind {
         self.kind
@@ -282,6 +388,16 @@ impl SynthTrajectory {
 
     /// Camera position at time `t_s`, world frame.
     pub fn position_at(&self, t_s: f64) -> Vector3<f64> {
+        let wobble = Vector3::new(
+            eval(&self.position[0], t_s, 1.0),
+            eval(&self.position[1], t_s, 1.0),
+            eval(&self.position[2], t_s, 1.0),
+        );
+        if let Some(tour) = &self.tour {
+            // loop_rate_rad_s holds the speed along the tour, m/s.
+            let [x, y] = tour.position(self.loop_rate_rad_s * t_s);
+            return Vector3::new(x, y, self.center_m.z) + wobble;
+        }
         let theta = self.theta0_rad + self.loop_rate_rad_s * t_s;
         self.center_m
             + Vector3::new(
@@ -289,19 +405,18 @@ impl SynthTrajectory {
                 self.radii_m.1 * theta.sin(),
                 0.0,
             )
-            + Vector3::new(
-                eval(&self.position[0], t_s, 1.0),
-                eval(&self.position[1], t_s, 1.0),
-                eval(&self.position[2], t_s, 1.0),
-            )
+            + wobble
     }
 
     /// Yaw, pitch and roll at time `t_s`, radians (see [`super::look`]).
     pub fn yaw_pitch_roll_at(&self, t_s: f64) -> (f64, f64, f64) {
-        let theta = self.theta0_rad + self.loop_rate_rad_s * t_s;
         let k = self.rotation_scale;
+        let heading = match &self.tour {
+            Some(tour) => tour.heading_rad(self.loop_rate_rad_s * t_s),
+            None => self.theta0_rad + self.loop_rate_rad_s * t_s + std::f64::consts::PI,
+        };
         (
-            theta + std::f64::consts::PI + eval(&self.yaw, t_s, k),
+            heading + eval(&self.yaw, t_s, k),
             self.pitch_bias_rad + eval(&self.pitch, t_s, k),
             eval(&self.roll, t_s, k),
         )

@@ -97,7 +97,7 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
     };
     stopped_during_start(&shutdown)?;
     let kind = config.render.renderer;
-    let renderer = crate::render::select::make_renderer(kind, mesh_data)
+    let renderer = crate::render::select::make_configured_renderer(&config.render, mesh_data)
         .with_context(|| format!("starting the `{kind:?}` renderer"))?;
     let mut localizer = Localizer::start(
         renderer,

@@ -98,8 +98,9 @@ impl Bench {
         // `[render] renderer` of the configuration (auto: a hardware adapter,
         // else lavapipe, else the CPU rasterizer).
         let kind = config.render.renderer;
-        let candidate_r = crate::render::select::make_renderer(kind, map.clone())
-            .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+        let candidate_r =
+            crate::render::select::make_configured_renderer(&config.render, map.clone())
+                .with_context(|| format!("starting the `{kind:?}` renderer"))?;
 
         let t0 = Instant::now();
         let bar = indicatif::ProgressBar::new(0);
@@ -188,8 +189,9 @@ impl Bench {
         );
         let camera = *dataset.camera();
         let kind = config.render.renderer;
-        let candidate_r = crate::render::select::make_renderer(kind, mesh.clone())
-            .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+        let candidate_r =
+            crate::render::select::make_configured_renderer(&config.render, mesh.clone())
+                .with_context(|| format!("starting the `{kind:?}` renderer"))?;
         println!(
             "reloc bench: dataset {}, {} frames, map {} triangles, camera {}x{}",
             dataset.root.display(),

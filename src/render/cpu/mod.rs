@@ -9,7 +9,10 @@
 //!
 //! At construction the mesh is split into spatial chunks
 //! ([`crate::render::chunks`]); a render sets up only the chunks whose box
-//! meets the view frustum, so its cost follows what is visible.
+//! meets the view frustum (cut at the far limit, when one is set with
+//! [`CpuRenderer::set_far_m`]), and of those, in nearest-first batches,
+//! skips the ones hidden behind what earlier batches drew ([`occlusion`]),
+//! so its cost follows what is visible.
 //!
 //! Pipeline, each stage parallel over fixed work units (rayon):
 //! 1. [`setup`], per visible chunk: its vertices into the camera frame
@@ -31,6 +34,7 @@
 //! allocate beyond what rayon does to schedule tasks.
 
 mod clip;
+mod occlusion;
 mod raster;
 mod setup;
 mod validate;
@@ -47,11 +51,12 @@ use std::sync::Arc;
 
 use rayon::prelude::*;
 
+use self::occlusion::Occlusion;
 use self::setup::{Chunk, BAND_ROWS, NO_TEXTURE};
 use self::view::{View, NEAR_M};
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::{GrayTexture, Mesh};
-use crate::render::chunks::{ChunkedMesh, CullStats};
+use crate::render::chunks::{ChunkedMesh, CullStats, MeshChunk};
 use crate::render::frustum::Frustum;
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
@@ -73,6 +78,15 @@ pub struct CpuRenderer {
     cull: bool,
     /// Counts of the last render's frustum test.
     stats: CullStats,
+    /// Far limit along the optical axis, meters; `None`: none.
+    far_m: Option<f64>,
+    /// Whether chunks hidden behind nearer ones are skipped (on by
+    /// default, with the frustum cull).
+    occlusion_cull: bool,
+    /// Scratch of the occlusion cull.
+    occlusion: Occlusion,
+    /// Per chunk, whether it is set up in the current batch.
+    in_batch: Vec<bool>,
 }
 
 impl std::fmt::Debug for CpuRenderer {
@@ -103,6 +117,7 @@ impl CpuRenderer {
                 )
             })
             .collect();
+        let chunked_count = chunked.chunks.len();
         Ok(Self {
             visible: vec![true; chunked.chunks.len()],
             mesh,
@@ -112,6 +127,10 @@ impl CpuRenderer {
             tri_order: Vec::new(),
             cull: true,
             stats: CullStats::default(),
+            far_m: None,
+            occlusion_cull: true,
+            occlusion: Occlusion::new(chunked_count),
+            in_batch: vec![false; chunked_count],
         })
     }
 
@@ -147,9 +166,37 @@ impl CpuRenderer {
         self.cull = on;
     }
 
-    /// Chunk and triangle counts of the last render's frustum test.
+    /// Chunk and triangle counts of the last render's frustum test (less
+    /// the chunks the occlusion cull skipped).
     pub fn cull_stats(&self) -> CullStats {
         self.stats
+    }
+
+    /// Turns the skipping of chunks hidden behind nearer ones on (the
+    /// default) or off. It works only with the frustum cull on. The output
+    /// is the same either way.
+    pub fn set_occlusion_cull(&mut self, on: bool) {
+        self.occlusion_cull = on;
+    }
+
+    /// Sets the far limit (`None`, the default: none): pixels deeper than
+    /// `far_m` along the optical axis render as no hit, and chunks wholly
+    /// beyond it are not set up.
+    pub fn set_far_m(&mut self, far_m: Option<f64>) {
+        self.far_m = far_m.filter(|f| f.is_finite() && *f > f64::from(NEAR_M));
+    }
+
+    /// Bytes the renderer holds for the mesh: the chunked copy (vertices,
+    /// indices, triangle numbers) plus the shared mesh's textures.
+    pub fn mesh_bytes(&self) -> u64 {
+        let c = &self.chunked;
+        let texels: usize = self.mesh.textures.iter().map(|t| t.texels.len()).sum();
+        (c.positions.len() * 12
+            + c.gray.len() * 4
+            + c.uvs.len() * 8
+            + c.indices.len() * 4
+            + c.source_triangle.len() * 4
+            + texels * 4) as u64
     }
 }
 
@@ -166,8 +213,9 @@ impl Renderer for CpuRenderer {
     ) -> Result<(), RenderError> {
         check_request(world_from_camera, camera)?;
         out.check_size(camera)?;
-        let view = View::new(world_from_camera, camera);
-        let frustum = Frustum::new(world_from_camera, camera, f64::from(NEAR_M));
+        let view = View::new(world_from_camera, camera).with_far(self.far_m);
+        let frustum = Frustum::new(world_from_camera, camera, f64::from(NEAR_M))
+            .with_far(world_from_camera, self.far_m);
         let Self {
             mesh,
             chunked,
@@ -177,12 +225,16 @@ impl Renderer for CpuRenderer {
             tri_order,
             cull,
             stats,
+            occlusion_cull,
+            occlusion,
+            in_batch,
             ..
         } = self;
         *stats = chunked.mark_visible(cull.then_some(&frustum), visible);
         // Sized once per image size; no allocation in steady state.
         tri_order.resize(view.width * view.height, 0);
-        let mut work = || {
+        let occlusion = (*cull && *occlusion_cull).then_some(occlusion);
+        let work = || {
             draw(
                 chunked,
                 &mesh.textures,
@@ -191,18 +243,27 @@ impl Renderer for CpuRenderer {
                 &view,
                 tri_order,
                 out,
+                occlusion,
+                in_batch,
             )
         };
-        match pool {
+        let (hidden_chunks, hidden_triangles) = match pool {
             Some(pool) => pool.install(work),
             None => work(),
-        }
+        };
+        stats.visible_chunks -= hidden_chunks;
+        stats.visible_triangles -= hidden_triangles;
         Ok(())
     }
 }
 
-/// Runs the two stages on the visible chunks. `out` has been checked
-/// against `view`; `tri_order` has one element per pixel.
+/// Runs the two stages on the chunks marked in `visible`: all at once, or,
+/// with `occlusion`, in nearest-first batches, each later batch without the
+/// chunks hidden behind what the earlier ones drew ([`occlusion`]). `out`
+/// has been checked against `view`; `tri_order` has one element per pixel;
+/// `in_batch` has one element per chunk. Returns the chunks and triangles
+/// the occlusion cull skipped.
+#[allow(clippy::too_many_arguments)]
 fn draw(
     mesh: &ChunkedMesh,
     textures: &[GrayTexture],
@@ -211,28 +272,74 @@ fn draw(
     view: &View,
     tri_order: &mut [u32],
     out: &mut RenderedView,
-) {
+    mut occlusion: Option<&mut Occlusion>,
+    in_batch: &mut [bool],
+) -> (usize, usize) {
     let bands = view.height.div_ceil(BAND_ROWS);
-    chunks
-        .par_iter_mut()
-        .zip(mesh.chunks.par_iter())
-        .zip(visible.par_iter())
-        .for_each(|((scratch, chunk), &visible)| {
-            if visible {
-                scratch.build(chunk, mesh, view, bands);
-            } else {
-                scratch.skip();
+    let batches = if occlusion.is_some() {
+        occlusion::BATCHES
+    } else {
+        1
+    };
+    if let Some(occ) = occlusion.as_deref_mut() {
+        occ.prepare(&mesh.chunks, visible, view);
+    }
+    let mut skipped = (0, 0);
+    for batch in 0..batches {
+        match occlusion.as_deref() {
+            None => in_batch.copy_from_slice(visible),
+            Some(occ) => {
+                in_batch.fill(false);
+                for &i in occ.order.get(occ.batch(batch)).unwrap_or(&[]) {
+                    let i = i as usize;
+                    if batch > 0 && occ.hidden(i) {
+                        skipped.0 += 1;
+                        skipped.1 += mesh.chunks.get(i).map_or(0, MeshChunk::triangle_count);
+                    } else if let Some(slot) = in_batch.get_mut(i) {
+                        *slot = true;
+                    }
+                }
             }
-        });
-    let chunks = &*chunks;
-    let band_len = view.width * BAND_ROWS;
-    out.gray
-        .data_mut()
-        .par_chunks_mut(band_len)
-        .zip(out.depth_m.data_mut().par_chunks_mut(band_len))
-        .zip(tri_order.par_chunks_mut(band_len))
-        .enumerate()
-        .for_each(|(band, ((gray, depth_m), order))| {
-            raster::draw_band(band, view.width, chunks, textures, gray, depth_m, order);
-        });
+        }
+        chunks
+            .par_iter_mut()
+            .zip(mesh.chunks.par_iter())
+            .zip(in_batch.par_iter())
+            .for_each(|((scratch, chunk), &drawn)| {
+                if drawn {
+                    scratch.build(chunk, mesh, view, bands);
+                } else {
+                    scratch.skip();
+                }
+            });
+        let stage = (batch == 0, batch + 1 == batches);
+        let drawn = &*chunks;
+        let band_len = view.width * BAND_ROWS;
+        out.gray
+            .data_mut()
+            .par_chunks_mut(band_len)
+            .zip(out.depth_m.data_mut().par_chunks_mut(band_len))
+            .zip(tri_order.par_chunks_mut(band_len))
+            .enumerate()
+            .for_each(|(band, ((gray, depth_m), order))| {
+                raster::draw_band(
+                    band,
+                    view.width,
+                    view.min_inv_z,
+                    stage,
+                    drawn,
+                    textures,
+                    gray,
+                    depth_m,
+                    order,
+                );
+            });
+        if let Some(occ) = occlusion.as_deref_mut() {
+            if batch + 1 < batches {
+                // Between batches the depth image holds 1/z.
+                occ.update_tiles(out.depth_m.data(), view.width);
+            }
+        }
+    }
+    skipped
 }

@@ -6,7 +6,8 @@
 //! sampled at pixel centers (integer coordinates), a z-buffer on `1/z` with
 //! ties won by the lower mesh triangle number (as drawing in mesh order
 //! would), perspective-correct gray and texture coordinates, bilinear
-//! texture sampling with repeat addressing.
+//! texture sampling with repeat addressing. With a far limit, a pixel
+//! whose `1/z` is below `1/far` is not drawn.
 //!
 //! While a band is drawn, its depth slice holds `1/z` (0 = empty); the band
 //! is finished by turning it into metric depth.
@@ -18,25 +19,34 @@ use crate::render::NO_DEPTH;
 
 /// Draws band `band` (rows `band * BAND_ROWS ..`) of a `width`-wide image
 /// into `gray` and `depth_m` (the band's rows only), with `order` (as many
-/// pixels) as scratch for the depth tie-break.
+/// pixels) as scratch for the depth tie-break; pixels with `1/z` below
+/// `min_inv_z` are not drawn. A render may draw a band in several passes
+/// (one per batch of chunks): `first` clears it, `last` turns its `1/z`
+/// into metric depth; in between `depth_m` holds `1/z`.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn draw_band(
     band: usize,
     width: usize,
+    min_inv_z: f32,
+    (first, last): (bool, bool),
     chunks: &[Chunk],
     textures: &[GrayTexture],
     gray: &mut [f32],
     depth_m: &mut [f32],
     order: &mut [u32],
 ) {
-    gray.fill(0.0);
-    depth_m.fill(0.0);
-    // With depth 0 (empty) no triangle number is below 0: no tie to win.
-    order.fill(0);
+    if first {
+        gray.fill(0.0);
+        depth_m.fill(0.0);
+        // With depth 0 (empty) no triangle number is below 0: no tie to win.
+        order.fill(0);
+    }
     let rows = gray.len() / width.max(1);
     let mut target = Band {
         y0: band * BAND_ROWS,
         rows,
         width,
+        min_inv_z,
         gray,
         inv_z: depth_m,
         order,
@@ -50,8 +60,10 @@ pub(super) fn draw_band(
             }
         }
     }
-    for d in target.inv_z.iter_mut() {
-        *d = if *d > 0.0 { 1.0 / *d } else { NO_DEPTH };
+    if last {
+        for d in target.inv_z.iter_mut() {
+            *d = if *d > 0.0 { 1.0 / *d } else { NO_DEPTH };
+        }
     }
 }
 
@@ -60,6 +72,8 @@ struct Band<'a> {
     y0: usize,
     rows: usize,
     width: usize,
+    /// `1/far`: pixels with a smaller `1/z` are not drawn.
+    min_inv_z: f32,
     gray: &'a mut [f32],
     /// `1/z` during drawing, 0 where empty.
     inv_z: &'a mut [f32],
@@ -111,7 +125,7 @@ impl Band<'_> {
             textures.get(tri.texture as usize)
         };
         let y_hi = self.y0 + self.rows - 1;
-        let (y0, width) = (self.y0, self.width);
+        let (y0, width, min_inv_z) = (self.y0, self.width, self.min_inv_z);
         let (gray, inv_z_buf, order_buf) = (&mut *self.gray, &mut *self.inv_z, &mut *self.order);
         let order = tri.order;
         for_each_span(tri, y0, y_hi, |span, dw1, dw2| {
@@ -128,7 +142,7 @@ impl Band<'_> {
             for ((d, g_out), o) in depth_run.iter_mut().zip(gray_run).zip(order_run) {
                 let inv_z = iz.0 + w1 * iz.1 + w2 * iz.2;
                 let inv_z32 = inv_z as f32;
-                if inv_z32 > *d || (inv_z32 == *d && order < *o) {
+                if (inv_z32 > *d || (inv_z32 == *d && order < *o)) && inv_z32 >= min_inv_z {
                     *d = inv_z32;
                     *o = order;
                     let z = 1.0 / inv_z;

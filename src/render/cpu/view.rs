@@ -74,6 +74,9 @@ pub(super) struct View {
     pub width: usize,
     /// Image height in pixels.
     pub height: usize,
+    /// Smallest `1/z` a pixel may have (`1/far`, as `f32`): deeper pixels
+    /// are not drawn. 0 without a far limit.
+    pub min_inv_z: f32,
     /// Clip planes `(a, b, c, d)` as `x y z w`: near, guard
     /// left/right/top/bottom, view left/right/top/bottom.
     pub planes: [Vec4; 9],
@@ -114,11 +117,29 @@ impl View {
             cy,
             width: camera.width as usize,
             height: camera.height as usize,
+            min_inv_z: 0.0,
             planes: [
                 near, guard[0], guard[1], guard[2], guard[3], view[0], view[1], view[2], view[3],
             ],
             bounds: [-g, w - 1.0 + g, -g, h - 1.0 + g, -1.0, w, -1.0, h],
         }
+    }
+
+    /// This view with pixels deeper than `far_m` left undrawn (`None`: no
+    /// limit).
+    pub fn with_far(mut self, far_m: Option<f64>) -> Self {
+        self.min_inv_z = far_m.map_or(0.0, |f| (1.0 / f) as f32);
+        self
+    }
+
+    /// Pixel coordinates of a camera-frame point in front of the camera,
+    /// `f32` (for conservative screen rectangles, not for rasterization).
+    pub fn pixel_f32(&self, p: Vec3A) -> (f32, f32) {
+        let (x, y, z) = (f64::from(p.x), f64::from(p.y), f64::from(p.z));
+        (
+            (self.fx * x / z + self.cx) as f32,
+            (self.fy * y / z + self.cy) as f32,
+        )
     }
 
     /// Signed distance-like value of `p` to plane `i` (negative: outside).

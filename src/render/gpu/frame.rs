@@ -132,6 +132,13 @@ impl FrameTargets {
         (self.width, self.height)
     }
 
+    /// Bytes allocated: the three 4-byte-per-pixel targets (gray, depth,
+    /// z-buffer) and the staging buffers.
+    pub fn bytes(&self) -> u64 {
+        let targets = 3 * 4 * u64::from(self.width) * u64::from(self.height);
+        targets + self.slots.iter().map(|s| s.buffer.size()).sum::<u64>()
+    }
+
     /// A staging slot with no readback in flight, if any.
     pub fn free_slot(&self) -> Option<usize> {
         self.slots.iter().position(|s| !s.busy)

@@ -34,7 +34,7 @@ mod upload;
 pub use adapter::{
     auto_choice, lavapipe_installed, list_adapters, AdapterClass, AdapterPreference, AdapterSummary,
 };
-pub use renderer::{GpuRenderer, PendingRender};
+pub use renderer::{GpuMemory, GpuRenderer, PendingRender};
 pub use upload::TextureFormat;
 
 #[cfg(doc)]

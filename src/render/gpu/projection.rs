@@ -9,9 +9,12 @@
 //!   shifts by half a pixel.
 //! - wgpu NDC has y up and framebuffer y down, while the camera optical
 //!   frame has y down: the y row is negated.
-//! - Depth is reversed and has no far plane: `z_ndc = near / z_camera`, in
+//! - Depth is reversed: without a far limit `z_ndc = near / z_camera`, in
 //!   `[0, 1]` for `z_camera >= near`, compared with `Greater` and cleared to
 //!   0. Depth32Float keeps nearly constant relative precision this way.
+//!   With a far limit `z_ndc = (near / z - near / far) / (1 - near / far)`:
+//!   1 at the near plane, 0 at the far plane, and the hardware clips what
+//!   lies beyond it.
 //! - `w_clip = z_camera`, so the shader takes the metric depth it writes to
 //!   the R32Float target straight from `clip.w`.
 //!
@@ -31,13 +34,30 @@ pub const NEAR_M: f64 = 0.05;
 /// `clip_from_camera` for `camera` (distortion ignored) and near plane
 /// `near_m`. Columns act on `[x, y, z, 1]` in the camera optical frame.
 pub fn clip_from_camera(camera: &PinholeCamera, near_m: f64) -> Matrix4<f64> {
+    clip_from_camera_far(camera, near_m, None)
+}
+
+/// [`clip_from_camera`] with the far plane at `far_m` (`None`: none).
+pub fn clip_from_camera_far(
+    camera: &PinholeCamera,
+    near_m: f64,
+    far_m: Option<f64>,
+) -> Matrix4<f64> {
+    // z_ndc = a + b / z: a + b / near = 1 and a + b / far = 0.
+    let (a, b) = match far_m {
+        Some(far_m) if far_m > near_m => {
+            let span = far_m - near_m;
+            (-near_m / span, near_m * far_m / span)
+        }
+        _ => (0.0, near_m),
+    };
     let w = f64::from(camera.width);
     let h = f64::from(camera.height);
     #[rustfmt::skip]
     let m = Matrix4::new(
         2.0 * camera.fx / w, 0.0,                  2.0 * (camera.cx + 0.5) / w - 1.0, 0.0,
         0.0,                 -2.0 * camera.fy / h, 1.0 - 2.0 * (camera.cy + 0.5) / h, 0.0,
-        0.0,                 0.0,                  0.0,                               near_m,
+        0.0,                 0.0,                  a,                                 b,
         0.0,                 0.0,                  1.0,                               0.0,
     );
     m
@@ -57,10 +77,18 @@ pub const VIEW_UNIFORM_BYTES: u64 = std::mem::size_of::<ViewUniform>() as u64;
 const _: () = assert!(VIEW_UNIFORM_BYTES == 64, "WGSL `View` is one mat4x4<f32>");
 
 impl ViewUniform {
-    /// The uniform for a camera at `world_from_camera`.
-    pub fn new(world_from_camera: &Pose, camera: &PinholeCamera, near_m: f64) -> Self {
+    /// The uniform for a camera at `world_from_camera`, with the far
+    /// plane at `far_m` (`None`: none).
+    pub fn new(
+        world_from_camera: &Pose,
+        camera: &PinholeCamera,
+        near_m: f64,
+        far_m: Option<f64>,
+    ) -> Self {
+        let camera_from_world = world_from_camera.inverse().to_homogeneous();
+        let m = clip_from_camera_far(camera, near_m, far_m) * camera_from_world;
         Self {
-            clip_from_world: clip_from_world(world_from_camera, camera, near_m),
+            clip_from_world: Mat4::from_cols_array_2d(&m.cast::<f32>().into()),
         }
     }
 }
@@ -135,6 +163,24 @@ mod tests {
         assert!(
             behind.z > behind.w,
             "closer than near is clipped (z_clip > w_clip)"
+        );
+    }
+
+    #[test]
+    fn far_limit_maps_near_to_one_far_to_zero_and_clips_beyond() {
+        let camera = PinholeCamera::new(64, 64, 50.0, 50.0, 31.5, 31.5);
+        let m = clip_from_camera_far(&camera, NEAR_M, Some(30.0));
+        let ndc_z = |z: f64| {
+            let c = m * Vector4::new(0.0, 0.0, z, 1.0);
+            c.z / c.w
+        };
+        assert!((ndc_z(NEAR_M) - 1.0).abs() < 1e-12);
+        assert!(ndc_z(30.0).abs() < 1e-12);
+        assert!(ndc_z(30.1) < 0.0, "beyond far is clipped (z_ndc < 0)");
+        assert!(ndc_z(2.0) > ndc_z(3.0), "still reversed");
+        assert_eq!(
+            clip_from_camera_far(&camera, NEAR_M, None),
+            clip_from_camera(&camera, NEAR_M)
         );
     }
 

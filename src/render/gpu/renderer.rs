@@ -47,6 +47,25 @@ pub struct PendingRender {
     submission: wgpu::SubmissionIndex,
 }
 
+/// Device memory of a [`GpuRenderer`], bytes, as allocated (the driver's
+/// own overhead and alignment are not counted).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct GpuMemory {
+    /// Vertex and index buffers of the mesh.
+    pub mesh_buffer_bytes: u64,
+    /// Mesh textures (and the 1x1 white texel).
+    pub texture_bytes: u64,
+    /// Render targets, z-buffer and readback staging buffers.
+    pub target_bytes: u64,
+}
+
+impl GpuMemory {
+    /// Everything.
+    pub fn total_bytes(&self) -> u64 {
+        self.mesh_buffer_bytes + self.texture_bytes + self.target_bytes
+    }
+}
+
 /// The wgpu renderer. See the [module docs](super).
 #[derive(Debug)]
 pub struct GpuRenderer {
@@ -67,6 +86,8 @@ pub struct GpuRenderer {
     cull: bool,
     /// Counts of the last render's frustum test.
     stats: CullStats,
+    /// Far limit along the optical axis, meters; `None`: none.
+    far_m: Option<f64>,
     frame: Option<FrameTargets>,
     max_dimension: u32,
     fault: Fault,
@@ -219,7 +240,14 @@ impl GpuRenderer {
         if let Some(message) = fault.lock().unwrap_or_else(|p| p.into_inner()).take() {
             return Err(device_error(message));
         }
-        tracing::debug!(adapter = %info.name, ?texture_format, "mesh uploaded");
+        tracing::info!(
+            adapter = %info.name,
+            ?texture_format,
+            buffer_mb = gpu_mesh.buffer_bytes as f64 / 1e6,
+            texture_mb = gpu_mesh.texture_bytes as f64 / 1e6,
+            chunks = gpu_mesh.chunks.len(),
+            "mesh uploaded to the device"
+        );
         Ok(Self {
             texture_format,
             class: adapter::classify(&info),
@@ -235,6 +263,7 @@ impl GpuRenderer {
             mesh: gpu_mesh,
             cull: true,
             stats: CullStats::default(),
+            far_m: None,
             frame: None,
             fault,
             renders: 0,
@@ -266,6 +295,23 @@ impl GpuRenderer {
     /// Chunk and triangle counts of the last render's frustum test.
     pub fn cull_stats(&self) -> CullStats {
         self.stats
+    }
+
+    /// Sets the far limit (`None`, the default: none): the far clip plane
+    /// of the projection, and chunks wholly beyond it are not drawn.
+    pub fn set_far_m(&mut self, far_m: Option<f64>) {
+        self.far_m = far_m.filter(|f| f.is_finite() && *f > NEAR_M);
+    }
+
+    /// Device memory the renderer has allocated: the mesh (vertex and
+    /// index buffers, textures) and, once a render has sized them, the
+    /// render targets and readback buffers.
+    pub fn memory(&self) -> GpuMemory {
+        GpuMemory {
+            mesh_buffer_bytes: self.mesh.buffer_bytes,
+            texture_bytes: self.mesh.texture_bytes,
+            target_bytes: self.frame.as_ref().map_or(0, FrameTargets::bytes),
+        }
     }
 
     /// Test hook: the next `n` renders succeed, every later one fails with
@@ -314,7 +360,8 @@ impl GpuRenderer {
                 max_dimension: self.max_dimension,
             });
         }
-        let frustum = Frustum::new(world_from_camera, camera, NEAR_M);
+        let frustum =
+            Frustum::new(world_from_camera, camera, NEAR_M).with_far(world_from_camera, self.far_m);
         self.stats = draws::select(
             &self.mesh.chunks,
             &self.mesh.chunk_texture,
@@ -333,7 +380,7 @@ impl GpuRenderer {
         let frame = self.frame.insert(frame);
         let slot = frame.free_slot().ok_or(GpuError::Busy)?;
 
-        let view = ViewUniform::new(world_from_camera, camera, NEAR_M);
+        let view = ViewUniform::new(world_from_camera, camera, NEAR_M, self.far_m);
         self.queue
             .write_buffer(&self.view_uniform, 0, bytemuck::bytes_of(&view));
         let mut encoder = self

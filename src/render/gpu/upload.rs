@@ -49,6 +49,10 @@ pub struct GpuMesh {
     /// Per chunk, its bind group in `texture_groups`, or `None` when it is
     /// not drawn (triangles outside every group of a mesh with groups).
     pub chunk_texture: Vec<Option<usize>>,
+    /// Bytes of the vertex and index buffers.
+    pub buffer_bytes: u64,
+    /// Bytes of the textures.
+    pub texture_bytes: u64,
     /// Kept alive for the bind groups.
     _textures: Vec<wgpu::Texture>,
 }
@@ -289,7 +293,19 @@ pub fn upload(
         })
         .collect();
 
+    let texture_bytes = textures
+        .iter()
+        .map(|t| {
+            let per_texel = match format {
+                TextureFormat::Float32 => 4,
+                TextureFormat::Unorm8 => 1,
+            };
+            u64::from(t.width()) * u64::from(t.height()) * per_texel
+        })
+        .sum();
     GpuMesh {
+        buffer_bytes: vertex_buffer.size() + index_buffer.size(),
+        texture_bytes,
         vertices: vertex_buffer,
         indices: index_buffer,
         texture_groups,

@@ -48,14 +48,52 @@ pub(super) struct UvMap {
 pub(super) struct MeshBuilder {
     mesh: Mesh,
     buckets: Vec<Vec<u32>>,
+    /// Cell edge of [`MeshBuilder::face`], meters.
+    cell_m: f64,
 }
 
 impl MeshBuilder {
-    /// A builder for meshes using up to `texture_count` textures.
+    /// A builder for meshes using up to `texture_count` textures, whole
+    /// faces cut into cells of about [`CELL_M`].
     pub fn new(texture_count: usize) -> Self {
+        Self::with_cell(texture_count, CELL_M)
+    }
+
+    /// As [`MeshBuilder::new`], whole faces cut into cells of about
+    /// `cell_m` (denser tessellation for large-map benchmarks).
+    pub fn with_cell(texture_count: usize, cell_m: f64) -> Self {
         Self {
             mesh: Mesh::default(),
             buckets: vec![Vec::new(); texture_count],
+            cell_m,
+        }
+    }
+
+    /// The cell edge of [`MeshBuilder::face`], meters.
+    pub fn cell_m(&self) -> f64 {
+        self.cell_m
+    }
+
+    /// Appends a finished `mesh` (groups on this builder's texture numbers)
+    /// with every position mapped through `world_from_local`; gray and uv
+    /// are copied as they are.
+    pub fn append(&mut self, mesh: &Mesh, world_from_local: &dyn Fn([f64; 3]) -> [f64; 3]) {
+        let base = self.mesh.positions.len() as u32;
+        for p in &mesh.positions {
+            let q = world_from_local(p.map(f64::from));
+            self.mesh.positions.push(q.map(|v| v as f32));
+        }
+        self.mesh.gray.extend_from_slice(&mesh.gray);
+        self.mesh.uvs.extend_from_slice(&mesh.uvs);
+        for group in &mesh.groups {
+            let Some(bucket) = group.texture.and_then(|t| self.buckets.get_mut(t as usize)) else {
+                continue;
+            };
+            let first = group.first_index as usize;
+            let Some(indices) = mesh.indices.get(first..first + group.index_count as usize) else {
+                continue;
+            };
+            bucket.extend(indices.iter().map(|i| i + base));
         }
     }
 
@@ -103,7 +141,8 @@ impl MeshBuilder {
         }
     }
 
-    /// Adds a whole face subdivided into cells of about [`CELL_M`].
+    /// Adds a whole face subdivided into cells of about the builder's cell
+    /// edge ([`CELL_M`] unless built [`MeshBuilder::with_cell`]).
     pub fn face(
         &mut self,
         face: &Face,
@@ -112,8 +151,8 @@ impl MeshBuilder {
         shade: &dyn Fn([f64; 3]) -> f64,
     ) {
         let cells = [
-            (face.u_len_m / CELL_M).ceil() as usize,
-            (face.v_len_m / CELL_M).ceil() as usize,
+            (face.u_len_m / self.cell_m).ceil() as usize,
+            (face.v_len_m / self.cell_m).ceil() as usize,
         ];
         self.grid(
             face,

@@ -86,6 +86,19 @@ impl SimScene {
             .and_then(|s| s.get("texture_seed"))
             .and_then(toml::Value::as_integer)
             .and_then(|v| u64::try_from(v).ok());
+        // A building of another size (`star synth --rooms N`).
+        if let Some(spec) = preset.scene.building.as_mut() {
+            if let Some(rooms) = table
+                .get("scene")
+                .and_then(|s| s.get("building"))
+                .and_then(|b| b.get("rooms"))
+                .and_then(toml::Value::as_integer)
+                .and_then(|v| usize::try_from(v).ok())
+            {
+                spec.rooms = rooms;
+            }
+            spec.validate().map_err(|e| bad(e.to_string()))?;
+        }
         // Every parameter must be this star's: the scene is rebuilt, not read.
         if !text.contains(&preset.to_toml()) {
             return Err(bad(format!(
