@@ -224,10 +224,17 @@ impl Localizer {
         // The landmark pose (features matched to the map's landmarks, then
         // PnP) is tried first, wherever it is (one candidate, a few renders;
         // on a scanned map it is the candidate that passes, and trying the
-        // nearby views first cost seconds of renders per attempt); then the
-        // database views ranked by the whole-image descriptor, nearby
-        // first. Every candidate passes the same gate.
-        let landmark = reloc.landmark_candidate(pixels, w, h, stride, SearchRegion::Everywhere);
+        // nearby views first cost seconds of renders per attempt): matched
+        // to the landmarks near the last position when there is one, else
+        // (or when they give no pose) over the whole map through the
+        // vocabulary. Then the database views ranked by the whole-image
+        // descriptor, nearby first. Every candidate passes the same gate.
+        let regions = [
+            near.unwrap_or(SearchRegion::Everywhere),
+            SearchRegion::Everywhere,
+        ];
+        let n_regions = if near.is_some() { 2 } else { 1 };
+        let landmark = reloc.landmark_candidate(pixels, w, h, stride, &regions[..n_regions]);
         match &landmark {
             Some((_, found)) => tracing::debug!(
                 capture_ns,

@@ -39,17 +39,21 @@ fn db(n: usize) -> RelocDatabase {
             grad_y: k as i16 * 5,
         })
         .collect();
-    RelocDatabase {
-        camera: camera(),
-        map_fingerprint: 0x1234_5678_9abc_def0,
-        entries,
-        coarse_points,
-        landmarks: (0..n)
+    let (landmarks, vocabulary) = super::build::organize(
+        (0..n)
             .map(|i| Landmark {
                 world_m: [i as f32 * 0.25, -1.0, 1.5],
                 descriptor: Descriptor([!(i as u64), i as u64, 7, 9]),
             })
             .collect(),
+    );
+    RelocDatabase {
+        camera: camera(),
+        map_fingerprint: 0x1234_5678_9abc_def0,
+        entries,
+        coarse_points,
+        landmarks,
+        vocabulary,
         path: "mem.rdb".into(),
     }
 }
@@ -110,9 +114,8 @@ fn truncated_and_padded_files_are_length_errors() {
 
 /// Rewrites the checksum after an edit of the body.
 fn reseal(bytes: &mut [u8]) {
-    use super::database::{fnv1a64, FNV_OFFSET};
     let end = bytes.len() - 8;
-    let sum = fnv1a64(FNV_OFFSET, &bytes[12..end]);
+    let sum = super::file::checksum(&bytes[12..end]);
     bytes[end..].copy_from_slice(&sum.to_le_bytes());
 }
 

@@ -53,7 +53,7 @@ impl Bench {
             self.frame.width(),
             self.frame.height(),
             self.frame.width(),
-            region,
+            &[region],
         );
         tally
             .landmark_ms

@@ -12,7 +12,7 @@ use crate::config::Config;
 use crate::dataset::{Dataset, Trajectory};
 use crate::geometry::PinholeCamera;
 use crate::imgproc::{ImageF32, ImageU8};
-use crate::reloc::{build_database, RelocDatabase, Relocalizer};
+use crate::reloc::{build_parallel, BuildOptions, RelocDatabase, Relocalizer};
 use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderedView, Renderer};
 use crate::synth::corrupt::{DistortionWarp, SensorModel};
@@ -93,7 +93,6 @@ impl Bench {
         let scene = preset_scene(&preset, seed);
         let camera = preset.camera;
         let map = Arc::new(scene.map.clone());
-        let mut map_r = CpuRenderer::new(map.clone())?;
         // Candidates are rendered as the service renders them: by the
         // `[render] renderer` of the configuration (auto: a hardware adapter,
         // else lavapipe, else the CPU rasterizer).
@@ -103,10 +102,30 @@ impl Bench {
 
         let t0 = Instant::now();
         let bar = indicatif::ProgressBar::new(0);
-        let db = build_database(&map, &camera, &mut map_r, rc, &mut |done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        })?;
+        // One CPU rasterizer per core: the same database as one renderer
+        // on one thread, byte for byte.
+        let make_renderer =
+            || -> Result<Box<dyn crate::render::Renderer>, crate::render::RenderError> {
+                Ok(Box::new(CpuRenderer::new(map.clone())?))
+            };
+        let db = build_parallel(
+            &map,
+            &camera,
+            rc,
+            None,
+            &Default::default(),
+            "cpu",
+            &make_renderer,
+            BuildOptions {
+                threads: 0,
+                checkpoint: None,
+                stop_after: None,
+                progress: &mut |done, total| {
+                    bar.set_length(total as u64);
+                    bar.set_position(done as u64);
+                },
+            },
+        )?;
         bar.finish_and_clear();
         let build_s = t0.elapsed().as_secs_f64();
         println!(
