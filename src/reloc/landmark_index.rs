@@ -349,7 +349,9 @@ mod tests {
     use super::*;
     use crate::rng::SplitMix64;
 
-    fn landmarks(n: usize) -> Vec<Landmark> {
+    /// `n` landmarks with random descriptors on a 0.4 m grid, sorted leaf
+    /// after leaf of their vocabulary, as a database stores them.
+    fn landmarks(n: usize) -> (Vec<Landmark>, Vocabulary) {
         let mut rng = SplitMix64::new(11);
         let raw: Vec<Landmark> = (0..n)
             .map(|i| Landmark {
@@ -357,22 +359,13 @@ mod tests {
                 descriptor: Descriptor(std::array::from_fn(|_| rng.next_u64())),
             })
             .collect();
-        let descriptors: Vec<Descriptor> = raw.iter().map(|l| l.descriptor).collect();
-        let (_, leaf_of) = Vocabulary::train(&descriptors);
-        let mut order: Vec<usize> = (0..n).collect();
-        order.sort_by_key(|&i| leaf_of[i]);
-        order.iter().map(|&i| raw[i]).collect()
-    }
-
-    fn vocabulary_of(landmarks: &[Landmark]) -> Vocabulary {
-        let d: Vec<Descriptor> = landmarks.iter().map(|l| l.descriptor).collect();
-        Vocabulary::train(&d).0
+        crate::reloc::build::organize(raw)
     }
 
     #[test]
     fn near_search_is_exact_within_the_reach() {
-        let lm = landmarks(2500);
-        let mut index = LandmarkIndex::new(&lm, &vocabulary_of(&lm));
+        let (lm, vocabulary) = landmarks(2500);
+        let mut index = LandmarkIndex::new(&lm, &vocabulary);
         let queries: Vec<Descriptor> = lm.iter().step_by(97).map(|l| l.descriptor).collect();
         let mut out = vec![(0, 0, 0, 0); queries.len()];
         let center = [10.0, 10.0];
@@ -399,8 +392,8 @@ mod tests {
 
     #[test]
     fn whole_map_search_finds_near_copies_with_few_comparisons() {
-        let lm = landmarks(5000);
-        let mut index = LandmarkIndex::new(&lm, &vocabulary_of(&lm));
+        let (lm, vocabulary) = landmarks(5000);
+        let mut index = LandmarkIndex::new(&lm, &vocabulary);
         let mut rng = SplitMix64::new(5);
         // Copies with 10 of 256 bits flipped: far nearer than any other.
         let picks: Vec<usize> = (0..200).map(|_| rng.below(lm.len())).collect();
