@@ -339,6 +339,17 @@ impl LandmarkLocator {
         self.index.comparisons()
     }
 
+    /// The descriptors of the last frame's corners.
+    pub fn last_query(&self) -> &[Descriptor] {
+        &self.query[..self.n_query]
+    }
+
+    /// Comparisons brute force would make for the last frame: its corners
+    /// times the landmarks.
+    pub fn brute_force_comparisons(&self) -> u64 {
+        (self.n_query * self.index.len()) as u64
+    }
+
     /// Of the last frame's corners whose nearest landmark over the whole
     /// map is within the match bound, how many the last search found too:
     /// `(found, of)`. Compares every corner with every landmark: a

@@ -147,13 +147,23 @@ impl Bench {
             rc.pitches_deg,
             db.landmarks.len()
         );
+        println!(
+            "  database file {:.1} MB; landmark vocabulary {} words, {} leaves; whole-map probes {:?}",
+            db.to_bytes().len() as f64 / 1e6,
+            db.vocabulary.words.len(),
+            db.vocabulary.leaves.len(),
+            probes_from_env().unwrap_or_default()
+        );
 
         // Queries: truth mesh, distortion, sensor model.
         let truth_r = CpuRenderer::new(Arc::new(scene.truth.clone()))?;
         let warp = DistortionWarp::new(&camera)?;
         let render_camera = *warp.render_camera();
         let sensor = SensorModel::new(preset.photometric, &camera, seed);
-        let reloc = Relocalizer::new(db.clone(), rc, &camera)?;
+        let mut reloc = Relocalizer::new(db.clone(), rc, &camera)?;
+        if let Some(probes) = probes_from_env() {
+            reloc.landmarks_mut().set_probes(probes);
+        }
         // World heights: the configured ones above the map's floor.
         let z_range_m = crate::reloc::above_floor(&map, rc)?
             .heights_m
@@ -287,4 +297,16 @@ impl Bench {
             ),
         }
     }
+}
+
+/// `STAR_BENCH_PROBES=WORDS,LEAVES`: the whole-map landmark search's
+/// probes ([`crate::reloc::landmark_index::Probes`]) instead of the
+/// defaults.
+pub(super) fn probes_from_env() -> Option<crate::reloc::landmark_index::Probes> {
+    let v = std::env::var("STAR_BENCH_PROBES").ok()?;
+    let (w, l) = v.split_once(',')?;
+    Some(crate::reloc::landmark_index::Probes {
+        words: w.trim().parse().ok()?,
+        leaves: l.trim().parse().ok()?,
+    })
 }
