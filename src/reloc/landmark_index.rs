@@ -8,8 +8,10 @@
 //! comparisons.
 //! - Near a known position ([`LandmarkIndex::best_two_near`]): the
 //!   landmarks lie in square cells of the floor plan; the cells within the
-//!   reach of the position are gathered ring by ring outward from it, and
-//!   the corners compared with every landmark gathered (exact within them).
+//!   reach of the position are gathered ring by ring outward from it. Up to
+//!   [`NEAR_EXACT_MAX`] landmarks, each corner is compared with every one
+//!   gathered (exact within reach); beyond, through the vocabulary as over
+//!   the whole map (with more probes), the landmarks out of reach skipped.
 //! - Over the whole map ([`LandmarkIndex::best_two_everywhere`]): each
 //!   corner descends the vocabulary to its [`Probes::words`] nearest words
 //!   and, under them, its [`Probes::leaves`] nearest leaves, and is
@@ -28,6 +30,16 @@ use super::vocabulary::{Vocabulary, MAX_WORDS};
 const CELL_M: f32 = 1.0;
 /// Most cells of the floor-plan grid.
 const MAX_CELLS: usize = 1 << 22;
+/// Near a known position, up to this many landmarks within reach are each
+/// compared with every corner (exact); beyond, the vocabulary is searched
+/// with [`NEAR_PROBES`], skipping the landmarks out of reach.
+pub const NEAR_EXACT_MAX: usize = 16_384;
+/// The probes of the near search beyond [`NEAR_EXACT_MAX`]: more than over
+/// the whole map, since most landmarks of a probed leaf are out of reach.
+const NEAR_PROBES: Probes = Probes {
+    words: 8,
+    leaves: 32,
+};
 
 /// How many vocabulary nodes a corner descends into over the whole map.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -75,7 +87,11 @@ pub struct LandmarkIndex {
     /// Scratch of the near search: the gathered descriptors and indices.
     near_descriptors: Vec<Descriptor>,
     near_indices: Vec<u32>,
+    /// Per landmark, the epoch of the last near search that gathered it.
+    near_mark: Vec<u32>,
+    epoch: u32,
     probes: Probes,
+    near_probes: Probes,
     comparisons: u64,
 }
 
@@ -156,7 +172,10 @@ impl LandmarkIndex {
             cell_landmarks,
             near_descriptors: Vec::with_capacity(n),
             near_indices: Vec::with_capacity(n),
+            near_mark: vec![0; n],
+            epoch: 0,
             probes: Probes::default(),
+            near_probes: NEAR_PROBES,
             comparisons: 0,
         }
     }
@@ -235,14 +254,32 @@ impl LandmarkIndex {
                     }
                     let c = row as usize * self.nx + col as usize;
                     let (a, b) = (self.cell_start[c] as usize, self.cell_start[c + 1] as usize);
-                    for &i in &self.cell_landmarks[a..b] {
-                        self.near_indices.push(i);
-                        self.near_descriptors.push(self.descriptors[i as usize]);
-                    }
+                    self.near_indices
+                        .extend_from_slice(&self.cell_landmarks[a..b]);
                 }
             }
         }
         let n = queries.len().min(out.len());
+        let gathered = self.near_indices.len();
+        if gathered > NEAR_EXACT_MAX {
+            // Too many to compare with each: the vocabulary, with the
+            // landmarks out of reach skipped.
+            self.epoch = self.epoch.wrapping_add(1);
+            if self.epoch == 0 {
+                self.near_mark.iter_mut().for_each(|m| *m = 0);
+                self.epoch = 1;
+            }
+            for &i in &self.near_indices {
+                self.near_mark[i as usize] = self.epoch;
+            }
+            let probes = self.near_probes;
+            self.vocabulary_search(&queries[..n], &mut out[..n], probes, Some(self.epoch));
+            return gathered;
+        }
+        self.near_descriptors.clear();
+        for &i in &self.near_indices {
+            self.near_descriptors.push(self.descriptors[i as usize]);
+        }
         best_two_batch(&queries[..n], &self.near_descriptors, &mut out[..n]);
         for o in out[..n].iter_mut() {
             o.1 = self
@@ -256,15 +293,27 @@ impl LandmarkIndex {
                 .copied()
                 .unwrap_or(u32::MAX);
         }
-        self.comparisons = (n * self.near_descriptors.len()) as u64;
-        self.near_descriptors.len()
+        self.comparisons = (n * gathered) as u64;
+        gathered
     }
 
     /// Best two among the landmarks of the vocabulary leaves each query
     /// descends to (see the module docs).
     pub fn best_two_everywhere(&mut self, queries: &[Descriptor], out: &mut [BestTwo]) {
-        let v = &self.vocabulary;
         let probes = self.probes;
+        self.vocabulary_search(queries, out, probes, None);
+    }
+
+    /// The vocabulary search with `probes`; with `near`, only the landmarks
+    /// marked with that epoch are compared.
+    fn vocabulary_search(
+        &mut self,
+        queries: &[Descriptor],
+        out: &mut [BestTwo],
+        probes: Probes,
+        near: Option<u32>,
+    ) {
+        let v = &self.vocabulary;
         let mut comparisons = 0u64;
         for (q, o) in queries.iter().zip(out.iter_mut()) {
             let mut words = [(u32::MAX, 0u32); MAX_WORDS];
@@ -292,6 +341,15 @@ impl LandmarkIndex {
                     self.leaf_start[l as usize] as usize,
                     self.leaf_start[l as usize + 1] as usize,
                 );
+                if let Some(epoch) = near {
+                    for i in a..b {
+                        if self.near_mark[i] == epoch {
+                            comparisons += 1;
+                            best = merge(best, q.hamming(&self.descriptors[i]), i as u32);
+                        }
+                    }
+                    continue;
+                }
                 comparisons += (b - a) as u64;
                 let (d0, i0, d1, i1) = best_two(q, &self.descriptors[a..b]);
                 for (d, i) in [(d0, i0), (d1, i1)] {
@@ -425,6 +483,43 @@ mod tests {
         index.best_two_all(&queries, &mut all);
         for (o, a) in out.iter().zip(&all) {
             assert!(o.0 >= a.0);
+        }
+    }
+
+    #[test]
+    fn many_landmarks_within_reach_go_through_the_vocabulary_and_stay_in_reach() {
+        let (lm, vocabulary) = landmarks(40_000);
+        let mut index = LandmarkIndex::new(&lm, &vocabulary);
+        let (center, reach) = ([10.0, 100.0], 70.0);
+        let within =
+            |l: &Landmark| (l.world_m[0] - center[0]).hypot(l.world_m[1] - center[1]) <= reach;
+        // Exact copies of landmarks in reach, and of some out of reach.
+        let inside: Vec<usize> = (0..lm.len())
+            .filter(|&i| within(&lm[i]))
+            .step_by(61)
+            .collect();
+        let outside: Vec<usize> = (0..lm.len())
+            .filter(|&i| !within(&lm[i]))
+            .step_by(401)
+            .collect();
+        let queries: Vec<Descriptor> = inside
+            .iter()
+            .chain(&outside)
+            .map(|&i| lm[i].descriptor)
+            .collect();
+        let mut out = vec![(0, 0, 0, 0); queries.len()];
+        let gathered = index.best_two_near(&queries, center, reach, &mut out);
+        assert!(gathered > NEAR_EXACT_MAX, "{gathered}");
+        assert!(index.comparisons() < (queries.len() * gathered / 10) as u64);
+        for (k, o) in out.iter().enumerate() {
+            if k < inside.len() {
+                assert_eq!((o.0, o.1 as usize), (0, inside[k]));
+            }
+            // Whatever is found lies within reach (up to whole cells).
+            if let Some(l) = lm.get(o.1 as usize) {
+                let d = (l.world_m[0] - center[0]).hypot(l.world_m[1] - center[1]);
+                assert!(d <= reach + 1.5, "{d}");
+            }
         }
     }
 
