@@ -351,7 +351,8 @@ pub fn build_database_along(
         stop_after: None,
         progress,
     };
-    let outputs = run_units(&plan, &mut options, "", &mut |units| {
+    // One unit per batch: no checkpoint to write, and progress per unit.
+    let outputs = run_units(&plan, &mut options, "", 1, &mut |units| {
         units
             .iter()
             .map(|u| scratch.run(renderer, &plan, u))
@@ -407,7 +408,7 @@ pub fn build_parallel(
         units = plan.units.len(),
         "building the relocalization database"
     );
-    let outputs = run_units(&plan, &mut options, renderer, &mut |units| {
+    let outputs = run_units(&plan, &mut options, renderer, BATCH_UNITS, &mut |units| {
         pool.install(|| units.par_iter().map(run_one).collect())
     })?;
     Ok(assemble(&plan, outputs))
@@ -416,15 +417,16 @@ pub fn build_parallel(
 /// Renders a batch of units, giving their outputs in order.
 type RunBatch<'a> = dyn FnMut(&[Unit]) -> Result<Vec<UnitOutput>, BuildError> + 'a;
 
-/// Work units per batch (per checkpoint record).
+/// Work units per batch of the parallel build (per checkpoint record).
 const BATCH_UNITS: usize = 64;
 
-/// Runs the plan's units batch after batch through `run_batch`, resuming
-/// from and appending to the checkpoint when there is one.
+/// Runs the plan's units `batch_units` at a time through `run_batch`,
+/// resuming from and appending to the checkpoint when there is one.
 fn run_units(
     plan: &Plan,
     options: &mut BuildOptions,
     renderer: &str,
+    batch_units: usize,
     run_batch: &mut RunBatch,
 ) -> Result<Vec<UnitOutput>, BuildError> {
     let total = plan.units.len();
@@ -438,7 +440,7 @@ fn run_units(
     (options.progress)(outputs.len(), total);
     while outputs.len() < total {
         let start = outputs.len();
-        let mut end = (start + BATCH_UNITS).min(total);
+        let mut end = (start + batch_units.max(1)).min(total);
         if let Some(stop) = options.stop_after {
             if start >= stop {
                 return Err(BuildError::Stopped { done: start, total });
