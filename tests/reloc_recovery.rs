@@ -132,7 +132,7 @@ fn check_landmarks(fx: &Fixture) {
             frame.width(),
             frame.height(),
             frame.width(),
-            star::reloc::SearchRegion::Everywhere,
+            &[star::reloc::SearchRegion::Everywhere],
         );
         let Some((candidate, located)) = found else {
             eprintln!("landmarks frame {i}: no pose");

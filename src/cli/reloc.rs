@@ -1,5 +1,6 @@
 //! `star reloc build`: renders the relocalization database of a map (see
-//! [`crate::reloc`]) with a progress bar and writes it to a file.
+//! [`crate::reloc`]) on every core, with a progress bar, resumable from
+//! its checkpoint, and writes it to a file.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -9,7 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::config::Config;
 use crate::dataset::{CameraFile, Trajectory};
-use crate::reloc::{build_database_along, AlongTrajectory};
+use crate::reloc::{build_parallel, checkpoint_path, AlongTrajectory, BuildError, BuildOptions};
 
 /// `star reloc` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -51,6 +52,21 @@ pub struct BuildArgs {
     /// half the grid spacing).
     #[arg(long)]
     pub poses_spacing_m: Option<f64>,
+    /// Worker threads, each with its own CPU rasterizer (default: one per
+    /// core). The database is the same for any count, byte for byte.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Resume an interrupted build from the checkpoint next to the output
+    /// (`OUTPUT.partial`). A build always resumes from a checkpoint of the
+    /// same map, camera and settings; with `--resume` a missing one is an
+    /// error instead of a fresh start.
+    #[arg(long)]
+    pub resume: bool,
+    /// Stop after this many work units (grid positions, trajectory samples,
+    /// landmark views), keeping the checkpoint: an interruption at a known
+    /// point, for the tests.
+    #[arg(long, hide = true)]
+    pub stop_after_units: Option<usize>,
 }
 
 /// The frame a `--poses` trajectory is given in.
@@ -122,41 +138,81 @@ fn build(args: &BuildArgs) -> Result<()> {
         }
         None => AlongTrajectory::default(),
     };
-    let kind = config.render.renderer;
-    let mut renderer =
-        crate::render::select::make_configured_renderer(&config.render, mesh.clone())
-            .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+    // One CPU rasterizer per worker: it draws the same, bit for bit, for
+    // any thread count, so the database does not depend on the cores.
+    let threads = args.threads.unwrap_or(0);
+    let checkpoint = checkpoint_path(&args.output);
+    if args.resume && !checkpoint.exists() {
+        anyhow::bail!(
+            "--resume: no checkpoint {} to resume from",
+            checkpoint.display()
+        );
+    }
     let bar = ProgressBar::new(0);
     bar.set_style(
         ProgressStyle::with_template(
-            "{spinner} reloc build [{bar:40}] {pos}/{len} views and positions {per_sec} eta {eta}",
+            "{spinner} reloc build [{bar:40}] {pos}/{len} positions and views {per_sec} eta {eta}",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar())
         .progress_chars("=> "),
     );
     let t0 = std::time::Instant::now();
-    let db = build_database_along(
+    // The far limit of `[render]` as in tracking: a building's views skip
+    // the rooms beyond it.
+    let far_m = config.render.far_limit_m();
+    // Part of the checkpoint's key: views drawn with another far limit
+    // are not resumed.
+    let renderer_name = format!("cpu far {far_m:?}");
+    let make_renderer =
+        || -> Result<Box<dyn crate::render::Renderer>, crate::render::RenderError> {
+            let mut r = crate::render::cpu::CpuRenderer::new(mesh.clone())?;
+            r.set_far_m(far_m);
+            Ok(Box::new(r))
+        };
+    let mut progress = |done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let built = build_parallel(
         &mesh,
         &camera,
-        renderer.as_mut(),
         &config.reloc,
         None,
         &along,
-        &mut |done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
+        &renderer_name,
+        &make_renderer,
+        BuildOptions {
+            threads,
+            checkpoint: Some(checkpoint.clone()),
+            stop_after: args.stop_after_units,
+            progress: &mut progress,
         },
-    )
-    .with_context(|| format!("building the database of {}", map_path.display()))?;
+    );
     bar.finish_and_clear();
-    db.write(&args.output)?;
+    let db = match built {
+        Ok(db) => db,
+        Err(e @ BuildError::Stopped { .. }) => {
+            println!("reloc build: {e}; run the same command again to resume");
+            return Ok(());
+        }
+        Err(e) => {
+            return Err(e)
+                .with_context(|| format!("building the database of {}", map_path.display()))
+        }
+    };
+    let size_bytes = db.write(&args.output)?;
+    if let Err(e) = std::fs::remove_file(&checkpoint) {
+        tracing::warn!(path = %checkpoint.display(), error = %e, "could not remove the build checkpoint");
+    }
     println!(
-        "reloc build: wrote {} keyframes and {} landmarks to {} in {:.1} s (renderer {}, map fingerprint {:#018x})",
+        "reloc build: wrote {} keyframes and {} landmarks ({} vocabulary leaves) to {} ({:.1} MB) in {:.1} s (CPU rasterizer, {} threads, map fingerprint {:#018x})",
         db.entries.len(),
         db.landmarks.len(),
+        db.vocabulary.leaves.len(),
         args.output.display(),
+        size_bytes as f64 / 1e6,
         t0.elapsed().as_secs_f64(),
-        renderer.name(),
+        if threads == 0 { rayon::current_num_threads() } else { threads },
         db.map_fingerprint
     );
     Ok(())

@@ -3,9 +3,11 @@
 //!
 //! Each lost frame (after `reloc.resume_window_s`) with enough contrast is
 //! searched: first within `search_radius_m + max_speed_m_s x (time lost)`
-//! of the last tracked position, then over the whole map. In each region
-//! the landmark pose (the frame's corners matched to the map's landmarks,
-//! then RANSAC P3P) comes first when it lies there; then the
+//! of the last tracked position, then over the whole map. The landmark pose
+//! (the frame's corners matched to the map's landmarks, then RANSAC P3P)
+//! comes first: matched to the landmarks within reach of the last position
+//! (spatial cells), else, or when they give no pose, over the whole map
+//! through the landmark vocabulary ([`crate::reloc::landmark_index`]); then the
 //! `rank_candidates` nearest by whole-image descriptor are aligned against
 //! their stored coarse points, and the top-k by that alignment follow,
 //! placed where it moved them. Candidates are rendered on the render thread
@@ -245,10 +247,17 @@ impl Localizer {
         // The landmark pose (features matched to the map's landmarks, then
         // PnP) is tried first, wherever it is (one candidate, a few renders;
         // on a scanned map it is the candidate that passes, and trying the
-        // nearby views first cost seconds of renders per attempt); then the
-        // database views ranked by the whole-image descriptor, nearby
-        // first. Every candidate passes the same gate.
-        let landmark = reloc.landmark_candidate(pixels, w, h, stride, SearchRegion::Everywhere);
+        // nearby views first cost seconds of renders per attempt): matched
+        // to the landmarks near the last position when there is one, else
+        // (or when they give no pose) over the whole map through the
+        // vocabulary. Then the database views ranked by the whole-image
+        // descriptor, nearby first. Every candidate passes the same gate.
+        let regions = [
+            near.unwrap_or(SearchRegion::Everywhere),
+            SearchRegion::Everywhere,
+        ];
+        let n_regions = if near.is_some() { 2 } else { 1 };
+        let landmark = reloc.landmark_candidate(pixels, w, h, stride, &regions[..n_regions]);
         match &landmark {
             Some((_, found)) => tracing::debug!(
                 capture_ns,

@@ -173,7 +173,11 @@ impl CoarseExtractor {
 
 /// Query side: replaces `out` with the keyframe points of `points`, stored
 /// for `coarse` ([`coarse_camera`]).
-pub fn to_keypoints(points: &[CoarsePoint], coarse: &PinholeCamera, out: &mut Vec<KeyPoint>) {
+pub fn to_keypoints(
+    points: impl IntoIterator<Item = CoarsePoint>,
+    coarse: &PinholeCamera,
+    out: &mut Vec<KeyPoint>,
+) {
     out.clear();
     let (fx, fy, cx, cy) = (
         coarse.fx as f32,
@@ -182,7 +186,7 @@ pub fn to_keypoints(points: &[CoarsePoint], coarse: &PinholeCamera, out: &mut Ve
         coarse.cy as f32,
     );
     let room = out.capacity();
-    for p in points.iter().take(room) {
+    for p in points.into_iter().take(room) {
         let z = p.depth_mm as f32 * 1e-3;
         let gx = p.grad_x as f32 / GRAD_SCALE;
         let gy = p.grad_y as f32 / GRAD_SCALE;
@@ -249,7 +253,7 @@ mod tests {
         let coarse = coarse_camera(&camera);
         assert_eq!((coarse.width, coarse.height), (40, 32));
         let mut kps = Vec::with_capacity(MAX_COARSE_POINTS);
-        to_keypoints(&stored, &coarse, &mut kps);
+        to_keypoints(stored.iter().copied(), &coarse, &mut kps);
         let original = &ex.keyframe.levels[COARSE_LEVEL as usize].points;
         assert_eq!(kps.len(), n);
         for (a, b) in kps.iter().zip(original) {

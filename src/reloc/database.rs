@@ -1,46 +1,24 @@
-//! The relocalization database: keyframe poses with their descriptors, and
-//! its versioned binary file.
+//! The relocalization database: keyframe poses with their descriptors and
+//! coarse points, the landmarks and their vocabulary, and the checks that a
+//! database fits the map and camera in use.
 //!
-//! File layout (little-endian): magic `STARRLDB`, format version (u32), then
-//! the body, then an FNV-1a 64 checksum of the body (u64). Body: camera
-//! (width, height u32; fx, fy, cx, cy, k1, k2, p1, p2, k3 f64), the map
-//! fingerprint (u64, [`map_fingerprint`]), the entry count (u64), and per
-//! entry the pose `world_from_camera` (tx, ty, tz, qx, qy, qz, qw f64), the
-//! descriptor (4 x u64) and its number of coarse points (u32); then the
-//! coarse points of every entry in entry order ([`CoarsePoint::to_bytes`],
-//! 10 bytes each); then the landmarks ([`Landmark::to_bytes`], 44 bytes
-//! each). The header before the entries also holds the total number of
-//! coarse points and of landmarks (u64 each), so the length is known up
-//! front. Reading checks every part and names the file and
-//! the problem; [`RelocDatabase::check_compatible`] rejects a database made
-//! for another map or other intrinsics.
+//! The file format, its checks and the memory map it is read through are
+//! [`super::file`]. The coarse points, the bulk of a database, stay in the
+//! mapped file ([`CoarsePoints`]); the keyframe poses and the landmarks are
+//! decoded once at load (they are copied into the search structures anyway).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use nalgebra::{Quaternion, Translation3, UnitQuaternion};
+use std::sync::Arc;
 
-use crate::geometry::{Distortion, PinholeCamera, Pose};
+use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
 
-use super::coarse::{CoarsePoint, COARSE_POINT_LEN, MAX_COARSE_POINTS};
+use super::coarse::{CoarsePoint, COARSE_POINT_LEN};
 use super::descriptor::Descriptor;
-use super::landmarks::{Landmark, LANDMARK_LEN};
-
-/// File magic.
-pub const MAGIC: &[u8; 8] = b"STARRLDB";
-/// Current format version. 2: the descriptor subtracts the thumbnail's
-/// local mean (version-1 descriptors would not match the queries).
-/// 3: coarse keyframe points per entry. 4: the descriptor's blur widened
-/// (sigma 2.4 -> 3.5 thumbnail pixels). 5: landmarks.
-pub const VERSION: u32 = 5;
-const HEADER_LEN: usize = 8 + 4;
-const CAMERA_LEN: usize = 8 + 9 * 8;
-const BODY_FIXED_LEN: usize = CAMERA_LEN + 8 + 8 + 8 + 8;
-const ENTRY_LEN: usize = 7 * 8 + 4 * 8 + 4;
-/// Most entries a file may declare (guards the allocation).
-pub const MAX_ENTRIES: u64 = 10_000_000;
-/// Most landmarks a file may declare (guards the allocation).
-pub const MAX_LANDMARKS: u64 = 50_000_000;
+use super::file::VERSION;
+use super::landmarks::Landmark;
+use super::vocabulary::Vocabulary;
 
 /// Errors reading, writing or using a relocalization database.
 #[derive(Debug, thiserror::Error)]
@@ -140,9 +118,12 @@ pub struct RelocDatabase {
     /// Keyframes.
     pub entries: Vec<RelocEntry>,
     /// The coarse keyframe points of all entries, in entry order.
-    pub coarse_points: Vec<CoarsePoint>,
-    /// Map points with feature descriptors (empty when built without).
+    pub coarse_points: CoarsePoints,
+    /// Map points with feature descriptors (empty when built without),
+    /// stored leaf after leaf of `vocabulary`.
     pub landmarks: Vec<Landmark>,
+    /// The vocabulary of the landmark descriptors.
+    pub vocabulary: Vocabulary,
     /// Where it was read from (for error messages); empty when built in memory.
     pub path: PathBuf,
 }
@@ -209,14 +190,14 @@ fn cameras_match(a: &PinholeCamera, b: &PinholeCamera) -> bool {
 
 impl RelocDatabase {
     /// The coarse keyframe points of entry `index` (empty when out of range).
-    pub fn coarse_points_of(&self, index: usize) -> &[CoarsePoint] {
+    pub fn coarse_points_of(&self, index: usize) -> CoarseSlice<'_> {
         self.entries
             .get(index)
             .and_then(|e| {
                 let start = e.coarse_start as usize;
                 self.coarse_points.get(start..start + e.coarse_len as usize)
             })
-            .unwrap_or(&[])
+            .unwrap_or_default()
     }
 
     /// Errors unless the database was built for `camera` and the map with
@@ -242,286 +223,123 @@ impl RelocDatabase {
         }
         Ok(())
     }
+}
 
-    /// The file's bytes.
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let mut body = Vec::with_capacity(
-            BODY_FIXED_LEN
-                + self.entries.len() * ENTRY_LEN
-                + self.coarse_points.len() * COARSE_POINT_LEN
-                + self.landmarks.len() * LANDMARK_LEN,
-        );
-        let c = &self.camera;
-        body.extend_from_slice(&c.width.to_le_bytes());
-        body.extend_from_slice(&c.height.to_le_bytes());
-        let d = &c.distortion;
-        for v in [c.fx, c.fy, c.cx, c.cy, d.k1, d.k2, d.p1, d.p2, d.k3] {
-            body.extend_from_slice(&v.to_le_bytes());
+/// The coarse points of a database, in their file encoding
+/// ([`CoarsePoint::to_bytes`]): in memory while building, in the mapped
+/// file once read. Decoded point by point where they are used.
+#[derive(Clone, Default)]
+pub struct CoarsePoints {
+    storage: Storage,
+}
+
+#[derive(Clone)]
+enum Storage {
+    Owned(Vec<u8>),
+    Mapped {
+        map: Arc<memmap2::Mmap>,
+        start: usize,
+        len: usize,
+    },
+}
+
+impl Default for Storage {
+    fn default() -> Self {
+        Self::Owned(Vec::new())
+    }
+}
+
+impl std::fmt::Debug for CoarsePoints {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mapped = matches!(self.storage, Storage::Mapped { .. });
+        f.debug_struct("CoarsePoints")
+            .field("len", &self.len())
+            .field("mapped", &mapped)
+            .finish()
+    }
+}
+
+impl PartialEq for CoarsePoints {
+    fn eq(&self, other: &Self) -> bool {
+        self.as_bytes() == other.as_bytes()
+    }
+}
+
+impl FromIterator<CoarsePoint> for CoarsePoints {
+    fn from_iter<I: IntoIterator<Item = CoarsePoint>>(iter: I) -> Self {
+        let mut bytes = Vec::new();
+        for p in iter {
+            bytes.extend_from_slice(&p.to_bytes());
         }
-        body.extend_from_slice(&self.map_fingerprint.to_le_bytes());
-        body.extend_from_slice(&(self.entries.len() as u64).to_le_bytes());
-        let n_coarse: usize = (0..self.entries.len())
-            .map(|i| self.coarse_points_of(i).len())
-            .sum();
-        body.extend_from_slice(&(n_coarse as u64).to_le_bytes());
-        body.extend_from_slice(&(self.landmarks.len() as u64).to_le_bytes());
-        for (i, e) in self.entries.iter().enumerate() {
-            let t = e.world_from_camera.translation.vector;
-            let q = e.world_from_camera.rotation.coords; // [x, y, z, w]
-            for v in [t.x, t.y, t.z, q[0], q[1], q[2], q[3]] {
-                body.extend_from_slice(&v.to_le_bytes());
-            }
-            for w in e.descriptor.0 {
-                body.extend_from_slice(&w.to_le_bytes());
-            }
-            body.extend_from_slice(&(self.coarse_points_of(i).len() as u32).to_le_bytes());
+        Self {
+            storage: Storage::Owned(bytes),
         }
-        for i in 0..self.entries.len() {
-            for p in self.coarse_points_of(i) {
-                body.extend_from_slice(&p.to_bytes());
-            }
+    }
+}
+
+impl CoarsePoints {
+    /// Points in the file bytes `start..start + len` of `map` (whole
+    /// points, checked by the reader).
+    pub(super) fn mapped(map: Arc<memmap2::Mmap>, start: usize, len: usize) -> Self {
+        Self {
+            storage: Storage::Mapped { map, start, len },
         }
-        for l in &self.landmarks {
-            body.extend_from_slice(&l.to_bytes());
-        }
-        let mut out = Vec::with_capacity(HEADER_LEN + body.len() + 8);
-        out.extend_from_slice(MAGIC);
-        out.extend_from_slice(&VERSION.to_le_bytes());
-        out.extend_from_slice(&body);
-        out.extend_from_slice(&fnv1a64(FNV_OFFSET, &body).to_le_bytes());
-        out
     }
 
-    /// Writes the database to `path` (through a temporary file and a rename,
-    /// so a crash never leaves a half-written database).
-    pub fn write(&self, path: &Path) -> Result<(), RelocDbError> {
-        let io = |source| RelocDbError::Io {
-            path: path.to_owned(),
-            source,
-        };
-        let tmp = path.with_extension("tmp");
-        std::fs::write(&tmp, self.to_bytes()).map_err(io)?;
-        std::fs::rename(&tmp, path).map_err(io)
+    /// Their file bytes.
+    pub fn as_bytes(&self) -> &[u8] {
+        match &self.storage {
+            Storage::Owned(b) => b,
+            Storage::Mapped { map, start, len } => map.get(*start..*start + *len).unwrap_or(&[]),
+        }
     }
 
-    /// Reads and checks the database at `path`.
-    pub fn read(path: &Path) -> Result<Self, RelocDbError> {
-        let bytes = std::fs::read(path).map_err(|source| RelocDbError::Io {
-            path: path.to_owned(),
-            source,
-        })?;
-        Self::from_bytes(&bytes, path)
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.as_bytes().len() / COARSE_POINT_LEN
     }
 
-    /// Parses and checks file bytes; `path` names the file in errors.
-    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, RelocDbError> {
-        let p = || path.to_owned();
-        let min_len = (HEADER_LEN + BODY_FIXED_LEN + 8) as u64;
-        if bytes.len() < 8 || &bytes[..8] != MAGIC {
-            return Err(RelocDbError::BadMagic { path: p() });
-        }
-        if bytes.len() < HEADER_LEN {
-            return Err(RelocDbError::Length {
-                path: p(),
-                expected: min_len,
-                found: bytes.len() as u64,
-            });
-        }
-        let mut r = Reader { bytes, at: 8 };
-        let version = r.u32();
-        if version != VERSION {
-            return Err(RelocDbError::Version {
-                path: p(),
-                found: version,
-            });
-        }
-        if (bytes.len() as u64) < min_len {
-            return Err(RelocDbError::Length {
-                path: p(),
-                expected: min_len,
-                found: bytes.len() as u64,
-            });
-        }
-        let count_at = HEADER_LEN + CAMERA_LEN + 8;
-        let count = Reader {
-            bytes,
-            at: count_at,
-        }
-        .u64();
-        if count > MAX_ENTRIES {
-            return Err(RelocDbError::Invalid {
-                path: p(),
-                what: format!("entry count {count} exceeds the limit {MAX_ENTRIES}"),
-            });
-        }
-        let n_coarse = Reader {
-            bytes,
-            at: count_at + 8,
-        }
-        .u64();
-        if n_coarse > count * MAX_COARSE_POINTS as u64 {
-            return Err(RelocDbError::Invalid {
-                path: p(),
-                what: format!(
-                    "{n_coarse} coarse points for {count} entries (at most {MAX_COARSE_POINTS} each)"
-                ),
-            });
-        }
-        let n_landmarks = Reader {
-            bytes,
-            at: count_at + 16,
-        }
-        .u64();
-        if n_landmarks > MAX_LANDMARKS {
-            return Err(RelocDbError::Invalid {
-                path: p(),
-                what: format!("landmark count {n_landmarks} exceeds the limit {MAX_LANDMARKS}"),
-            });
-        }
-        let expected = min_len
-            + count * ENTRY_LEN as u64
-            + n_coarse * COARSE_POINT_LEN as u64
-            + n_landmarks * LANDMARK_LEN as u64;
-        if bytes.len() as u64 != expected {
-            return Err(RelocDbError::Length {
-                path: p(),
-                expected,
-                found: bytes.len() as u64,
-            });
-        }
-        let body_end = bytes.len() - 8;
-        let computed = fnv1a64(FNV_OFFSET, &bytes[HEADER_LEN..body_end]);
-        let stored = Reader {
-            bytes,
-            at: body_end,
-        }
-        .u64();
-        if stored != computed {
-            return Err(RelocDbError::Checksum {
-                path: p(),
-                stored,
-                computed,
-            });
-        }
-        let (width, height) = (r.u32(), r.u32());
-        let v: [f64; 9] = std::array::from_fn(|_| r.f64());
-        let camera = PinholeCamera {
-            distortion: Distortion {
-                k1: v[4],
-                k2: v[5],
-                p1: v[6],
-                p2: v[7],
-                k3: v[8],
-            },
-            ..PinholeCamera::new(width, height, v[0], v[1], v[2], v[3])
-        };
-        if let Err(e) = camera.validate() {
-            return Err(RelocDbError::Invalid {
-                path: p(),
-                what: format!("camera: {e}"),
-            });
-        }
-        let map_fingerprint = r.u64();
-        let _count = r.u64();
-        let _n_coarse = r.u64();
-        let _n_landmarks = r.u64();
-        let mut entries = Vec::with_capacity(count as usize);
-        let mut coarse_start = 0u64;
-        for index in 0..count {
-            let f: [f64; 7] = std::array::from_fn(|_| r.f64());
-            let descriptor = Descriptor(std::array::from_fn(|_| r.u64()));
-            let coarse_len = r.u32();
-            if coarse_len as usize > MAX_COARSE_POINTS
-                || coarse_start + coarse_len as u64 > n_coarse
-            {
-                return Err(RelocDbError::Invalid {
-                    path: p(),
-                    what: format!(
-                        "entry {index}: {coarse_len} coarse points (at most {MAX_COARSE_POINTS}, {} left of {n_coarse})",
-                        n_coarse - coarse_start
-                    ),
-                });
-            }
-            let q = Quaternion::new(f[6], f[3], f[4], f[5]);
-            let norm = q.norm();
-            if !f.iter().all(|v| v.is_finite()) || (norm - 1.0).abs() > 1e-3 {
-                return Err(RelocDbError::Invalid {
-                    path: p(),
-                    what: format!("entry {index}: pose is not finite or not a unit rotation"),
-                });
-            }
-            entries.push(RelocEntry {
-                world_from_camera: Pose::from_parts(
-                    Translation3::new(f[0], f[1], f[2]),
-                    UnitQuaternion::new_normalize(q),
-                ),
-                descriptor,
-                coarse_start: coarse_start as u32,
-                coarse_len,
-            });
-            coarse_start += coarse_len as u64;
-        }
-        if coarse_start != n_coarse {
-            return Err(RelocDbError::Invalid {
-                path: p(),
-                what: format!(
-                    "the entries hold {coarse_start} coarse points, the header says {n_coarse}"
-                ),
-            });
-        }
-        let mut coarse_points = Vec::with_capacity(n_coarse as usize);
-        for index in 0..n_coarse {
-            let Some(point) = CoarsePoint::from_bytes(r.take()) else {
-                return Err(RelocDbError::Invalid {
-                    path: p(),
-                    what: format!("coarse point {index}: zero depth or a reserved byte set"),
-                });
-            };
-            coarse_points.push(point);
-        }
-        let mut landmarks = Vec::with_capacity(n_landmarks as usize);
-        for index in 0..n_landmarks {
-            let Some(landmark) = Landmark::from_bytes(r.take()) else {
-                return Err(RelocDbError::Invalid {
-                    path: p(),
-                    what: format!("landmark {index}: position is not finite"),
-                });
-            };
-            landmarks.push(landmark);
-        }
-        Ok(Self {
-            camera,
-            map_fingerprint,
-            entries,
-            coarse_points,
-            landmarks,
-            path: path.to_owned(),
+    /// True when there is none.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Points `range`; `None` when out of bounds.
+    pub fn get(&self, range: std::ops::Range<usize>) -> Option<CoarseSlice<'_>> {
+        let bytes = self
+            .as_bytes()
+            .get(range.start * COARSE_POINT_LEN..range.end * COARSE_POINT_LEN)?;
+        Some(CoarseSlice(bytes))
+    }
+
+    /// Point `index`; `None` when out of bounds or invalid.
+    pub fn point(&self, index: usize) -> Option<CoarsePoint> {
+        self.get(index..index + 1)?.iter().next()
+    }
+}
+
+/// Some coarse points in their file encoding.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CoarseSlice<'a>(&'a [u8]);
+
+impl<'a> CoarseSlice<'a> {
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.0.len() / COARSE_POINT_LEN
+    }
+
+    /// True when there is none.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The points, decoded (an invalid one, which the reader refuses, is
+    /// skipped).
+    pub fn iter(&self) -> impl Iterator<Item = CoarsePoint> + 'a {
+        self.0.chunks_exact(COARSE_POINT_LEN).filter_map(|c| {
+            let mut b = [0u8; COARSE_POINT_LEN];
+            b.copy_from_slice(c);
+            CoarsePoint::from_bytes(b)
         })
-    }
-}
-
-/// Little-endian reads at known-good offsets (lengths are checked first).
-struct Reader<'a> {
-    bytes: &'a [u8],
-    at: usize,
-}
-
-impl Reader<'_> {
-    fn take<const N: usize>(&mut self) -> [u8; N] {
-        let mut out = [0u8; N];
-        if let Some(src) = self.bytes.get(self.at..self.at + N) {
-            out.copy_from_slice(src);
-        }
-        self.at += N;
-        out
-    }
-    fn u32(&mut self) -> u32 {
-        u32::from_le_bytes(self.take())
-    }
-    fn u64(&mut self) -> u64 {
-        u64::from_le_bytes(self.take())
-    }
-    fn f64(&mut self) -> f64 {
-        f64::from_le_bytes(self.take())
     }
 }

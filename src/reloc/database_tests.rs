@@ -39,17 +39,21 @@ fn db(n: usize) -> RelocDatabase {
             grad_y: k as i16 * 5,
         })
         .collect();
-    RelocDatabase {
-        camera: camera(),
-        map_fingerprint: 0x1234_5678_9abc_def0,
-        entries,
-        coarse_points,
-        landmarks: (0..n)
+    let (landmarks, vocabulary) = super::build::organize(
+        (0..n)
             .map(|i| Landmark {
                 world_m: [i as f32 * 0.25, -1.0, 1.5],
                 descriptor: Descriptor([!(i as u64), i as u64, 7, 9]),
             })
             .collect(),
+    );
+    RelocDatabase {
+        camera: camera(),
+        map_fingerprint: 0x1234_5678_9abc_def0,
+        entries,
+        coarse_points,
+        landmarks,
+        vocabulary,
         path: "mem.rdb".into(),
     }
 }
@@ -108,20 +112,24 @@ fn truncated_and_padded_files_are_length_errors() {
     assert!(matches!(err, RelocDbError::BadMagic { .. }), "{err}");
 }
 
+/// Bytes of the vocabulary at the end of the body.
+fn vocabulary_len(d: &RelocDatabase) -> usize {
+    (d.vocabulary.words.len() + d.vocabulary.leaves.len()) * (32 + 4)
+}
+
 /// Rewrites the checksum after an edit of the body.
 fn reseal(bytes: &mut [u8]) {
-    use super::database::{fnv1a64, FNV_OFFSET};
     let end = bytes.len() - 8;
-    let sum = fnv1a64(FNV_OFFSET, &bytes[12..end]);
+    let sum = super::file::checksum(&bytes[12..end]);
     bytes[end..].copy_from_slice(&sum.to_le_bytes());
 }
 
 #[test]
 fn coarse_point_counts_that_disagree_are_invalid() {
     // Entry 0's coarse count sits after the header (12), camera (80),
-    // fingerprint, entry, point and landmark counts (4 x 8), pose and
-    // descriptor (88).
-    let at = 12 + 80 + 32 + 88;
+    // fingerprint (8), the counts of entries, points, landmarks, words and
+    // leaves (5 x 8), pose and descriptor (88).
+    let at = 12 + 80 + 8 + 40 + 88;
     let mut bytes = db(4).to_bytes();
     assert_eq!(&bytes[at..at + 4], &1u32.to_le_bytes());
     bytes[at] = 2;
@@ -131,7 +139,7 @@ fn coarse_point_counts_that_disagree_are_invalid() {
     assert!(err.to_string().contains("coarse points"), "{err}");
     // A point with zero depth.
     let mut bytes = db(4).to_bytes();
-    let first_point = bytes.len() - 8 - 4 * LANDMARK_LEN - 6 * 10;
+    let first_point = bytes.len() - 8 - vocabulary_len(&db(4)) - 4 * LANDMARK_LEN - 6 * 10;
     bytes[first_point + 4] = 0;
     bytes[first_point + 5] = 0;
     reseal(&mut bytes);
@@ -141,15 +149,56 @@ fn coarse_point_counts_that_disagree_are_invalid() {
 
 #[test]
 fn a_landmark_off_the_map_is_invalid() {
-    // Landmark 1's y coordinate: the landmarks end the body.
+    // Landmark 1's y coordinate: the landmarks come before the vocabulary.
     let mut bytes = db(4).to_bytes();
-    let at = bytes.len() - 8 - 3 * LANDMARK_LEN + 4;
+    let at = bytes.len() - 8 - vocabulary_len(&db(4)) - 3 * LANDMARK_LEN + 4;
     assert_eq!(&bytes[at..at + 4], &(-1.0f32).to_le_bytes());
     bytes[at..at + 4].copy_from_slice(&f32::INFINITY.to_le_bytes());
     reseal(&mut bytes);
     let err = RelocDatabase::from_bytes(&bytes, Path::new("l.rdb")).expect_err("landmark");
     assert!(matches!(err, RelocDbError::Invalid { .. }), "{err}");
     assert!(err.to_string().contains("landmark 1"), "{err}");
+}
+
+#[test]
+fn a_vocabulary_that_does_not_hold_the_landmarks_is_invalid() {
+    // The last leaf's landmark count ends the body.
+    let d = db(30);
+    assert!(!d.vocabulary.is_empty());
+    let mut bytes = d.to_bytes();
+    let at = bytes.len() - 8 - 4;
+    let n = u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    bytes[at..at + 4].copy_from_slice(&(n + 1).to_le_bytes());
+    reseal(&mut bytes);
+    let err = RelocDatabase::from_bytes(&bytes, Path::new("v.rdb")).expect_err("vocabulary");
+    assert!(matches!(err, RelocDbError::Invalid { .. }), "{err}");
+    assert!(err.to_string().contains("vocabulary"), "{err}");
+}
+
+#[test]
+fn a_mapped_file_cut_short_or_corrupt_is_refused_naming_it() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let path = tmp.path().join("cut.rdb");
+    let bytes = db(6).to_bytes();
+    std::fs::write(&path, &bytes[..bytes.len() - 3]).expect("write");
+    let err = RelocDatabase::read(&path).expect_err("cut");
+    assert!(matches!(err, RelocDbError::Length { .. }), "{err}");
+    assert!(err.to_string().contains("cut.rdb"), "{err}");
+    let mut bad = bytes.clone();
+    bad[40] ^= 1;
+    std::fs::write(&path, &bad).expect("write");
+    let err = RelocDatabase::read(&path).expect_err("corrupt");
+    assert!(matches!(err, RelocDbError::Checksum { .. }), "{err}");
+    std::fs::write(&path, b"").expect("write");
+    let err = RelocDatabase::read(&path).expect_err("empty");
+    assert!(matches!(err, RelocDbError::BadMagic { .. }), "{err}");
+    // A good file maps, and its coarse points read back from the map.
+    std::fs::write(&path, &bytes).expect("write");
+    let mapped = RelocDatabase::read(&path).expect("mapped");
+    assert!(format!("{:?}", mapped.coarse_points).contains("mapped: true"));
+    assert_eq!(mapped.coarse_points, db(6).coarse_points);
+    assert_eq!(mapped.landmarks, db(6).landmarks);
+    assert_eq!(mapped.vocabulary, db(6).vocabulary);
 }
 
 #[test]

@@ -1,9 +1,9 @@
-//! Building the relocalization database (`star reloc build`): virtual
-//! cameras on a grid in the map's free space, rendered through any
-//! [`Renderer`] and described by their thumbnails.
+//! Where the relocalization database's views are (`star reloc build`):
+//! virtual cameras on a grid in the map's free space, and along a
+//! trajectory. [`super::build`] renders and describes them.
 //!
-//! Takes the map mesh, the camera, a renderer and the `[reloc]` section;
-//! gives out a [`RelocDatabase`]. Positions lie on a horizontal grid inside
+//! Takes the map mesh and the `[reloc]` section; gives out the poses to
+//! render. Positions lie on a horizontal grid inside
 //! the mesh bounds (shrunk by `bounds_margin_m`) at the configured heights
 //! above the floor (`floor_z_m`, or the floor found in the map);
 //! each position gets `yaw_steps` yaws times the configured pitches. A
@@ -29,13 +29,10 @@ use crate::geometry::look::camera_rotation;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::floor::{find_floor, FloorError};
 use crate::map::Mesh;
-use crate::render::{RenderError, RenderedView, Renderer};
+use crate::render::RenderError;
 
-use super::coarse::{CoarseExtractor, CoarsePoint};
 use super::config::RelocConfig;
-use super::database::{map_fingerprint, RelocDatabase, RelocEntry};
-use super::descriptor::{Thumbnailer, THUMB_H, THUMB_W};
-use super::landmarks::{Landmark, LandmarkCollector};
+use super::descriptor::{THUMB_H, THUMB_W};
 
 /// Errors building a database.
 #[derive(Debug, thiserror::Error)]
@@ -61,6 +58,26 @@ pub enum BuildError {
         /// Why none was found.
         #[source]
         source: FloorError,
+    },
+    /// A build worker's renderer did not start.
+    #[error("starting a renderer for the database build")]
+    RendererStart(#[source] RenderError),
+    /// The checkpoint next to the output could not be read or written.
+    #[error("database build checkpoint {path}: {source}")]
+    Checkpoint {
+        /// The checkpoint file.
+        path: std::path::PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The build stopped after the work units asked for
+    /// ([`super::build::BuildOptions::stop_after`]); the checkpoint holds them.
+    #[error("database build stopped after {done} of {total} work units (checkpoint kept)")]
+    Stopped {
+        /// Work units done.
+        done: usize,
+        /// Work units in all.
+        total: usize,
     },
     /// A render failed.
     #[error("rendering a database view at {position_m:?}")]
@@ -194,135 +211,6 @@ pub fn trajectory_views(pose: &Pose, half_yaw_rad: f64, half_spacing_m: f64) -> 
     ]
 }
 
-/// Builds the database for `mesh` seen by `camera`, rendering through
-/// `renderer` (which must draw `mesh`). `progress` gets the number of
-/// positions done and the total.
-pub fn build_database(
-    mesh: &Mesh,
-    camera: &PinholeCamera,
-    renderer: &mut dyn Renderer,
-    config: &RelocConfig,
-    progress: &mut dyn FnMut(usize, usize),
-) -> Result<RelocDatabase, BuildError> {
-    build_database_in(mesh, camera, renderer, config, None, progress)
-}
-
-/// [`build_database`] with the grid limited to `region` (`[min, max]`
-/// corners, world, meters) instead of the mesh bounds.
-pub fn build_database_in(
-    mesh: &Mesh,
-    camera: &PinholeCamera,
-    renderer: &mut dyn Renderer,
-    config: &RelocConfig,
-    region: Option<([f32; 3], [f32; 3])>,
-    progress: &mut dyn FnMut(usize, usize),
-) -> Result<RelocDatabase, BuildError> {
-    let along = AlongTrajectory::default();
-    build_database_along(mesh, camera, renderer, config, region, &along, progress)
-}
-
-/// [`build_database_in`] with views along a trajectory added (see the
-/// module docs). `progress` counts grid positions, landmark positions and
-/// sampled trajectory poses.
-pub fn build_database_along(
-    mesh: &Mesh,
-    camera: &PinholeCamera,
-    renderer: &mut dyn Renderer,
-    config: &RelocConfig,
-    region: Option<([f32; 3], [f32; 3])>,
-    along: &AlongTrajectory,
-    progress: &mut dyn FnMut(usize, usize),
-) -> Result<RelocDatabase, BuildError> {
-    let config = &above_floor(mesh, config)?;
-    let positions = grid_positions(mesh, config, region)?;
-    let half_yaw_rad = std::f64::consts::PI / config.yaw_steps.max(1) as f64;
-    let samples = sample_along(&along.poses, along.spacing_m, half_yaw_rad);
-    let mut landmark_poses = landmark_grid_poses(config, &landmark_positions(mesh, config, region));
-    if config.landmark_spacing_m > 0.0 {
-        landmark_poses.extend(sample_along(
-            &along.poses,
-            config.landmark_spacing_m,
-            std::f64::consts::TAU / config.landmark_yaw_steps.max(1) as f64,
-        ));
-    }
-    let total = positions.len() + samples.len() + landmark_poses.len();
-    let render_camera = thumb_render_camera(camera);
-    let mut view = RenderedView::for_camera(&render_camera);
-    let mut thumbnailer = Thumbnailer::new();
-    let mut coarse = CoarseExtractor::new(&render_camera);
-    let mut entries = Vec::new();
-    let mut coarse_points = Vec::new();
-    let mut position_entries = Vec::with_capacity(views_per_position(config));
-    let mut position_points: Vec<CoarsePoint> = Vec::new();
-    let n_pixels = (render_camera.width * render_camera.height) as f64;
-    for (done, p) in positions.iter().enumerate() {
-        position_entries.clear();
-        position_points.clear();
-        let mut free = true;
-        'views: for &pitch_deg in &config.pitches_deg {
-            for yaw_rad in config.yaws_rad() {
-                let world_from_camera = Pose::from_parts(
-                    Translation3::from(*p),
-                    camera_rotation(yaw_rad, pitch_deg.to_radians(), 0.0),
-                );
-                let seen = render_view(renderer, &world_from_camera, &render_camera, &mut view)?;
-                if (seen.nearest_m as f64) < config.min_depth_m {
-                    free = false;
-                    break 'views;
-                }
-                if (seen.hits as f64) < config.min_valid_fraction * n_pixels {
-                    continue;
-                }
-                let stored = coarse_points.len();
-                let mut describer = Describer {
-                    thumbnailer: &mut thumbnailer,
-                    coarse: &mut coarse,
-                    config,
-                };
-                position_entries.extend(describer.entry(
-                    &view,
-                    world_from_camera,
-                    &mut position_points,
-                    stored,
-                ));
-            }
-        }
-        if free {
-            entries.extend_from_slice(&position_entries);
-            coarse_points.extend_from_slice(&position_points);
-        }
-        progress(done + 1, total);
-    }
-    for (done, sample) in samples.iter().enumerate() {
-        for world_from_camera in trajectory_views(sample, half_yaw_rad, 0.5 * along.spacing_m) {
-            let seen = render_view(renderer, &world_from_camera, &render_camera, &mut view)?;
-            if (seen.nearest_m as f64) < config.min_depth_m
-                || (seen.hits as f64) < config.min_valid_fraction * n_pixels
-            {
-                continue;
-            }
-            let mut describer = Describer {
-                thumbnailer: &mut thumbnailer,
-                coarse: &mut coarse,
-                config,
-            };
-            entries.extend(describer.entry(&view, world_from_camera, &mut coarse_points, 0));
-        }
-        progress(positions.len() + done + 1, total);
-    }
-    let landmarks = collect_landmarks(camera, renderer, config, &landmark_poses, &mut |done| {
-        progress(positions.len() + samples.len() + done, total)
-    })?;
-    Ok(RelocDatabase {
-        camera: *camera,
-        map_fingerprint: map_fingerprint(mesh),
-        entries,
-        coarse_points,
-        landmarks,
-        path: std::path::PathBuf::new(),
-    })
-}
-
 /// `config` with its heights made world heights: the floor's height (the
 /// configured `floor_z_m`, else [`find_floor`]) added, and `floor_z_m`
 /// set to 0.
@@ -350,7 +238,7 @@ pub fn above_floor(mesh: &Mesh, config: &RelocConfig) -> Result<RelocConfig, Bui
 
 /// Positions of the landmark views (none when `landmark_spacing_m` is 0 or
 /// no landmark height fits in the bounds).
-fn landmark_positions(
+pub(super) fn landmark_positions(
     mesh: &Mesh,
     config: &RelocConfig,
     region: Option<([f32; 3], [f32; 3])>,
@@ -369,83 +257,9 @@ fn landmark_positions(
     })
 }
 
-/// Describes rendered database views.
-struct Describer<'a> {
-    thumbnailer: &'a mut Thumbnailer,
-    coarse: &'a mut CoarseExtractor,
-    config: &'a RelocConfig,
-}
-
-impl Describer<'_> {
-    /// The database entry of `view` rendered at `world_from_camera`, its
-    /// coarse points appended to `points` (which follow `stored` points
-    /// already in the database); `None` without contrast.
-    fn entry(
-        &mut self,
-        view: &RenderedView,
-        world_from_camera: Pose,
-        points: &mut Vec<CoarsePoint>,
-        stored: usize,
-    ) -> Option<RelocEntry> {
-        let (w, h) = (view.gray.width(), view.gray.height());
-        let descriptor = self.thumbnailer.describe_f32(
-            view.gray.data(),
-            Some(view.depth_m.data()),
-            w,
-            h,
-            self.config.min_contrast_gray,
-        )?;
-        let coarse_start = (stored + points.len()) as u32;
-        let coarse_len = self.coarse.extract(view, points) as u32;
-        Some(RelocEntry {
-            world_from_camera,
-            descriptor,
-            coarse_start,
-            coarse_len,
-        })
-    }
-}
-
-/// What a database view saw of the map.
-struct Seen {
-    /// Pixels that hit the map.
-    hits: usize,
-    /// Nearest depth, meters (infinite when nothing was hit).
-    nearest_m: f32,
-}
-
-/// Renders `view` at `world_from_camera` and counts what it saw.
-fn render_view(
-    renderer: &mut dyn Renderer,
-    world_from_camera: &Pose,
-    camera: &PinholeCamera,
-    view: &mut RenderedView,
-) -> Result<Seen, BuildError> {
-    renderer
-        .render(world_from_camera, camera, view)
-        .map_err(|source| {
-            let p = world_from_camera.translation.vector;
-            BuildError::Render {
-                position_m: [p.x, p.y, p.z],
-                source,
-            }
-        })?;
-    let mut seen = Seen {
-        hits: 0,
-        nearest_m: f32::INFINITY,
-    };
-    for &d in view.depth_m.data() {
-        if RenderedView::is_hit(d) {
-            seen.hits += 1;
-            seen.nearest_m = seen.nearest_m.min(d);
-        }
-    }
-    Ok(seen)
-}
-
 /// The landmark views of the grid: `landmark_yaw_steps` yaws at the mean
 /// pitch, per position.
-fn landmark_grid_poses(config: &RelocConfig, positions: &[Vector3<f64>]) -> Vec<Pose> {
+pub(super) fn landmark_grid_poses(config: &RelocConfig, positions: &[Vector3<f64>]) -> Vec<Pose> {
     let pitches = &config.pitches_deg;
     let pitch_rad = (pitches.iter().sum::<f64>() / pitches.len().max(1) as f64).to_radians();
     positions
@@ -459,33 +273,4 @@ fn landmark_grid_poses(config: &RelocConfig, positions: &[Vector3<f64>]) -> Vec<
             })
         })
         .collect()
-}
-
-/// Renders the landmark views `poses` at full resolution (pinhole `camera`)
-/// and collects their landmarks; views with geometry nearer than
-/// `min_depth_m` are skipped. `progress` gets the number of views done.
-fn collect_landmarks(
-    camera: &PinholeCamera,
-    renderer: &mut dyn Renderer,
-    config: &RelocConfig,
-    poses: &[Pose],
-    progress: &mut dyn FnMut(usize),
-) -> Result<Vec<Landmark>, BuildError> {
-    if poses.is_empty() {
-        return Ok(Vec::new());
-    }
-    let pinhole = PinholeCamera {
-        distortion: Default::default(),
-        ..*camera
-    };
-    let mut view = RenderedView::for_camera(&pinhole);
-    let mut collector = LandmarkCollector::new(&pinhole, config);
-    for (done, world_from_camera) in poses.iter().enumerate() {
-        let seen = render_view(renderer, world_from_camera, &pinhole, &mut view)?;
-        if seen.nearest_m as f64 >= config.min_depth_m {
-            collector.add_view(&view, &pinhole, world_from_camera);
-        }
-        progress(done + 1);
-    }
-    Ok(collector.finish())
 }

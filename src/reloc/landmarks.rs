@@ -14,8 +14,10 @@
 //! skipped: their 3D point is ill-defined), and kept unless a landmark with
 //! a similar descriptor already sits in the same small voxel.
 //! Online side ([`LandmarkLocator`]): the frame's features, each matched to
-//! its nearest landmark by Hamming distance (with a ratio test that ignores
-//! runner-ups at the same place), undistorted to normalized coordinates and
+//! its nearest landmark by Hamming distance among those
+//! [`super::landmark_index`] searches (near the last position, or the
+//! vocabulary's leaves over the whole map), with a ratio test that ignores
+//! runner-ups at the same place, undistorted to normalized coordinates and
 //! handed to RANSAC P3P ([`super::pnp`]). The pose it gives is only a
 //! candidate: it is rendered and verified through the same gate as the
 //! database views. After [`LandmarkLocator::new`] nothing here allocates.
@@ -29,9 +31,11 @@ use crate::render::RenderedView;
 
 use super::config::RelocConfig;
 use super::descriptor::Descriptor;
-use super::features::{best_two_batch, FeatureExtractor, FeatureParams};
+use super::features::{FeatureExtractor, FeatureParams};
+use super::landmark_index::{LandmarkIndex, Probes};
 use super::pnp::{PnpParams, RansacPnp};
 use super::region::SearchRegion;
+use super::vocabulary::Vocabulary;
 
 /// Bytes per landmark in the database file: x, y, z (f32) and the
 /// descriptor (4 x u64), little-endian.
@@ -55,6 +59,10 @@ const MATCH_RATIO: f32 = 0.8;
 const SAME_PLACE_M: f32 = 0.15;
 /// RANSAC inlier bound, pixels at the camera's focal length.
 const PNP_THRESHOLD_PX: f64 = 3.0;
+/// Near a known position, the landmarks searched are those within the
+/// search radius plus this distance (horizontally, meters): what the
+/// camera can see from inside the radius.
+pub const LANDMARK_VIEW_RANGE_M: f64 = 6.0;
 
 /// One landmark.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -103,43 +111,42 @@ pub fn feature_params(config: &RelocConfig) -> FeatureParams {
     }
 }
 
-/// Collects landmarks from rendered views (`star reloc build`).
-pub struct LandmarkCollector {
+/// Lifts the features of rendered views to candidate landmarks (`star
+/// reloc build`, one per build worker).
+pub struct LandmarkLifter {
     extractor: FeatureExtractor,
     gray_u8: Vec<u8>,
-    voxels: HashMap<[i32; 3], Vec<u32>>,
-    landmarks: Vec<Landmark>,
 }
 
-impl LandmarkCollector {
-    /// A collector for views rendered with `camera` (pinhole).
+impl LandmarkLifter {
+    /// A lifter for views rendered with `camera` (pinhole).
     pub fn new(camera: &PinholeCamera, config: &RelocConfig) -> Self {
         let (w, h) = (camera.width as usize, camera.height as usize);
         Self {
             extractor: FeatureExtractor::new(w, h, &feature_params(config)),
             gray_u8: vec![0; w * h],
-            voxels: HashMap::new(),
-            landmarks: Vec::new(),
         }
     }
 
-    /// Adds the features of `view`, rendered with `camera` (pinhole) at
-    /// `world_from_camera`; returns how many became new landmarks.
-    pub fn add_view(
+    /// Appends to `out` the features of `view`, rendered with `camera`
+    /// (pinhole) at `world_from_camera`, lifted to world points (corners
+    /// off the map or on a depth edge are skipped); not yet deduplicated
+    /// ([`LandmarkCollector::insert`]).
+    pub fn lift(
         &mut self,
         view: &RenderedView,
         camera: &PinholeCamera,
         world_from_camera: &Pose,
-    ) -> usize {
+        out: &mut Vec<Landmark>,
+    ) {
         let (w, h) = (view.gray.width(), view.gray.height());
         if w * h != self.gray_u8.len() {
-            return 0;
+            return;
         }
         for (o, &g) in self.gray_u8.iter_mut().zip(view.gray.data()) {
             *o = g.clamp(0.0, 255.0).round() as u8;
         }
         let depth = view.depth_m.data();
-        let mut added = 0;
         for k in self.extractor.extract(&self.gray_u8, w, h, w) {
             let (u, v) = (k.x_px.round() as i64, k.y_px.round() as i64);
             if u < 1 || v < 1 || u + 1 >= w as i64 || v + 1 >= h as i64 {
@@ -165,27 +172,46 @@ impl LandmarkCollector {
                 continue;
             };
             let p_world = world_from_camera * nalgebra::Point3::from(p_camera);
-            let key = [
-                (p_world.x / VOXEL_M).floor() as i32,
-                (p_world.y / VOXEL_M).floor() as i32,
-                (p_world.z / VOXEL_M).floor() as i32,
-            ];
-            let slot = self.voxels.entry(key).or_default();
-            let known = slot.len() >= MAX_PER_VOXEL
-                || slot.iter().any(|&i| {
-                    self.landmarks[i as usize].descriptor.hamming(&k.descriptor) <= DEDUPE_HAMMING
-                });
-            if known {
-                continue;
-            }
-            slot.push(self.landmarks.len() as u32);
-            self.landmarks.push(Landmark {
+            out.push(Landmark {
                 world_m: [p_world.x as f32, p_world.y as f32, p_world.z as f32],
                 descriptor: k.descriptor,
             });
-            added += 1;
         }
-        added
+    }
+}
+
+/// Keeps the lifted features that are new landmarks, in the order they
+/// are inserted (`star reloc build`).
+#[derive(Default)]
+pub struct LandmarkCollector {
+    voxels: HashMap<[i32; 3], Vec<u32>>,
+    landmarks: Vec<Landmark>,
+}
+
+impl LandmarkCollector {
+    /// Keeps `candidate` unless its voxel is full or holds a landmark with a
+    /// similar descriptor; gives whether it was kept.
+    pub fn insert(&mut self, candidate: Landmark) -> bool {
+        let p = candidate.world_m.map(|v| v as f64);
+        let key = [
+            (p[0] / VOXEL_M).floor() as i32,
+            (p[1] / VOXEL_M).floor() as i32,
+            (p[2] / VOXEL_M).floor() as i32,
+        ];
+        let slot = self.voxels.entry(key).or_default();
+        let known = slot.len() >= MAX_PER_VOXEL
+            || slot.iter().any(|&i| {
+                self.landmarks[i as usize]
+                    .descriptor
+                    .hamming(&candidate.descriptor)
+                    <= DEDUPE_HAMMING
+            });
+        if known {
+            return false;
+        }
+        slot.push(self.landmarks.len() as u32);
+        self.landmarks.push(candidate);
+        true
     }
 
     /// The landmarks.
@@ -213,21 +239,23 @@ pub struct LandmarkLocator {
     params: PnpParams,
     camera: PinholeCamera,
     max_hamming: u32,
-    /// The landmarks' descriptors and positions, contiguous for the scan.
-    descriptors: Vec<Descriptor>,
+    /// The landmarks' descriptors, laid out for the search, and positions.
+    index: LandmarkIndex,
     positions_m: Vec<[f32; 3]>,
     world_m: Vec<Vector3<f64>>,
     normalized: Vec<Vector2<f64>>,
     /// The frame's descriptors and their best two matches.
     query: Vec<Descriptor>,
     matches: Vec<(u32, u32, u32, u32)>,
+    /// Corners of the last frame.
+    n_query: usize,
     calls: u64,
 }
 
 impl std::fmt::Debug for LandmarkLocator {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("LandmarkLocator")
-            .field("landmarks", &self.descriptors.len())
+            .field("landmarks", &self.index.len())
             .finish_non_exhaustive()
     }
 }
@@ -239,15 +267,21 @@ impl Clone for LandmarkLocator {
             &self.feature_params,
             self.params.clone(),
             self.max_hamming,
-            self.descriptors.clone(),
+            self.index.clone(),
             self.positions_m.clone(),
         )
     }
 }
 
 impl LandmarkLocator {
-    /// A locator for frames of `camera` against `landmarks`.
-    pub fn new(camera: &PinholeCamera, config: &RelocConfig, landmarks: &[Landmark]) -> Self {
+    /// A locator for frames of `camera` against `landmarks`, stored leaf
+    /// after leaf of `vocabulary` (see [`LandmarkIndex::new`]).
+    pub fn new(
+        camera: &PinholeCamera,
+        config: &RelocConfig,
+        landmarks: &[Landmark],
+        vocabulary: &Vocabulary,
+    ) -> Self {
         let focal_px = 0.5 * (camera.fx + camera.fy);
         let params = PnpParams {
             threshold: PNP_THRESHOLD_PX / focal_px.max(1.0),
@@ -259,7 +293,7 @@ impl LandmarkLocator {
             &feature_params(config),
             params,
             config.landmark_max_hamming_bits,
-            landmarks.iter().map(|l| l.descriptor).collect(),
+            LandmarkIndex::new(landmarks, vocabulary),
             landmarks.iter().map(|l| l.world_m).collect(),
         )
     }
@@ -269,7 +303,7 @@ impl LandmarkLocator {
         feature_params: &FeatureParams,
         params: PnpParams,
         max_hamming: u32,
-        descriptors: Vec<Descriptor>,
+        index: LandmarkIndex,
         positions_m: Vec<[f32; 3]>,
     ) -> Self {
         let n = feature_params.max_features;
@@ -284,14 +318,55 @@ impl LandmarkLocator {
             params,
             camera: *camera,
             max_hamming,
-            descriptors,
+            index,
             positions_m,
             world_m: Vec::with_capacity(n),
             normalized: Vec::with_capacity(n),
             query: vec![Descriptor::default(); n],
             matches: vec![(u32::MAX, u32::MAX, u32::MAX, u32::MAX); n],
+            n_query: 0,
             calls: 0,
         }
+    }
+
+    /// The whole-map search's probes ([`LandmarkIndex::set_probes`]).
+    pub fn set_probes(&mut self, probes: Probes) {
+        self.index.set_probes(probes);
+    }
+
+    /// Descriptor comparisons of the last search.
+    pub fn comparisons(&self) -> u64 {
+        self.index.comparisons()
+    }
+
+    /// The descriptors of the last frame's corners.
+    pub fn last_query(&self) -> &[Descriptor] {
+        &self.query[..self.n_query]
+    }
+
+    /// Comparisons brute force would make for the last frame: its corners
+    /// times the landmarks.
+    pub fn brute_force_comparisons(&self) -> u64 {
+        (self.n_query * self.index.len()) as u64
+    }
+
+    /// Of the last frame's corners whose nearest landmark over the whole
+    /// map is within the match bound, how many the last search found too:
+    /// `(found, of)`. Compares every corner with every landmark: a
+    /// diagnostic, not for the online path.
+    pub fn recall_of_last(&mut self) -> (usize, usize) {
+        let n = self.n_query;
+        let mut all = vec![(u32::MAX, u32::MAX, u32::MAX, u32::MAX); n];
+        self.index.best_two_all(&self.query[..n], &mut all);
+        let mut found = 0;
+        let mut of = 0;
+        for (a, m) in all.iter().zip(&self.matches[..n]) {
+            if a.0 <= self.max_hamming {
+                of += 1;
+                found += usize::from(m.0 == a.0);
+            }
+        }
+        (found, of)
     }
 
     /// The pose of the camera frame `pixels` (8-bit, `width x height`, rows
@@ -305,54 +380,89 @@ impl LandmarkLocator {
         stride: usize,
         region: SearchRegion,
     ) -> Option<Located> {
-        if self.descriptors.is_empty() {
+        self.locate_in(pixels, width, height, stride, &[region])
+    }
+
+    /// [`Self::locate`] trying `regions` in turn (features extracted once):
+    /// near the last position first, then the whole map. Each region
+    /// searches its own landmarks ([`LandmarkIndex`]); the first pose found
+    /// inside its region is given.
+    pub fn locate_in(
+        &mut self,
+        pixels: &[u8],
+        width: usize,
+        height: usize,
+        stride: usize,
+        regions: &[SearchRegion],
+    ) -> Option<Located> {
+        if self.index.is_empty() {
             return None;
         }
-        self.world_m.clear();
-        self.normalized.clear();
-        let c = &self.camera;
         let keypoints = self.extractor.extract(pixels, width, height, stride);
         let n = keypoints.len().min(self.matches.len());
         for (d, k) in self.query.iter_mut().zip(&keypoints[..n]) {
             *d = k.descriptor;
         }
-        best_two_batch(&self.query[..n], &self.descriptors, &mut self.matches[..n]);
-        for (k, &(best_d, best_i, second_d, second_i)) in keypoints[..n].iter().zip(&self.matches) {
-            if best_d > self.max_hamming {
-                continue;
+        self.n_query = n;
+        for region in regions {
+            let queries = &self.query[..n];
+            let out = &mut self.matches[..n];
+            match *region {
+                SearchRegion::Near { center_m, radius_m } => {
+                    let center = [center_m.x as f32, center_m.y as f32];
+                    let reach = (radius_m + LANDMARK_VIEW_RANGE_M) as f32;
+                    self.index.best_two_near(queries, center, reach, out);
+                }
+                SearchRegion::Everywhere => self.index.best_two_everywhere(queries, out),
             }
-            let best_m = self.positions_m[best_i as usize];
-            let same_place = self.positions_m.get(second_i as usize).is_some_and(|p| {
-                let d2: f32 = (0..3).map(|i| (p[i] - best_m[i]).powi(2)).sum();
-                d2 < SAME_PLACE_M * SAME_PLACE_M
-            });
-            if !same_place && best_d as f32 >= MATCH_RATIO * second_d as f32 {
-                continue;
+            self.world_m.clear();
+            self.normalized.clear();
+            let c = &self.camera;
+            for (k, &(best_d, best_i, second_d, second_i)) in
+                keypoints[..n].iter().zip(&self.matches)
+            {
+                if best_d > self.max_hamming {
+                    continue;
+                }
+                let Some(&best_m) = self.positions_m.get(best_i as usize) else {
+                    continue;
+                };
+                let same_place = self.positions_m.get(second_i as usize).is_some_and(|p| {
+                    let d2: f32 = (0..3).map(|i| (p[i] - best_m[i]).powi(2)).sum();
+                    d2 < SAME_PLACE_M * SAME_PLACE_M
+                });
+                if !same_place && best_d as f32 >= MATCH_RATIO * second_d as f32 {
+                    continue;
+                }
+                let xd = Vector2::new((k.x_px as f64 - c.cx) / c.fx, (k.y_px as f64 - c.cy) / c.fy);
+                let Some(xn) = c.distortion.undistort(xd) else {
+                    continue;
+                };
+                self.world_m.push(Vector3::new(
+                    best_m[0] as f64,
+                    best_m[1] as f64,
+                    best_m[2] as f64,
+                ));
+                self.normalized.push(xn);
             }
-            let xd = Vector2::new((k.x_px as f64 - c.cx) / c.fx, (k.y_px as f64 - c.cy) / c.fy);
-            let Some(xn) = c.distortion.undistort(xd) else {
+            self.calls += 1;
+            let seed = 0x5354_4152_504e_5000 ^ self.calls;
+            let Some(found) = self
+                .pnp
+                .solve(&self.world_m, &self.normalized, &self.params, seed)
+            else {
                 continue;
             };
-            self.world_m.push(Vector3::new(
-                best_m[0] as f64,
-                best_m[1] as f64,
-                best_m[2] as f64,
-            ));
-            self.normalized.push(xn);
+            if !region.contains(&found.world_from_camera.translation.vector) {
+                continue;
+            }
+            return Some(Located {
+                world_from_camera: found.world_from_camera,
+                inliers: found.inliers,
+                matches: self.world_m.len(),
+            });
         }
-        self.calls += 1;
-        let seed = 0x5354_4152_504e_5000 ^ self.calls;
-        let found = self
-            .pnp
-            .solve(&self.world_m, &self.normalized, &self.params, seed)?;
-        if !region.contains(&found.world_from_camera.translation.vector) {
-            return None;
-        }
-        Some(Located {
-            world_from_camera: found.world_from_camera,
-            inliers: found.inliers,
-            matches: self.world_m.len(),
-        })
+        None
     }
 }
 

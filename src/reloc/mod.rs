@@ -4,13 +4,21 @@
 //! - [`descriptor`]: 80x64 thumbnail and 256-bit binary descriptor.
 //! - [`coarse`]: the 40x32 keyframe points stored per entry, aligned
 //!   before anything is rendered to rank the candidates.
-//! - [`database`]: keyframe poses, descriptors and coarse points; the versioned, checksummed
-//!   file and its checks (magic, version, length, checksum, map, camera).
+//! - [`database`]: keyframe poses, descriptors and coarse points, the
+//!   landmarks, and the checks that a database fits the map and camera.
+//! - [`file`]: the versioned, checksummed file, read through a memory map,
+//!   and its checks (magic, version, length, checksum, fields).
 //! - [`grid`]: `star reloc build`: virtual cameras on a grid in free space.
+//! - [`build`]: rendering and describing them on every core;
+//!   [`checkpoint`]: resuming an interrupted build.
 //! - [`landmarks`]: map points with feature descriptors, and the pose of a
 //!   frame from them (features matched, then RANSAC PnP).
 //! - [`features`]: FAST corners and 256-bit upright BRIEF descriptors on an
 //!   image pyramid, and brute-force Hamming matching.
+//! - [`vocabulary`]: the landmark descriptors' vocabulary, trained at
+//!   build time; [`landmark_index`]: the landmarks each frame corner is
+//!   compared with (spatial cells near the last position, vocabulary
+//!   leaves for the whole map).
 //! - [`pnp`]: P3P (Lambda Twist) in RANSAC, refined on the inliers.
 //! - The online side; the STAR loop ([`crate::localizer`]) renders and
 //!   aligns the candidates:
@@ -21,28 +29,36 @@
 //!     (its correlation test is [`crate::track::correlation`]).
 //! - [`config`]: the `[reloc]` section.
 
+pub mod build;
+pub mod checkpoint;
 pub mod coarse;
 pub mod config;
 pub mod database;
 pub mod descriptor;
 pub mod features;
+pub mod file;
 pub mod grid;
+pub mod landmark_index;
 pub mod landmarks;
 pub mod pnp;
 pub mod region;
 pub mod search;
 pub mod verify;
+pub mod vocabulary;
 
 #[cfg(test)]
 mod database_tests;
 
-pub use config::RelocConfig;
-pub use database::{map_fingerprint, RelocDatabase, RelocDbError, RelocEntry};
-pub use descriptor::{Descriptor, Thumbnailer, THUMB_H, THUMB_W};
-pub use grid::{
-    above_floor, build_database, build_database_along, build_database_in, AlongTrajectory,
-    BuildError,
+pub use build::{
+    build_database, build_database_along, build_database_in, build_parallel, BuildOptions,
 };
+pub use checkpoint::checkpoint_path;
+pub use config::RelocConfig;
+pub use database::{
+    map_fingerprint, CoarsePoints, CoarseSlice, RelocDatabase, RelocDbError, RelocEntry,
+};
+pub use descriptor::{Descriptor, Thumbnailer, THUMB_H, THUMB_W};
+pub use grid::{above_floor, AlongTrajectory, BuildError};
 pub use region::SearchRegion;
 pub use search::{
     Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K,

@@ -118,7 +118,7 @@ impl Relocalizer {
     ) -> Result<Self, RelocDbError> {
         db.check_compatible(camera, db.map_fingerprint)?;
         Ok(Self {
-            landmarks: LandmarkLocator::new(camera, config, &db.landmarks),
+            landmarks: LandmarkLocator::new(camera, config, &db.landmarks, &db.vocabulary),
             index: SearchIndex::new(&db),
             db,
             config: config.clone(),
@@ -135,6 +135,11 @@ impl Relocalizer {
             )),
             candidates: heapless::Vec::new(),
         })
+    }
+
+    /// The landmark side (its probes, its comparison counts).
+    pub fn landmarks_mut(&mut self) -> &mut LandmarkLocator {
+        &mut self.landmarks
     }
 
     /// The database.
@@ -174,19 +179,21 @@ impl Relocalizer {
 
     /// The candidate the landmarks give for the camera frame `pixels` (8-bit,
     /// `width x height`, rows `stride` bytes apart): the pose RANSAC PnP
-    /// finds from its features matched to the landmarks, inside `region`.
-    /// `None` without landmarks or when PnP finds no pose.
+    /// finds from its features matched to the landmarks of each of
+    /// `regions` in turn (near the last position, then the whole map), the
+    /// first inside its region. `None` without landmarks or when PnP finds
+    /// no pose.
     pub fn landmark_candidate(
         &mut self,
         pixels: &[u8],
         width: usize,
         height: usize,
         stride: usize,
-        region: SearchRegion,
+        regions: &[SearchRegion],
     ) -> Option<(Candidate, Located)> {
         let found = self
             .landmarks
-            .locate(pixels, width, height, stride, region)?;
+            .locate_in(pixels, width, height, stride, regions)?;
         let candidate = Candidate {
             ranked: Ranked {
                 distance: 0,
@@ -261,7 +268,7 @@ impl Relocalizer {
             let yaws = start_yaws_rad(&self.config, self.shift_yaw_rad(ranked.shift));
             let points = self.db.coarse_points_of(ranked.index as usize);
             let kf = &mut self.coarse_keyframe;
-            to_keypoints(points, &coarse, &mut kf.levels[level].points);
+            to_keypoints(points.iter(), &coarse, &mut kf.levels[level].points);
             let mut best = Candidate {
                 ranked,
                 world_from_camera: world_from_entry,

@@ -28,10 +28,15 @@
 //! rendered at the truth itself; `STAR_BENCH_DUMP=DIR` also writes each
 //! query frame there as `qNNN.png`; `STAR_BENCH_ROLL_DEG=R` rolls the
 //! queries uniformly within +-R degrees (the database views have no roll).
+//! `STAR_BENCH_PROBES=W,L` sets the whole-map landmark search's probes
+//! (words, leaves); `STAR_BENCH_LANDMARK_SCALES=4,16,40` adds the landmark
+//! matching figures on the landmarks replicated into look-alike rooms
+//! ([`scale`]).
 
 mod diagnose;
 mod query;
 mod recover;
+mod scale;
 mod setup;
 mod tally;
 
@@ -75,6 +80,8 @@ pub fn run(
     let rank_candidates = bench.config.reloc.rank_candidates;
     let mut global = Tally::new(rank_candidates);
     let mut window = Tally::new(rank_candidates);
+    let scales = scale::scales_from_env();
+    let mut frames: Vec<Vec<crate::reloc::Descriptor>> = Vec::new();
     while done < queries && tries < queries * 100 {
         tries += 1;
         let Some(query) = bench.draw_query(&mut rng, done + 1)? else {
@@ -101,6 +108,9 @@ pub fn run(
                 continue;
             };
             if matches!(region, SearchRegion::Everywhere) {
+                if !scales.is_empty() {
+                    frames.push(bench.reloc.landmarks_mut().last_query().to_vec());
+                }
                 tally.near_rank.push(bench.near_rank(&query, &outcome));
                 if verbose {
                     bench.diagnose(&query, &outcome, done, tally);
@@ -116,6 +126,16 @@ pub fn run(
         done,
     );
     tally::search_timing(&bench.db, bench.config.reloc.top_k as usize, seed);
+    if !scales.is_empty() {
+        let lm = &bench.db.landmarks;
+        let n = lm.len().max(1) as f32;
+        let center_m = [
+            lm.iter().map(|l| l.world_m[0]).sum::<f32>() / n,
+            lm.iter().map(|l| l.world_m[1]).sum::<f32>() / n,
+        ];
+        let reach_m = (2.0 + crate::reloc::landmarks::LANDMARK_VIEW_RANGE_M) as f32;
+        scale::landmark_scaling(lm, &frames, center_m, reach_m, &scales);
+    }
     Ok(())
 }
 

@@ -53,11 +53,21 @@ impl Bench {
             self.frame.width(),
             self.frame.height(),
             self.frame.width(),
-            region,
+            &[region],
         );
         tally
             .landmark_ms
             .push(t_landmarks.elapsed().as_secs_f64() * 1e3);
+        // Outside the timing: how much the search compared, and whether it
+        // found what comparing with every landmark finds.
+        let locator = self.reloc.landmarks_mut();
+        tally.comparisons.push(locator.comparisons() as f64);
+        let (found, of) = locator.recall_of_last();
+        tally.recall_found += found;
+        tally.recall_of += of;
+        tally
+            .brute_force
+            .push(locator.brute_force_comparisons() as f64);
         let mut candidates: Vec<Candidate> = Vec::new();
         if let Some((c, found)) = landmark {
             let e = query.truth.inverse() * c.world_from_camera;

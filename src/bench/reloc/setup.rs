@@ -12,7 +12,7 @@ use crate::config::Config;
 use crate::dataset::{Dataset, Trajectory};
 use crate::geometry::PinholeCamera;
 use crate::imgproc::{ImageF32, ImageU8};
-use crate::reloc::{build_database, RelocDatabase, Relocalizer};
+use crate::reloc::{build_parallel, BuildOptions, RelocDatabase, Relocalizer};
 use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderedView, Renderer};
 use crate::synth::corrupt::{DistortionWarp, SensorModel};
@@ -93,10 +93,9 @@ impl Bench {
         let scene = preset_scene(&preset, seed);
         let camera = preset.camera;
         let map = Arc::new(scene.map.clone());
-        let mut map_r = CpuRenderer::new(map.clone())?;
         // Candidates are rendered as the service renders them: by the
         // `[render] renderer` of the configuration (auto: a hardware adapter,
-        // else lavapipe, else the CPU rasterizer).
+        // else the CPU rasterizer).
         let kind = config.render.renderer;
         let candidate_r =
             crate::render::select::make_configured_renderer(&config.render, map.clone())
@@ -104,10 +103,30 @@ impl Bench {
 
         let t0 = Instant::now();
         let bar = indicatif::ProgressBar::new(0);
-        let db = build_database(&map, &camera, &mut map_r, rc, &mut |done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        })?;
+        // One CPU rasterizer per core: the same database as one renderer
+        // on one thread, byte for byte.
+        let make_renderer =
+            || -> Result<Box<dyn crate::render::Renderer>, crate::render::RenderError> {
+                Ok(Box::new(CpuRenderer::new(map.clone())?))
+            };
+        let db = build_parallel(
+            &map,
+            &camera,
+            rc,
+            None,
+            &Default::default(),
+            "cpu",
+            &make_renderer,
+            BuildOptions {
+                threads: 0,
+                checkpoint: None,
+                stop_after: None,
+                progress: &mut |done, total| {
+                    bar.set_length(total as u64);
+                    bar.set_position(done as u64);
+                },
+            },
+        )?;
         bar.finish_and_clear();
         let build_s = t0.elapsed().as_secs_f64();
         println!(
@@ -129,13 +148,23 @@ impl Bench {
             rc.pitches_deg,
             db.landmarks.len()
         );
+        println!(
+            "  database file {:.1} MB; landmark vocabulary {} words, {} leaves; whole-map probes {:?}",
+            db.to_bytes().len() as f64 / 1e6,
+            db.vocabulary.words.len(),
+            db.vocabulary.leaves.len(),
+            probes_from_env().unwrap_or_default()
+        );
 
         // Queries: truth mesh, distortion, sensor model.
         let truth_r = CpuRenderer::new(Arc::new(scene.truth.clone()))?;
         let warp = DistortionWarp::new(&camera)?;
         let render_camera = *warp.render_camera();
         let sensor = SensorModel::new(preset.photometric, &camera, seed);
-        let reloc = Relocalizer::new(db.clone(), rc, &camera)?;
+        let mut reloc = Relocalizer::new(db.clone(), rc, &camera)?;
+        if let Some(probes) = probes_from_env() {
+            reloc.landmarks_mut().set_probes(probes);
+        }
         // World heights: the configured ones above the map's floor.
         let z_range_m = crate::reloc::above_floor(&map, rc)?
             .heights_m
@@ -270,4 +299,16 @@ impl Bench {
             ),
         }
     }
+}
+
+/// `STAR_BENCH_PROBES=WORDS,LEAVES`: the whole-map landmark search's
+/// probes ([`crate::reloc::landmark_index::Probes`]) instead of the
+/// defaults.
+pub(super) fn probes_from_env() -> Option<crate::reloc::landmark_index::Probes> {
+    let v = std::env::var("STAR_BENCH_PROBES").ok()?;
+    let (w, l) = v.split_once(',')?;
+    Some(crate::reloc::landmark_index::Probes {
+        words: w.trim().parse().ok()?,
+        leaves: l.trim().parse().ok()?,
+    })
 }

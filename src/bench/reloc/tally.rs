@@ -101,6 +101,14 @@ pub(super) struct Tally {
     pub(super) located_inliers: Vec<(usize, usize, bool)>,
     /// Accepted poses that came from the landmark candidate.
     pub(super) from_landmarks: usize,
+    /// Descriptor comparisons of the landmark matching, per query.
+    pub(super) comparisons: Vec<f64>,
+    /// Corners whose nearest landmark over the whole map is within the
+    /// match bound, and of those the ones the search found too.
+    pub(super) recall_of: usize,
+    pub(super) recall_found: usize,
+    /// Corners x landmarks of brute-force matching, per query.
+    pub(super) brute_force: Vec<f64>,
 }
 
 impl Tally {
@@ -219,6 +227,14 @@ impl Tally {
         println!(
             "    landmarks: a pose for {}/{done}, within 10 cm / 3 deg for {}; accepted from it {}; features + matching + PnP median {lmed:.1} ms, p99 {lp99:.1} ms",
             self.located, self.located_right, self.from_landmarks
+        );
+        let (cmed, cp99) = median_p99(&self.comparisons);
+        let (bmed, _) = median_p99(&self.brute_force);
+        println!(
+            "    landmark matching: {cmed:.0} descriptor comparisons per query median, p99 {cp99:.0} (brute force: {bmed:.0}); the nearest landmark found for {}/{} corners whose nearest over the whole map is within the match bound ({:.1} %)",
+            self.recall_found,
+            self.recall_of,
+            100.0 * self.recall_found as f64 / self.recall_of.max(1) as f64
         );
         if std::env::var_os("STAR_BENCH_VERBOSE").is_some() {
             let wrong: Vec<String> = self

@@ -1,0 +1,85 @@
+//! The landmark pose allocates nothing per frame after construction, near
+//! the last position (spatial cells) and over the whole map (vocabulary)
+//! alike (issue 22).
+
+#![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
+
+mod common;
+
+use std::sync::Arc;
+
+use common::counting_alloc::{start_counting, stop_counting, CountingAlloc};
+use nalgebra::{Translation3, Vector3};
+use star::geometry::look::camera_rotation;
+use star::geometry::{PinholeCamera, Pose};
+use star::reloc::landmarks::LandmarkLocator;
+use star::reloc::{build_database, RelocConfig, SearchRegion};
+use star::render::cpu::CpuRenderer;
+use star::render::{RenderedView, Renderer};
+
+#[global_allocator]
+static GLOBAL: CountingAlloc = CountingAlloc;
+
+#[test]
+fn locating_from_landmarks_allocates_nothing() {
+    let mesh = common::room::textured_room();
+    let camera = PinholeCamera::new(320, 256, 210.0, 210.0, 159.5, 127.5);
+    let config = RelocConfig {
+        grid_spacing_m: 1.5,
+        heights_m: vec![1.2],
+        yaw_steps: 4,
+        pitches_deg: vec![-10.0],
+        landmark_spacing_m: 1.0,
+        landmark_heights_m: vec![1.2],
+        landmark_yaw_steps: 8,
+        floor_z_m: Some(0.0),
+        ..RelocConfig::default()
+    };
+    let mut renderer = CpuRenderer::new(Arc::new(mesh.clone())).expect("renderer");
+    let db = build_database(&mesh, &camera, &mut renderer, &config, &mut |_, _| {}).expect("db");
+    assert!(db.landmarks.len() > 50 && !db.vocabulary.is_empty());
+    let mut locator = LandmarkLocator::new(&camera, &config, &db.landmarks, &db.vocabulary);
+
+    let pose = Pose::from_parts(
+        Translation3::new(2.7, 2.3, 1.3),
+        camera_rotation(0.4, (-8f64).to_radians(), 0.0),
+    );
+    let mut view = RenderedView::for_camera(&camera);
+    renderer.render(&pose, &camera, &mut view).expect("render");
+    let frame: Vec<u8> = view
+        .gray
+        .data()
+        .iter()
+        .map(|&g| g.clamp(0.0, 255.0) as u8)
+        .collect();
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let near = SearchRegion::Near {
+        center_m: Vector3::new(2.5, 2.5, 1.2),
+        radius_m: 1.0,
+    };
+    let regions = [near, SearchRegion::Everywhere];
+    // The first call warms up (rayon's pool in the extractor, lazy tables).
+    locator.locate_in(&frame, w, h, w, &regions);
+
+    start_counting();
+    let near_pose = locator.locate(&frame, w, h, w, near);
+    let near_comparisons = locator.comparisons();
+    let everywhere = locator.locate(&frame, w, h, w, SearchRegion::Everywhere);
+    let everywhere_comparisons = locator.comparisons();
+    let both = locator.locate_in(&frame, w, h, w, &regions);
+    let allocations = stop_counting();
+    assert_eq!(allocations, 0, "allocations while locating");
+
+    // It searched, and over the whole map with fewer comparisons than
+    // brute force.
+    assert!(near_comparisons > 0 && everywhere_comparisons > 0);
+    assert!(everywhere_comparisons < locator.brute_force_comparisons());
+    for found in [near_pose, everywhere, both].into_iter().flatten() {
+        let err = pose.inverse() * found.world_from_camera;
+        assert!(
+            err.translation.vector.norm() < 0.1,
+            "a landmark pose {:?} off",
+            err.translation.vector
+        );
+    }
+}
