@@ -24,7 +24,7 @@ use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MA
 use crate::reloc::{
     try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict,
 };
-use crate::track::correlation::correlations;
+use crate::track::correlation::plain_and_local;
 
 use super::worker::RenderRequest;
 use super::{Localizer, TrackState};
@@ -113,26 +113,19 @@ impl Localizer {
         let Some(config) = gate_config(&self.reloc, &self.start_gate) else {
             return true;
         };
-        let at = |level| {
-            correlations(
-                &self.keyframe,
-                &self.pyramid,
-                &self.camera,
-                camera_from_keyframe,
-                level,
-            )
-        };
+        let pose = camera_from_keyframe;
         // The plain correlation at level 1 (what `track_min_correlation`
         // was measured at); local contrast at its lowest over levels 0-2,
         // as the relocalization gate reads it: a slide of a few pixels
         // shows at the finest level first. `f32::min` skips a `NaN` level
         // (no coarser level for the local mean); with none, it is not a
         // refusal and the plain correlation decides.
-        let ncc = at(1).map(|c| (c.all, c.local));
+        let at = |level| plain_and_local(&self.keyframe, &self.pyramid, &self.camera, pose, level);
+        let ncc = at(1);
         let local = [at(0), at(2)]
             .iter()
             .flatten()
-            .fold(ncc.map_or(f32::NAN, |(_, l)| l), |m, c| m.min(c.local));
+            .fold(ncc.map_or(f32::NAN, |(_, l)| l), |m, &(_, l)| m.min(l));
         tracing::trace!(ncc = ncc.map(|c| c.0), local, "tracking correlation");
         let ok = ncc.is_some_and(|(all, _)| {
             all >= config.track_min_correlation && !(local < config.track_min_local_correlation)

@@ -104,6 +104,34 @@ pub fn correlations(
     camera_from_keyframe: &Pose,
     level: usize,
 ) -> Option<Correlations> {
+    correlations_with(keyframe, frame, camera, camera_from_keyframe, level, true)
+}
+
+/// [`Correlations::all`] and [`Correlations::local`] alone (`local` is
+/// `NaN` where the pyramid has no coarser level for the local mean): the
+/// per-frame check of tracking, which skips the trimming of the intensity
+/// correlation.
+pub fn plain_and_local(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+    level: usize,
+) -> Option<(f32, f32)> {
+    correlations_with(keyframe, frame, camera, camera_from_keyframe, level, false)
+        .map(|c| (c.all, c.local))
+}
+
+/// [`correlations`]; without `intensity_trim`, `trimmed` and `kept` are
+/// those of the untrimmed pass.
+fn correlations_with(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+    level: usize,
+    intensity_trim: bool,
+) -> Option<Correlations> {
     let (kl, cam) = level_of(keyframe, frame, camera, level)?;
     let all = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None, None)?;
     let trim = |contrast: Option<Contrast>, first: NccFit| {
@@ -125,7 +153,7 @@ pub fn correlations(
         }
         trimmed
     };
-    let trimmed = trim(None, all);
+    let trimmed = if intensity_trim { trim(None, all) } else { all };
     let coarse = (level + 2).min(
         frame
             .len()
