@@ -233,6 +233,9 @@ pub struct Localizer {
     start_gate: Option<crate::reloc::RelocConfig>,
     /// The candidates of the last relocalization attempt, for the logs.
     last_attempt: RelocAttempt,
+    /// The keyframe points where the frame sees them, for the per-frame
+    /// correlation check; room for a full finest level.
+    correlation_samples: Vec<crate::track::correlation::Sample>,
 }
 
 impl Localizer {
@@ -300,6 +303,7 @@ impl Localizer {
             start_gate: None,
             attempt_budget_s: 0.0,
             last_attempt: RelocAttempt::default(),
+            correlation_samples: Vec::with_capacity(build.max_points_per_level(0)),
         })
     }
 

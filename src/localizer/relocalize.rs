@@ -109,7 +109,7 @@ impl Localizer {
     /// test with an affine photometric fit, but does not correlate; an
     /// alignment sliding along a one-way texture keeps the intensity
     /// correlation but loses the fine texture.
-    pub(super) fn correlation_ok(&self, camera_from_keyframe: &crate::geometry::Pose) -> bool {
+    pub(super) fn correlation_ok(&mut self, camera_from_keyframe: &crate::geometry::Pose) -> bool {
         let Some(config) = gate_config(&self.reloc, &self.start_gate) else {
             return true;
         };
@@ -120,7 +120,17 @@ impl Localizer {
         // shows at the finest level first. `f32::min` skips a `NaN` level
         // (no coarser level for the local mean); with none, it is not a
         // refusal and the plain correlation decides.
-        let at = |level| plain_and_local(&self.keyframe, &self.pyramid, &self.camera, pose, level);
+        let samples = &mut self.correlation_samples;
+        let mut at = |level| {
+            plain_and_local(
+                &self.keyframe,
+                &self.pyramid,
+                &self.camera,
+                pose,
+                level,
+                samples,
+            )
+        };
         let ncc = at(1);
         let local = [at(0), at(2)]
             .iter()

@@ -9,7 +9,9 @@
 //! with its version trimmed of the points an occluder covers
 //! ([`correlations`]), the correlation of local contrast (intensity over
 //! the local mean, trimmed the same way), and the smallest of each over
-//! levels 0, 1 and 2 ([`min_correlations`]). Allocates nothing.
+//! levels 0, 1 and 2 ([`min_correlations`]). Allocates nothing: the
+//! per-frame check of tracking ([`plain_and_local`]) projects the points
+//! once into a buffer its caller reserved, and refits from there.
 
 use nalgebra::Vector3;
 
@@ -57,8 +59,8 @@ pub fn correlation(
     level: usize,
 ) -> Option<f32> {
     let (kl, cam) = level_of(keyframe, frame, camera, level)?;
-    let fit = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None, None)?;
-    Some(fit.ncc)
+    let pairs = samples(kl, frame, &cam, level, camera_from_keyframe, None).map(|s| s.gray);
+    fit(pairs, None).map(|f| f.ncc)
 }
 
 /// The keyframe's points of `level` and the camera scaled to it; `None`
@@ -104,11 +106,16 @@ pub fn correlations(
     camera_from_keyframe: &Pose,
     level: usize,
 ) -> Option<Correlations> {
-    correlations_with(keyframe, frame, camera, camera_from_keyframe, level, true)
+    let (kl, cam) = level_of(keyframe, frame, camera, level)?;
+    let contrast = contrast_of(keyframe, frame, level);
+    let source = || samples(kl, frame, &cam, level, camera_from_keyframe, contrast);
+    fit_all(source, true)
 }
 
 /// [`Correlations::all`] and [`Correlations::local`] alone (`local` is
-/// `NaN` where the pyramid has no coarser level for the local mean): the
+/// `NaN` where the pyramid has no coarser level for the local mean), from
+/// one projection of the keyframe points into `scratch` (its capacity
+/// reserved up front: no allocation once it holds a level's points): the
 /// per-frame check of tracking, which skips the trimming of the intensity
 /// correlation.
 pub fn plain_and_local(
@@ -117,69 +124,65 @@ pub fn plain_and_local(
     camera: &PinholeCamera,
     camera_from_keyframe: &Pose,
     level: usize,
+    scratch: &mut Vec<Sample>,
 ) -> Option<(f32, f32)> {
-    correlations_with(keyframe, frame, camera, camera_from_keyframe, level, false)
-        .map(|c| (c.all, c.local))
+    let (kl, cam) = level_of(keyframe, frame, camera, level)?;
+    let contrast = contrast_of(keyframe, frame, level);
+    scratch.clear();
+    scratch.extend(samples(
+        kl,
+        frame,
+        &cam,
+        level,
+        camera_from_keyframe,
+        contrast,
+    ));
+    fit_all(|| scratch.iter().copied(), false).map(|c| (c.all, c.local))
 }
 
-/// [`correlations`]; without `intensity_trim`, `trimmed` and `kept` are
-/// those of the untrimmed pass.
-fn correlations_with(
-    keyframe: &Keyframe,
-    frame: &Pyramid,
-    camera: &PinholeCamera,
-    camera_from_keyframe: &Pose,
-    level: usize,
-    intensity_trim: bool,
-) -> Option<Correlations> {
-    let (kl, cam) = level_of(keyframe, frame, camera, level)?;
-    let all = ncc_pass(kl, frame, &cam, level, camera_from_keyframe, None, None)?;
-    let trim = |contrast: Option<Contrast>, first: NccFit| {
-        let mut trimmed = first;
-        for _ in 0..4 {
-            let limit = (trimmed.slope, trimmed.offset, 2.5 * trimmed.sigma);
-            match ncc_pass(
-                kl,
-                frame,
-                &cam,
-                level,
-                camera_from_keyframe,
-                Some(limit),
-                contrast,
-            ) {
-                Some(t) => trimmed = t,
-                None => break,
-            }
-        }
-        trimmed
-    };
-    let trimmed = if intensity_trim { trim(None, all) } else { all };
+/// One keyframe point where the frame sees it: the rendered and the
+/// observed intensity, and their local contrast (`NaN` where it cannot be
+/// read). The per-frame check keeps a level's worth of them.
+#[derive(Debug, Clone, Copy)]
+pub struct Sample {
+    gray: [f32; 2],
+    local: [f32; 2],
+}
+
+/// The local-contrast settings of `level`: the mean two levels up, or the
+/// coarsest level both pyramids have; `None` when there is none coarser.
+fn contrast_of<'k>(keyframe: &'k Keyframe, frame: &Pyramid, level: usize) -> Option<Contrast<'k>> {
     let coarse = (level + 2).min(
         frame
             .len()
             .min(keyframe.gray_pyramid().len())
             .saturating_sub(1),
     );
-    let local = (coarse > level)
-        .then(|| {
-            let contrast = Contrast {
-                keyframe: keyframe.gray_pyramid(),
-                coarse,
-            };
-            let first = ncc_pass(
-                kl,
-                frame,
-                &cam,
-                level,
-                camera_from_keyframe,
-                None,
-                Some(contrast),
-            )?;
-            let trimmed = trim(Some(contrast), first);
-            Some((trimmed.ncc, trimmed.n as f32 / all.n.max(1) as f32))
+    (coarse > level).then(|| Contrast {
+        keyframe: keyframe.gray_pyramid(),
+        coarse,
+    })
+}
+
+/// The [`Correlations`] of the samples `source` yields (called once per
+/// pass); without `intensity_trim`, `trimmed` and `kept` are those of the
+/// untrimmed pass. `None` when the intensities cannot be fitted (fewer
+/// than 50 points, or no variance); `local` is `NaN` where local contrast
+/// cannot.
+fn fit_all<I: Iterator<Item = Sample>>(
+    source: impl Fn() -> I,
+    intensity_trim: bool,
+) -> Option<Correlations> {
+    let gray = || source().map(|s| s.gray);
+    let local = || source().map(|s| s.local).filter(|l| !l[0].is_nan());
+    let all = fit(gray(), None)?;
+    let trimmed = if intensity_trim { trim(gray, all) } else { all };
+    let (local, local_kept) = fit(local(), None)
+        .map(|first| {
+            let t = trim(local, first);
+            (t.ncc, t.n as f32 / all.n.max(1) as f32)
         })
-        .flatten();
-    let (local, local_kept) = local.unwrap_or((f32::NAN, f32::NAN));
+        .unwrap_or((f32::NAN, f32::NAN));
     Some(Correlations {
         all: all.ncc,
         trimmed: trimmed.ncc,
@@ -187,6 +190,20 @@ fn correlations_with(
         local,
         local_kept,
     })
+}
+
+/// `first` refitted four times over the pairs within 2.5 standard
+/// deviations of the previous fit (fewer when a fit runs short of points).
+fn trim<I: Iterator<Item = [f32; 2]>>(pairs: impl Fn() -> I, first: NccFit) -> NccFit {
+    let mut trimmed = first;
+    for _ in 0..4 {
+        let limit = (trimmed.slope, trimmed.offset, 2.5 * trimmed.sigma);
+        match fit(pairs(), Some(limit)) {
+            Some(t) => trimmed = t,
+            None => break,
+        }
+    }
+    trimmed
 }
 
 /// Local contrast instead of intensity: each intensity divided by the
@@ -216,52 +233,54 @@ struct NccFit {
     sigma: f64,
 }
 
-/// Correlation over the visible points of `kl`, only those within
-/// `limit.2` of the fit `(slope, offset) = (limit.0, limit.1)` when given;
-/// `None` with fewer than 50 points or no variance.
-fn ncc_pass(
-    kl: &KeyframeLevel,
-    frame: &Pyramid,
-    cam: &PinholeCamera,
+/// The visible points of `kl` at `camera_from_keyframe`, with their local
+/// contrast when `contrast` is given.
+fn samples<'a>(
+    kl: &'a KeyframeLevel,
+    frame: &'a Pyramid,
+    cam: &'a PinholeCamera,
     level: usize,
-    camera_from_keyframe: &Pose,
-    limit: Option<(f64, f64, f64)>,
-    contrast: Option<Contrast>,
-) -> Option<NccFit> {
+    camera_from_keyframe: &'a Pose,
+    contrast: Option<Contrast<'a>>,
+) -> impl Iterator<Item = Sample> + 'a {
     let image = frame.level(level);
-    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0f64, 0f64, 0f64, 0f64, 0f64);
-    for kp in &kl.points {
+    kl.points.iter().filter_map(move |kp| {
         let p = Vector3::new(
             kp.p_keyframe[0] as f64,
             kp.p_keyframe[1] as f64,
             kp.p_keyframe[2] as f64,
         );
-        let Some(uv) = cam.project(&(camera_from_keyframe * nalgebra::Point3::from(p)).coords)
-        else {
-            continue;
-        };
-        let Some(v) = image.bilinear(uv.x as f32, uv.y as f32) else {
-            continue;
-        };
-        let (mut a, mut b) = (kp.gray as f64, v as f64);
-        if let Some(c) = contrast {
-            let (fx, fy) = to_coarse(uv.x, uv.y, level, c.coarse);
-            let Some(uv_k) = kl.camera.project(&p) else {
-                continue;
-            };
-            let (kx, ky) = to_coarse(uv_k.x, uv_k.y, level, c.coarse);
-            let (Some(mf), Some(mk)) = (
-                frame.level(c.coarse).bilinear(fx, fy),
-                c.keyframe.level(c.coarse).bilinear(kx, ky),
-            ) else {
-                continue;
-            };
-            if mf < 4.0 || mk < 4.0 {
-                continue;
-            }
-            a = a / mk as f64 - 1.0;
-            b = b / mf as f64 - 1.0;
-        }
+        let uv = cam.project(&(camera_from_keyframe * nalgebra::Point3::from(p)).coords)?;
+        let v = image.bilinear(uv.x as f32, uv.y as f32)?;
+        let local = contrast
+            .and_then(|c| {
+                let (fx, fy) = to_coarse(uv.x, uv.y, level, c.coarse);
+                let uv_k = kl.camera.project(&p)?;
+                let (kx, ky) = to_coarse(uv_k.x, uv_k.y, level, c.coarse);
+                let mf = frame.level(c.coarse).bilinear(fx, fy)?;
+                let mk = c.keyframe.level(c.coarse).bilinear(kx, ky)?;
+                (mf >= 4.0 && mk >= 4.0).then(|| {
+                    [
+                        (kp.gray as f64 / mk as f64 - 1.0) as f32,
+                        (v as f64 / mf as f64 - 1.0) as f32,
+                    ]
+                })
+            })
+            .unwrap_or([f32::NAN; 2]);
+        Some(Sample {
+            gray: [kp.gray, v],
+            local,
+        })
+    })
+}
+
+/// Correlation of the pairs `(keyframe, frame)`, only those within
+/// `limit.2` of the fit `(slope, offset) = (limit.0, limit.1)` when given;
+/// `None` with fewer than 50 pairs or no variance.
+fn fit(pairs: impl Iterator<Item = [f32; 2]>, limit: Option<(f64, f64, f64)>) -> Option<NccFit> {
+    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0f64, 0f64, 0f64, 0f64, 0f64);
+    for [a, b] in pairs {
+        let (a, b) = (a as f64, b as f64);
         if let Some((slope, offset, max)) = limit {
             if (b - (slope * a + offset)).abs() > max {
                 continue;
