@@ -54,6 +54,13 @@ LAPS = int(os.environ.get("STAR_FLIGHT_LAPS", "1"))
 CAMERA_WH = (320, 256)
 # The sim camera's rate (STAR_SIM_FPS, default 50 = EKF3's cap).
 FPS = float(os.environ.get("STAR_SIM_FPS", "50"))
+# Extra `[mavlink]` keys for star, ';'-separated (STAR_FLIGHT_MAVLINK). The
+# default is the integration guide's ArduPilot setting: poses at least 25 ms
+# apart, every other frame of the 50 Hz camera. At 20 ms (every frame) EKF3
+# drops about one sample in 400: SITL reads its UART in 2.5 ms loop steps, and
+# a pose read one step early gets a jitter-corrected time under 20 ms after
+# the one before (docs/benchmarks.md, "Vision samples EKF3 drops").
+MAVLINK_EXTRA = os.environ.get("STAR_FLIGHT_MAVLINK", "autopilot_min_interval_ms = 25")
 START_XY_M = (2.5, 4.0)
 # SITL's vehicle rests with its body origin this far above home altitude;
 # the room's floor is put there.
@@ -325,6 +332,9 @@ def fly(star_bin, work, scene, viso_delay_ms=VISO_DELAY_MS):
         yaw_rad = rest.yaw
         rig.write_config(extra=CONFIG_EXTRA, tracker=CONFIG_TRACKER, camera_lines=camera_lines(scene), init_pose=hint,
                          ned_from_world=NED_FROM_WORLD, body_from_camera=BODY_FROM_CAMERA)
+        if MAVLINK_EXTRA:
+            rig.config.write_text(rig.config.read_text().replace(
+                "[mavlink]\n", "[mavlink]\n" + MAVLINK_EXTRA.replace(";", "\n") + "\n", 1))
         trajectory = work / "star.txt"
         track = rig.spawn(["track", "--config", str(rig.config), "--mavlink", f"tcpout:127.0.0.1:{tap.port}",
                            "--trajectory", str(trajectory)], "track")
