@@ -204,7 +204,7 @@ pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
     );
     match &summary.link {
         Some(s) => println!(
-            "track: MAVLink sent VISION_POSITION_ESTIMATE {}  ODOMETRY {}  HEARTBEAT {}  TIMESYNC requests {}  TIMESYNC replies {}; dropped: lost {} rate {} stale {} link {} clock {} spacing {}; held for the autopilot's spacing {}; autopilot heartbeats {}",
+            "track: MAVLink sent VISION_POSITION_ESTIMATE {}  ODOMETRY {}  HEARTBEAT {}  TIMESYNC requests {}  TIMESYNC replies {}; dropped: lost {} rate {} stale {} link {} clock {} spacing {}; autopilot heartbeats {}",
             s.vision_position_estimate_sent,
             s.odometry_sent,
             s.heartbeat_sent,
@@ -216,7 +216,6 @@ pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
             s.poses_dropped_link,
             s.poses_dropped_clock,
             s.poses_dropped_spacing,
-            s.poses_held,
             s.autopilot_heartbeats
         ),
         None => println!("track: MAVLink disabled"),

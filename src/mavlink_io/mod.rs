@@ -32,10 +32,6 @@
 //! it by at most 0.5 ms, skipped (`poses_dropped_spacing`) otherwise; an
 //! offset change moves consecutive values apart by at most 1 % of their
 //! capture interval, and closer only out of the slack above the minimum.
-//! Sends themselves are paced (`pace.rs`) at least that minimum plus 300 ppm
-//! apart on our clock, so that they reach the autopilot no closer than its
-//! minimum on *its* clock whichever way the two drift: a pose is held up to
-//! half the minimum (`poses_held`), or skipped (`poses_dropped_spacing`).
 //!
 //! HEARTBEAT and TIMESYNC requests go out between poses, half an interval
 //! after the last one: ArduPilot dates a packet by the byte time of what is
@@ -60,7 +56,6 @@ pub mod config;
 pub mod frames;
 pub mod link;
 pub mod messages;
-pub mod pace;
 mod receiver;
 pub mod reset;
 pub mod send_log;

@@ -17,7 +17,6 @@ use nalgebra::Matrix6;
 use super::frames::{self, FrameConverter};
 use super::link::Link;
 use super::messages::{self, LinkState};
-use super::pace::{Pace, Pacer};
 use super::reset::ResetCounter;
 use super::stamp::{Stamp, StreamClock, SETTLE_PERIOD_MS};
 use super::stats::bump;
@@ -149,8 +148,6 @@ struct Sender {
     shared: Arc<Shared>,
     converter: FrameConverter,
     rate: RateCap,
-    /// Sends no closer than the autopilot's minimum on its clock (`pace.rs`).
-    pace: Pacer,
     max_age_ns: u64,
     reset: ResetCounter,
     state: LinkState,
@@ -181,7 +178,6 @@ pub(crate) fn run(shared: Arc<Shared>) {
             config.body_from_camera.to_pose(),
         ),
         rate: RateCap::new(config.min_interval_ns()),
-        pace: Pacer::new(config.min_usec_spacing_ns()),
         max_age_ns: u64::from(config.max_pose_age_ms) * 1_000_000,
         reset: ResetCounter::new(),
         state: LinkState::Standby,
@@ -342,7 +338,6 @@ impl Sender {
     /// A new connection: the autopilot behind it may have restarted, so the
     /// TIMESYNC estimate and the pose clock start afresh.
     fn start_stream(&mut self) {
-        self.pace.reset();
         self.shared
             .timesync
             .lock()
@@ -439,21 +434,6 @@ impl Sender {
             bump(&counters.poses_dropped_invalid);
             return;
         }
-        match self.pace.decide(monotonic_now_ns()) {
-            Pace::Now => {}
-            Pace::HoldNs(hold_ns) => {
-                bump(&counters.poses_held);
-                std::thread::sleep(Duration::from_nanos(hold_ns));
-            }
-            Pace::Skip => {
-                tracing::debug!(
-                    capture_ns = sample.capture_ns,
-                    "pose skipped: the autopilot's minimum spacing on its clock"
-                );
-                bump(&counters.poses_dropped_spacing);
-                return;
-            }
-        }
         let usec = match self.stamp(sample.capture_ns) {
             Stamp::Usec(usec) => usec,
             Stamp::Hold => {
@@ -496,14 +476,12 @@ impl Sender {
                 &counters.odometry_sent,
             ),
         };
-        let send_ns = monotonic_now_ns();
         if self.send(&message) {
             self.last_pose_sent = Some(Instant::now());
-            self.pace.sent(send_ns);
             bump(counter);
             shared.send_log.push(SendRecord {
                 capture_ns: sample.capture_ns,
-                send_ns,
+                send_ns: monotonic_now_ns(),
                 timesync_offset_ns: shared.send_log.offset_ns(),
             });
             counters

@@ -58,11 +58,6 @@ pub struct LinkStats {
     /// `autopilot_min_interval_ms` to the last one sent (or a downward
     /// offset correction needed the room).
     pub poses_dropped_spacing: u64,
-    /// Samples held before sending, so that they reach the autopilot no
-    /// closer than its minimum spacing on its own clock (`pace.rs`); a
-    /// sample that would be held longer is counted in
-    /// `poses_dropped_spacing`.
-    pub poses_held: u64,
     /// Whether the current stream's `usec` is star's own CLOCK_MONOTONIC
     /// (TIMESYNC off, or no answer within `timesync_wait_ms`).
     pub monotonic_clock: bool,
@@ -99,7 +94,6 @@ pub(crate) struct Counters {
     pub poses_dropped_invalid: AtomicU64,
     pub poses_dropped_clock: AtomicU64,
     pub poses_dropped_spacing: AtomicU64,
-    pub poses_held: AtomicU64,
     pub monotonic_clock: AtomicBool,
     pub reset_counter: AtomicU8,
     pub has_offset: AtomicBool,
@@ -144,7 +138,6 @@ impl Counters {
             poses_dropped_invalid: self.poses_dropped_invalid.load(Relaxed),
             poses_dropped_clock: self.poses_dropped_clock.load(Relaxed),
             poses_dropped_spacing: self.poses_dropped_spacing.load(Relaxed),
-            poses_held: self.poses_held.load(Relaxed),
             monotonic_clock: self.monotonic_clock.load(Relaxed),
             reset_counter: self.reset_counter.load(Relaxed),
             timesync_offset_ns: self
