@@ -13,8 +13,7 @@ use crate::imgproc::ImageU8;
 use crate::render::Renderer;
 
 use crate::localizer::{Localizer, LocalizerError, TrackState};
-use crate::output::view::Alignment;
-use crate::output::{FramePixels, FrameRow, KeyframeView, RecordSink};
+use crate::output::{FramePixels, FrameSinks, RecordSink};
 
 /// Errors of an offline run.
 #[derive(Debug, thiserror::Error)]
@@ -337,9 +336,6 @@ pub fn localize_dataset_recorded(
         match out {
             Ok(out) => {
                 if let Some(sinks) = sinks.as_deref_mut() {
-                    let keyframe = localizer.keyframe();
-                    let alignment = Alignment::of(&out, keyframe);
-                    let row = FrameRow::new(&out, stamp_s, ms);
                     let pixels = FramePixels {
                         pixels: image.data(),
                         width: image.width(),
@@ -347,22 +343,12 @@ pub fn localize_dataset_recorded(
                         stride: image.width(),
                     };
                     let handed_at = Instant::now();
-                    if let Some(record) = sinks.record.as_mut() {
-                        record.frame(
-                            &row,
-                            pixels,
-                            Some(KeyframeView {
-                                keyframe,
-                                alignment,
-                            }),
-                        );
+                    FrameSinks {
+                        record: sinks.record.as_mut(),
+                        #[cfg(feature = "rerun")]
+                        rerun: sinks.rerun.as_mut(),
                     }
-                    #[cfg(feature = "rerun")]
-                    if let Some(rerun) = sinks.rerun.as_mut() {
-                        rerun.frame(&row, pixels, keyframe, alignment);
-                        let attempts = localizer.stats().reloc_attempts;
-                        rerun.reloc_attempt(attempts, localizer.last_reloc_attempt());
-                    }
+                    .hand(&localizer, &out, stamp_s, ms, pixels);
                     report
                         .record_ms
                         .push(handed_at.elapsed().as_secs_f64() * 1e3);

@@ -112,6 +112,27 @@ pub struct FramePixels<'a> {
     pub stride: usize,
 }
 
+impl FramePixels<'_> {
+    /// Copies the pixels into `into`; false (nothing copied) when the sizes
+    /// differ or the slice is too short for its stride.
+    pub(super) fn copy_into(&self, into: &mut ImageU8) -> bool {
+        let (w, h) = (self.width, self.height);
+        if into.width() != w
+            || into.height() != h
+            || self.stride < w
+            || h == 0
+            || self.pixels.len() < self.stride * (h - 1) + w
+        {
+            return false;
+        }
+        for y in 0..h {
+            let src = &self.pixels[y * self.stride..y * self.stride + w];
+            into.row_mut(y).copy_from_slice(src);
+        }
+        true
+    }
+}
+
 /// The keyframe a frame was tracked against, for the view strip.
 #[derive(Clone, Copy)]
 pub struct KeyframeView<'a> {
@@ -374,21 +395,11 @@ fn fill(
     pixels: FramePixels<'_>,
     keyframe: Option<KeyframeView<'_>>,
 ) -> bool {
-    let (w, h) = (pixels.width, pixels.height);
-    if snapshot.frame.width() != w
-        || snapshot.frame.height() != h
-        || pixels.stride < w
-        || h == 0
-        || pixels.pixels.len() < pixels.stride * (h - 1) + w
-    {
+    if !pixels.copy_into(&mut snapshot.frame) {
         return false;
     }
     snapshot.index = index;
     snapshot.stamp_s = stamp_s;
-    for y in 0..h {
-        let src = &pixels.pixels[y * pixels.stride..y * pixels.stride + w];
-        snapshot.frame.row_mut(y).copy_from_slice(src);
-    }
     snapshot.alignment = None;
     if let Some(view) = keyframe {
         let (gray, depth) = (view.keyframe.gray(), view.keyframe.depth_m());

@@ -303,26 +303,17 @@ fn fill(
     keyframe: &Keyframe,
     alignment: Option<Alignment>,
 ) -> bool {
-    let (w, h) = (pixels.width, pixels.height);
     let (gray, depth) = (keyframe.gray(), keyframe.depth_m());
     let points = keyframe.levels.first().map_or(&[][..], |l| &l.points[..]);
-    if s.frame.width() != w
-        || s.frame.height() != h
-        || h == 0
-        || pixels.stride < w
-        || pixels.pixels.len() < pixels.stride * (h - 1) + w
-        || gray.data().len() != s.keyframe_gray.data().len()
+    if gray.data().len() != s.keyframe_gray.data().len()
         || depth.data().len() != s.keyframe_depth_m.data().len()
         || points.len() > s.points.capacity()
+        || !pixels.copy_into(&mut s.frame)
     {
         return false;
     }
     s.index = index;
     s.stamp_s = stamp_s;
-    for y in 0..h {
-        let src = &pixels.pixels[y * pixels.stride..y * pixels.stride + w];
-        s.frame.row_mut(y).copy_from_slice(src);
-    }
     s.keyframe_gray.data_mut().copy_from_slice(gray.data());
     s.keyframe_depth_m.data_mut().copy_from_slice(depth.data());
     s.points.clear();

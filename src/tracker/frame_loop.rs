@@ -33,8 +33,7 @@ use crate::ipc::{
 use crate::localizer::{FrameOutput, Localizer, LocalizerError, TrackState};
 use crate::mavlink_io::frames::{twist_covariance_world_from_camera, upper_triangle};
 use crate::mavlink_io::{LinkStats, MavlinkHandle, PoseSample};
-use crate::output::view::Alignment;
-use crate::output::{FramePixels, FrameRow, KeyframeView, RecordSink, RecordSummary};
+use crate::output::{FramePixels, FrameSinks, RecordSink, RecordSummary};
 use crate::service::{Service, ServiceState, StatusBoard, Watchdog};
 
 /// Longest wait on the frame event before the loop checks its flags again.
@@ -449,31 +448,18 @@ impl Tracker {
             header.dataset_stamp_ns as f64 * 1e-9
         };
         if stop.record.is_some() || stop.has_rerun() {
-            let keyframe = self.localizer.keyframe();
-            let alignment = Alignment::of(&out, keyframe);
-            let row = FrameRow::new(&out, stamp_s, track_ms);
             let pixels = FramePixels {
                 pixels: view.pixels,
                 width: view.width(),
                 height: view.height(),
                 stride: header.stride as usize,
             };
-            if let Some(record) = stop.record.as_mut() {
-                record.frame(
-                    &row,
-                    pixels,
-                    Some(KeyframeView {
-                        keyframe,
-                        alignment,
-                    }),
-                );
+            FrameSinks {
+                record: stop.record.as_mut(),
+                #[cfg(feature = "rerun")]
+                rerun: stop.rerun.as_mut(),
             }
-            #[cfg(feature = "rerun")]
-            if let Some(rerun) = stop.rerun.as_mut() {
-                rerun.frame(&row, pixels, keyframe, alignment);
-                let attempts = self.localizer.stats().reloc_attempts;
-                rerun.reloc_attempt(attempts, self.localizer.last_reloc_attempt());
-            }
+            .hand(&self.localizer, &out, stamp_s, track_ms, pixels);
         }
         if tracking {
             state.tracked += 1;
