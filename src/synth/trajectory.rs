@@ -183,6 +183,37 @@ struct Sine {
 }
 
 /// A sum of two sinusoids with total amplitude at most `amplitude`.
+/// The wobbles of one trajectory: position x, y, z, then yaw, pitch, roll.
+struct Wobbles {
+    position: [[Sine; 2]; 3],
+    yaw: [Sine; 2],
+    pitch: [Sine; 2],
+    roll: [Sine; 2],
+}
+
+impl Wobbles {
+    /// Draws them from `rng` in the order above.
+    fn draw(rng: &mut StdRng, spec: &MotionSpec) -> Self {
+        let position = [
+            draw_wobble(rng, spec.position_wobble_m, spec.position_wobble_hz),
+            draw_wobble(rng, spec.position_wobble_m, spec.position_wobble_hz),
+            draw_wobble(rng, spec.vertical_wobble_m, spec.position_wobble_hz),
+        ];
+        let rotation = |rng: &mut StdRng, deg: f64| {
+            draw_wobble(rng, deg.to_radians(), spec.rotation_wobble_hz)
+        };
+        let yaw = rotation(rng, spec.yaw_wobble_deg);
+        let pitch = rotation(rng, spec.pitch_wobble_deg);
+        let roll = rotation(rng, spec.roll_wobble_deg);
+        Self {
+            position,
+            yaw,
+            pitch,
+            roll,
+        }
+    }
+}
+
 fn draw_wobble(rng: &mut StdRng, amplitude: f64, (lo_hz, hi_hz): (f64, f64)) -> [Sine; 2] {
     let w: f64 = rng.random_range(0.3..0.7);
     let mut sine = |a: f64| Sine {
@@ -256,32 +287,19 @@ impl SynthTrajectory {
             let direction = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
             let mut center_m = (room.min_m + room.max_m) / 2.0;
             center_m.z = (room.min_m.z + spec.height_m).clamp(z_lo, z_hi);
+            // Drawn in this order: it fixes what a seed gives.
+            let theta0_rad = rng.random_range(0.0..std::f64::consts::TAU);
+            let wobble = Wobbles::draw(&mut rng, &spec);
             let mut candidate = Self {
                 kind,
                 center_m,
                 radii_m,
                 loop_rate_rad_s: direction * spec.loop_speed_mps / (0.5 * (radii_m.0 + radii_m.1)),
-                theta0_rad: rng.random_range(0.0..std::f64::consts::TAU),
-                position: [
-                    draw_wobble(&mut rng, spec.position_wobble_m, spec.position_wobble_hz),
-                    draw_wobble(&mut rng, spec.position_wobble_m, spec.position_wobble_hz),
-                    draw_wobble(&mut rng, spec.vertical_wobble_m, spec.position_wobble_hz),
-                ],
-                yaw: draw_wobble(
-                    &mut rng,
-                    spec.yaw_wobble_deg.to_radians(),
-                    spec.rotation_wobble_hz,
-                ),
-                pitch: draw_wobble(
-                    &mut rng,
-                    spec.pitch_wobble_deg.to_radians(),
-                    spec.rotation_wobble_hz,
-                ),
-                roll: draw_wobble(
-                    &mut rng,
-                    spec.roll_wobble_deg.to_radians(),
-                    spec.rotation_wobble_hz,
-                ),
+                theta0_rad,
+                position: wobble.position,
+                yaw: wobble.yaw,
+                pitch: wobble.pitch,
+                roll: wobble.roll,
                 pitch_bias_rad: spec.pitch_bias_deg.to_radians(),
                 rotation_scale: 1.0,
                 tour: None,
@@ -328,32 +346,17 @@ impl SynthTrajectory {
                 break;
             };
             let mut rng = StdRng::seed_from_u64(attempt_seed);
+            let wobble = Wobbles::draw(&mut rng, &spec);
             let candidate = Self {
                 kind,
                 center_m: Vector3::new(0.0, 0.0, spec.height_m),
                 radii_m: (0.0, 0.0),
                 loop_rate_rad_s: spec.loop_speed_mps,
                 theta0_rad: 0.0,
-                position: [
-                    draw_wobble(&mut rng, spec.position_wobble_m, spec.position_wobble_hz),
-                    draw_wobble(&mut rng, spec.position_wobble_m, spec.position_wobble_hz),
-                    draw_wobble(&mut rng, spec.vertical_wobble_m, spec.position_wobble_hz),
-                ],
-                yaw: draw_wobble(
-                    &mut rng,
-                    spec.yaw_wobble_deg.to_radians(),
-                    spec.rotation_wobble_hz,
-                ),
-                pitch: draw_wobble(
-                    &mut rng,
-                    spec.pitch_wobble_deg.to_radians(),
-                    spec.rotation_wobble_hz,
-                ),
-                roll: draw_wobble(
-                    &mut rng,
-                    spec.roll_wobble_deg.to_radians(),
-                    spec.rotation_wobble_hz,
-                ),
+                position: wobble.position,
+                yaw: wobble.yaw,
+                pitch: wobble.pitch,
+                roll: wobble.roll,
                 pitch_bias_rad: spec.pitch_bias_deg.to_radians(),
                 rotation_scale: 1.0,
                 tour: Some(Arc::new(path)),
