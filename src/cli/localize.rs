@@ -81,7 +81,14 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
     let dataset = Dataset::open(&args.dataset)
         .with_context(|| format!("opening dataset {}", args.dataset.display()))?;
     args.rerun.target()?;
-    let mut sinks = OfflineSinks::with_record(args.record.start(&config, dataset.camera())?);
+    let mut record = args.record.start(&config, dataset.camera())?;
+    if !args.realtime {
+        // Not paced: nothing to keep up with, so every row and picture.
+        if let Some(r) = record.as_mut() {
+            r.wait_for_writer();
+        }
+    }
+    let mut sinks = OfflineSinks::with_record(record);
     let map_path = args
         .map
         .clone()

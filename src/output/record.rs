@@ -180,6 +180,8 @@ pub struct RecordSink {
     shared: Arc<Shared>,
     thread: Option<JoinHandle<WriterReport>>,
     dir: PathBuf,
+    /// Wait for the recorder instead of dropping ([`Self::wait_for_writer`]).
+    wait: bool,
 }
 
 impl RecordSink {
@@ -271,7 +273,17 @@ impl RecordSink {
             shared,
             thread: Some(thread),
             dir: dir.to_owned(),
+            wait: false,
         })
+    }
+
+    /// Makes [`Self::frame`] wait for the recorder (for a free picture
+    /// buffer, for room in the queue) instead of dropping: for a replay
+    /// that is not paced in real time (`star localize` without
+    /// `--realtime`), where the tracker outruns the PNG encoder and nothing
+    /// is gained by losing pictures. The tracker's loop never sets it.
+    pub fn wait_for_writer(&mut self) {
+        self.wait = true;
     }
 
     /// Hands the MAVLink link's send log to the recorder, which then fills
@@ -284,7 +296,8 @@ impl RecordSink {
     }
 
     /// Records one processed frame: its row, and every Nth frame its
-    /// picture. Never waits and allocates nothing.
+    /// picture. Allocates nothing, and never waits unless
+    /// [`Self::wait_for_writer`] was called.
     pub fn frame(
         &mut self,
         row: &FrameRow,
@@ -300,7 +313,13 @@ impl RecordSink {
         let Some(tx) = &self.tx else {
             return;
         };
-        if let Err(e) = tx.try_send(Message::Row(*row)) {
+        let sent = if self.wait {
+            tx.send(Message::Row(*row))
+                .map_err(|e| TrySendError::Disconnected(e.0))
+        } else {
+            tx.try_send(Message::Row(*row))
+        };
+        if let Err(e) = sent {
             match e {
                 TrySendError::Full(_) => {
                     self.shared.rows_dropped.fetch_add(1, Relaxed);
@@ -311,7 +330,12 @@ impl RecordSink {
         if self.every_n == 0 || index % self.every_n != 0 {
             return;
         }
-        let Some(mut snapshot) = self.spare.take().or_else(|| self.free.try_recv().ok()) else {
+        let free = if self.wait {
+            self.spare.take().or_else(|| self.free.recv().ok())
+        } else {
+            self.spare.take().or_else(|| self.free.try_recv().ok())
+        };
+        let Some(mut snapshot) = free else {
             self.shared.images_dropped.fetch_add(1, Relaxed);
             return;
         };
@@ -326,7 +350,13 @@ impl RecordSink {
             self.spare = Some(snapshot);
             return;
         }
-        match tx.try_send(Message::Image(snapshot)) {
+        let sent = if self.wait {
+            tx.send(Message::Image(snapshot))
+                .map_err(|e| TrySendError::Disconnected(e.0))
+        } else {
+            tx.try_send(Message::Image(snapshot))
+        };
+        match sent {
             Ok(()) => {}
             Err(TrySendError::Full(Message::Image(snapshot)))
             | Err(TrySendError::Disconnected(Message::Image(snapshot))) => {
