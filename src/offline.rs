@@ -89,6 +89,8 @@ pub struct OfflineReport {
     pub tracked: Vec<(f64, bool)>,
     /// Relocalizations accepted and confirmed.
     pub relocalizations: u64,
+    /// Relocalization attempts refused because two places passed the gate.
+    pub reloc_ambiguous: u64,
     /// Relocalization attempts (lost frames searched).
     pub reloc_attempts: u64,
     /// Keyframes rendered.
@@ -285,6 +287,7 @@ pub fn localize_dataset_recorded(
         reset_counters: Vec::with_capacity(n),
         tracked: Vec::with_capacity(n),
         relocalizations: 0,
+        reloc_ambiguous: 0,
         reloc_attempts: 0,
         keyframes: 0,
         stale_frames: 0,
@@ -385,6 +388,7 @@ pub fn localize_dataset_recorded(
     let stats = localizer.stats();
     report.keyframes = stats.keyframes;
     report.relocalizations = stats.relocalizations;
+    report.reloc_ambiguous = stats.reloc_ambiguous;
     report.reloc_attempts = stats.reloc_attempts;
     report.stale_frames = stats.stale_frames;
     report.max_keyframe_age_s = stats.max_keyframe_age_s;

@@ -224,3 +224,112 @@ fn a_view_that_jumps_is_not_sent() {
         }
     }
 }
+
+/// The fixture's map with a copy of itself `offset_x_m` along x: two rooms
+/// that are the same to the last vertex, as the rooms of one design in a
+/// building.
+fn twin_map(mesh: &star::map::Mesh, offset_x_m: f32) -> star::map::Mesh {
+    let mut twin = mesh.clone();
+    let n_vertices = mesh.positions.len() as u32;
+    let n_indices = mesh.indices.len() as u32;
+    twin.positions.extend(
+        mesh.positions
+            .iter()
+            .map(|p| [p[0] + offset_x_m, p[1], p[2]]),
+    );
+    twin.gray.extend_from_slice(&mesh.gray);
+    if !mesh.uvs.is_empty() {
+        twin.uvs.extend_from_slice(&mesh.uvs);
+    }
+    twin.indices
+        .extend(mesh.indices.iter().map(|i| i + n_vertices));
+    twin.groups
+        .extend(mesh.groups.iter().map(|g| star::map::MeshGroup {
+            first_index: g.first_index + n_indices,
+            ..*g
+        }));
+    twin
+}
+
+#[test]
+fn a_twin_room_refuses_a_cold_start_and_a_hint_still_starts() {
+    use star::reloc::{build_database_along, AlongTrajectory, Relocalizer};
+    use star::render::cpu::CpuRenderer;
+    use std::sync::Arc;
+
+    let fx = fixture();
+    let ds = plain(&fx);
+    let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
+    // Far enough along that neither room is seen from the other (through a
+    // doorway) within the renderer's far limit, a whole number of grid
+    // steps, so that the twins' database views are the same views.
+    let (lo_m, hi_m) = mesh.bounds().expect("bounds");
+    let step_m = fx.config.reloc.grid_spacing_m;
+    let clear_m = f64::from(hi_m[0] - lo_m[0]) + fx.config.render.far_m + 1.0;
+    let offset_x_m = (clear_m / step_m).ceil() * step_m;
+    let twin = Arc::new(twin_map(&mesh, offset_x_m as f32));
+    let mut renderer = CpuRenderer::new(twin.clone()).expect("renderer");
+    // The grid over the flown region, and views along the flight in both
+    // rooms (as `star reloc build --poses` takes them).
+    let shifted = Translation3::new(offset_x_m, 0.0, 0.0);
+    let along = AlongTrajectory {
+        poses: fx
+            .gt
+            .poses
+            .iter()
+            .copied()
+            .chain(
+                fx.gt
+                    .poses
+                    .iter()
+                    .map(|p| Pose::from_parts(shifted * p.translation, p.rotation)),
+            )
+            .collect(),
+        spacing_m: 0.3,
+    };
+    let db = build_database_along(
+        &twin,
+        ds.camera(),
+        &mut renderer,
+        &fx.config.reloc,
+        Some(fx.region),
+        &along,
+        &mut |_, _| {},
+    )
+    .expect("database over both rooms");
+
+    let run = |start: StartMode| {
+        let options = OfflineOptions {
+            start,
+            world_from_camera_start: (start == StartMode::Hint).then(|| fx.gt.poses[0]),
+            relocalizer: Some(
+                Relocalizer::new(db.clone(), &fx.config.reloc, ds.camera()).expect("reloc"),
+            ),
+            ..OfflineOptions::default()
+        };
+        let renderer = Box::new(CpuRenderer::new(twin.clone()).expect("renderer"));
+        star::offline::localize_dataset(&ds, renderer, &fx.config, &options, |_| {})
+            .expect("localize")
+    };
+
+    // A cold start sees a room that is in the map twice: candidates pass the
+    // gate in both, and nothing may be sent.
+    let cold = run(StartMode::Cold);
+    let i = integrity(&cold, "cold start, twin rooms");
+    assert!(
+        cold.reloc_ambiguous > 0,
+        "the twin was never found: {} attempts",
+        cold.reloc_attempts
+    );
+    assert_eq!(cold.relocalizations, 0, "a twin room was chosen");
+    assert_eq!(i.poses_checked, 0);
+
+    // A right hint is the prior that chooses: tracking starts.
+    let hinted = run(StartMode::Hint);
+    let i = integrity(&hinted, "right hint, twin rooms");
+    assert!(
+        i.poses_checked > FRAMES / 2,
+        "{} poses",
+        i.poses_checked
+    );
+}

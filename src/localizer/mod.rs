@@ -185,6 +185,9 @@ pub struct LoopStats {
     pub reloc_candidates: u64,
     /// Relocalizations accepted and verified (tracking restarted).
     pub relocalizations: u64,
+    /// Relocalization attempts refused because candidates at two places
+    /// passed the gate (look-alike rooms).
+    pub reloc_ambiguous: u64,
 }
 
 /// The STAR loop.
@@ -236,6 +239,9 @@ pub struct Localizer {
     /// The keyframe points where the frame sees them, for the per-frame
     /// correlation check; room for a full finest level.
     correlation_samples: Vec<crate::track::correlation::Sample>,
+    /// Rigid motions under which the map looked the same to a
+    /// relocalization (look-alike rooms): `second = symmetry * first`.
+    map_symmetries: heapless::Vec<Pose, { relocalize::MAX_SYMMETRIES }>,
 }
 
 impl Localizer {
@@ -304,6 +310,7 @@ impl Localizer {
             attempt_budget_s: 0.0,
             last_attempt: RelocAttempt::default(),
             correlation_samples: Vec::with_capacity(build.max_points_per_level(0)),
+            map_symmetries: heapless::Vec::new(),
         })
     }
 

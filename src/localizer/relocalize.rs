@@ -22,9 +22,10 @@ use crate::geometry::Pose;
 use crate::reloc::RelocConfig;
 use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
-    try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict,
+    try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict, Verified,
 };
 use crate::track::correlation::plain_and_local;
+use crate::track::Keyframe;
 
 use super::worker::RenderRequest;
 use super::{Localizer, TrackState};
@@ -272,6 +273,16 @@ impl Localizer {
         }
         let mut tried = [u32::MAX; 2 * (MAX_TOP_K + 1)];
         let mut n_tried = 0usize;
+        // A candidate that passed, held while candidates elsewhere are
+        // checked (see `AMBIGUITY_RADIUS_M`), and how many were.
+        let mut accepted: Option<(Verified, Box<Keyframe>)> = None;
+        let mut checks = 0usize;
+        let needs_check = |v: &Verified| match near {
+            Some(SearchRegion::Near { center_m, radius_m }) => {
+                (v.world_from_camera.translation.vector - center_m).norm() > radius_m
+            }
+            _ => true,
+        };
         /// Where the candidates of one step come from.
         enum Source {
             Landmark,
@@ -301,8 +312,24 @@ impl Localizer {
                 }
             };
             for candidate in &candidates[..n] {
+                if let Some((a, _)) = &accepted {
+                    if checks >= AMBIGUITY_CHECKS {
+                        break;
+                    }
+                    let apart_m = (candidate.world_from_camera.translation.vector
+                        - a.world_from_camera.translation.vector)
+                        .norm();
+                    if apart_m <= AMBIGUITY_RADIUS_M {
+                        continue;
+                    }
+                    checks += 1;
+                }
                 let spent_s = started.elapsed().as_secs_f64();
-                if n_tried > 0 && self.attempt_budget_s > 0.0 && spent_s > self.attempt_budget_s {
+                if accepted.is_none()
+                    && n_tried > 0
+                    && self.attempt_budget_s > 0.0
+                    && spent_s > self.attempt_budget_s
+                {
                     tracing::debug!(
                         candidates = n_tried,
                         spent_s,
@@ -317,40 +344,11 @@ impl Localizer {
                 }
                 tried[n_tried] = c;
                 n_tried += 1;
-                let mut refused = false;
-                let worker = &self.worker;
-                let stats = &mut self.stats;
-                let next_id = &mut self.next_keyframe_id;
-                let mut render = |world_from_keyframe: &Pose| {
-                    let requested = worker.try_request(RenderRequest {
-                        world_from_keyframe: *world_from_keyframe,
-                        id: *next_id,
-                        requested_at_ns: capture_ns,
-                    });
-                    if !requested {
-                        refused = true;
-                        return None;
-                    }
-                    *next_id += 1;
-                    stats.reloc_candidates += 1;
-                    match worker.wait_result() {
-                        Ok(kf) => Some(kf),
-                        Err(e) => {
-                            stats.render_failures += 1;
-                            tracing::warn!(error = %e, "relocalization render failed");
-                            None
-                        }
-                    }
-                };
-                let found = try_candidate(
-                    &mut self.reloc_aligner,
-                    &self.pyramid,
-                    &self.camera,
+                let (found, refused) = self.try_reloc_candidate(
                     reloc.config(),
                     &candidate.world_from_camera,
                     candidate.yaw_rad,
-                    &mut render,
-                    &mut |kf| worker.recycle(kf),
+                    capture_ns,
                 );
                 let attempt = &mut self.last_attempt;
                 if let Some(slot) = attempt.candidates.get_mut(attempt.tried) {
@@ -369,34 +367,211 @@ impl Localizer {
                     }
                     continue;
                 };
+                if let Some((a, a_kf)) = accepted.take() {
+                    let apart_m = (v.world_from_camera.translation.vector
+                        - a.world_from_camera.translation.vector)
+                        .norm();
+                    if apart_m > AMBIGUITY_RADIUS_M {
+                        self.remember_symmetry(&a.world_from_camera, &v.world_from_camera);
+                        tracing::info!(
+                            capture_ns,
+                            apart_m,
+                            first = ?a.world_from_camera.translation.vector,
+                            second = ?v.world_from_camera.translation.vector,
+                            "relocalization refused: two places pass the gate"
+                        );
+                        self.worker.recycle(kf);
+                        self.worker.recycle(a_kf);
+                        self.stats.reloc_ambiguous += 1;
+                        self.reloc = Some(reloc);
+                        return;
+                    }
+                    // The same place again.
+                    self.worker.recycle(kf);
+                    accepted = Some((a, a_kf));
+                    continue;
+                }
                 tracing::info!(
                     candidate = c,
                     coarse_score = candidate.score,
                     inliers = v.alignment.quality.inlier_ratio,
                     visible = v.alignment.quality.visible_ratio,
                     residual = v.alignment.quality.residual_rms,
-                    "relocalization candidate accepted; verifying"
+                    "relocalization candidate passed the gate"
                 );
-                let old = std::mem::replace(&mut self.keyframe, kf);
-                self.worker.recycle(old);
-                self.stats.keyframes += 1;
-                self.last = Some((capture_ns, v.world_from_camera));
-                self.velocity = nalgebra::Vector6::zeros();
-                self.tracked_run = 0;
-                self.verify_left = reloc.config().verify_frames;
-                if self.verify_left == 0 {
-                    self.confirm_relocalization();
-                    self.state = TrackState::Tracking;
-                    self.lost_since_ns = None;
+                if !needs_check(&v) {
+                    self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
+                    self.reloc = Some(reloc);
+                    return;
                 }
-                self.reloc = Some(reloc);
-                return;
+                accepted = Some((v, kf));
             }
         }
-        tracing::debug!(candidates = n_tried, "relocalization failed for this frame");
+        match accepted {
+            Some((v, kf)) => {
+                match self.twin_passes(reloc.config(), &v.world_from_camera, capture_ns) {
+                    Some(twin) => {
+                        tracing::info!(
+                            capture_ns,
+                            first = ?v.world_from_camera.translation.vector,
+                            second = ?twin.translation.vector,
+                            "relocalization refused: a known look-alike place passes the gate too"
+                        );
+                        self.worker.recycle(kf);
+                        self.stats.reloc_ambiguous += 1;
+                    }
+                    None => {
+                        tracing::debug!(checks, "no other place passes the gate; verifying");
+                        self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
+                    }
+                }
+            }
+            None => tracing::debug!(candidates = n_tried, "relocalization failed for this frame"),
+        }
         self.reloc = Some(reloc);
     }
+
+    /// Renders and aligns one relocalization candidate through the gate
+    /// ([`try_candidate`]); also whether the render thread refused the
+    /// request (busy).
+    fn try_reloc_candidate(
+        &mut self,
+        config: &RelocConfig,
+        world_from_candidate: &Pose,
+        yaw_rad: Option<f64>,
+        capture_ns: u64,
+    ) -> (Option<(Verified, Box<Keyframe>)>, bool) {
+        let mut refused = false;
+        let worker = &self.worker;
+        let stats = &mut self.stats;
+        let next_id = &mut self.next_keyframe_id;
+        let mut render = |world_from_keyframe: &Pose| {
+            let requested = worker.try_request(RenderRequest {
+                world_from_keyframe: *world_from_keyframe,
+                id: *next_id,
+                requested_at_ns: capture_ns,
+            });
+            if !requested {
+                refused = true;
+                return None;
+            }
+            *next_id += 1;
+            stats.reloc_candidates += 1;
+            match worker.wait_result() {
+                Ok(kf) => Some(kf),
+                Err(e) => {
+                    stats.render_failures += 1;
+                    tracing::warn!(error = %e, "relocalization render failed");
+                    None
+                }
+            }
+        };
+        let found = try_candidate(
+            &mut self.reloc_aligner,
+            &self.pyramid,
+            &self.camera,
+            config,
+            world_from_candidate,
+            yaw_rad,
+            &mut render,
+            &mut |kf| worker.recycle(kf),
+        );
+        (found, refused)
+    }
+
+    /// Remembers that the map looks the same at `second` as at `first`:
+    /// the rigid motion between them (`second = symmetry * first`), which
+    /// later acceptances are checked against ([`Self::twin_passes`]). The
+    /// twin rooms of a building stay twins; kept for the localizer's life,
+    /// up to [`MAX_SYMMETRIES`].
+    fn remember_symmetry(&mut self, first: &Pose, second: &Pose) {
+        let symmetry = second * first.inverse();
+        let known = self.map_symmetries.iter().any(|s| {
+            [*s, s.inverse()].iter().any(|k| {
+                (k.translation.vector - symmetry.translation.vector).norm() < AMBIGUITY_RADIUS_M
+                    && k.rotation.angle_to(&symmetry.rotation) < 0.2
+            })
+        });
+        if !known && self.map_symmetries.push(symmetry).is_ok() {
+            tracing::info!(
+                translation_m = ?symmetry.translation.vector,
+                rotation_deg = symmetry.rotation.angle().to_degrees(),
+                "look-alike places in the map: relocalizations are checked against both"
+            );
+        }
+    }
+
+    /// A pose where the frame also passes the gate through one of the map's
+    /// known symmetries of `world_from_camera` (each way), more than
+    /// [`AMBIGUITY_RADIUS_M`] away; `None` when none does.
+    fn twin_passes(
+        &mut self,
+        config: &RelocConfig,
+        world_from_camera: &Pose,
+        capture_ns: u64,
+    ) -> Option<Pose> {
+        for i in 0..self.map_symmetries.len() {
+            let symmetry = self.map_symmetries[i];
+            for twin in [
+                symmetry * world_from_camera,
+                symmetry.inverse() * world_from_camera,
+            ] {
+                let (found, _) = self.try_reloc_candidate(config, &twin, None, capture_ns);
+                let Some((v, kf)) = found else {
+                    continue;
+                };
+                self.worker.recycle(kf);
+                let apart_m = (v.world_from_camera.translation.vector
+                    - world_from_camera.translation.vector)
+                    .norm();
+                if apart_m > AMBIGUITY_RADIUS_M {
+                    return Some(v.world_from_camera);
+                }
+            }
+        }
+        None
+    }
+
+    /// Takes a candidate that passed the gate: its keyframe becomes the
+    /// current one, and `verify_frames` more frames must track before any
+    /// pose goes out (none: at once).
+    fn accept_relocalization(
+        &mut self,
+        v: Verified,
+        kf: Box<Keyframe>,
+        capture_ns: u64,
+        verify_frames: u32,
+    ) {
+        let old = std::mem::replace(&mut self.keyframe, kf);
+        self.worker.recycle(old);
+        self.stats.keyframes += 1;
+        self.last = Some((capture_ns, v.world_from_camera));
+        self.velocity = nalgebra::Vector6::zeros();
+        self.tracked_run = 0;
+        self.verify_left = verify_frames;
+        if self.verify_left == 0 {
+            self.confirm_relocalization();
+            self.state = TrackState::Tracking;
+            self.lost_since_ns = None;
+        }
+    }
 }
+
+/// A relocalization that passes the gate away from where the vehicle can
+/// be (no last position, or outside the reach of the last one: a cold
+/// start, a kidnap) is held while up to this many candidates farther than
+/// [`AMBIGUITY_RADIUS_M`] from it are tried; if one of them passes too,
+/// the frame is refused. Look-alike places, such as the twin rooms of a
+/// building whose rooms share a design, pass the gate equally: only the
+/// motion prior or a view that tells them apart (the corridor through the
+/// door) may choose. Inside the reach of the last position the prior has
+/// already chosen, and nothing more is tried.
+const AMBIGUITY_CHECKS: usize = 3;
+/// How far apart two passing candidates must be to be two places, m.
+const AMBIGUITY_RADIUS_M: f64 = 1.0;
+/// Look-alike pairs of places the localizer remembers (the map's
+/// symmetries, see [`Localizer::remember_symmetry`]).
+pub(super) const MAX_SYMMETRIES: usize = 8;
 
 /// The gate settings: the database's, else those given to
 /// [`Localizer::verify_start`]; `None` when neither was set.

@@ -30,6 +30,8 @@ pub struct Fixture {
     pub gt: Trajectory,
     pub db: RelocDatabase,
     pub config: Config,
+    /// The box the database's views were taken in (the flight's, padded).
+    pub region: ([f32; 3], [f32; 3]),
 }
 
 pub fn fixture() -> Fixture {
@@ -99,6 +101,7 @@ pub fn fixture_with_seed(seed: u64) -> Fixture {
         gt,
         db,
         config,
+        region,
     }
 }
 
