@@ -10,7 +10,8 @@
 //!   and its checks (magic, version, length, checksum, fields).
 //! - [`grid`]: `star reloc build`: virtual cameras on a grid in free space.
 //! - [`build`]: rendering and describing them on every core;
-//!   [`checkpoint`]: resuming an interrupted build.
+//!   [`checkpoint`]: resuming an interrupted build; [`build_stats`]: where
+//!   its time goes.
 //! - [`landmarks`]: map points with feature descriptors, and the pose of a
 //!   frame from them (features matched, then RANSAC PnP).
 //! - [`features`]: FAST corners and 256-bit upright BRIEF descriptors on an
@@ -30,6 +31,7 @@
 //! - [`config`]: the `[reloc]` section.
 
 pub mod build;
+pub mod build_stats;
 pub mod checkpoint;
 pub mod coarse;
 pub mod config;
@@ -52,6 +54,7 @@ mod database_tests;
 pub use build::{
     build_database, build_database_along, build_database_in, build_parallel, BuildOptions,
 };
+pub use build_stats::StageTimes;
 pub use checkpoint::checkpoint_path;
 pub use config::RelocConfig;
 pub use database::{

@@ -105,10 +105,7 @@ impl Bench {
         let bar = indicatif::ProgressBar::new(0);
         // One CPU rasterizer per core: the same database as one renderer
         // on one thread, byte for byte.
-        let make_renderer =
-            || -> Result<Box<dyn crate::render::Renderer>, crate::render::RenderError> {
-                Ok(Box::new(CpuRenderer::new(map.clone())?))
-            };
+        let make_renderer = || CpuRenderer::new(map.clone());
         let db = build_parallel(
             &map,
             &camera,
@@ -125,6 +122,9 @@ impl Bench {
                     bar.set_length(total as u64);
                     bar.set_position(done as u64);
                 },
+                sample_every: 1,
+                stage_times: None,
+                far_m: None,
             },
         )?;
         bar.finish_and_clear();
