@@ -27,6 +27,8 @@ pub(super) struct Outcome {
     pub(super) near_truth: bool,
     /// Recovery time, ms.
     pub(super) ms: f64,
+    /// The accepted candidate was the landmark pose.
+    pub(super) verdict_from_landmarks: bool,
 }
 
 impl Bench {
@@ -81,6 +83,7 @@ impl Bench {
             candidates.push(c);
         }
         let mut verdict = None;
+        let mut verdict_from_landmarks = false;
         let mut untimed_ms = 0.0;
         let mut tried = 0;
         for pass in 0..2 {
@@ -132,7 +135,8 @@ impl Bench {
                     &mut render,
                 );
                 if verdict.is_some() {
-                    tally.from_landmarks += usize::from(r.index == LANDMARK_CANDIDATE);
+                    verdict_from_landmarks = r.index == LANDMARK_CANDIDATE;
+                    tally.from_landmarks += usize::from(verdict_from_landmarks);
                     break;
                 }
             }
@@ -166,6 +170,7 @@ impl Bench {
             verdict,
             near_truth,
             ms,
+            verdict_from_landmarks,
         })
     }
 

@@ -136,11 +136,22 @@ impl Tally {
                     self.success_ms.push(outcome.ms);
                 } else {
                     let q = v.alignment.quality;
+                    let (t, a) = (
+                        query.truth.translation.vector,
+                        v.world_from_camera.translation.vector,
+                    );
                     self.wrong.push((
                             err_m,
                             err_deg,
                             format!(
-                                "inliers {:.2}, visible {:.2}, residual {:.1}, correlation {:.2}, trimmed {:.2} keeping {:.2}, gain {:.2}",
+                                "truth at ({:.2}, {:.2}, {:.2}) m, accepted at ({:.2}, {:.2}, {:.2}) m{}; inliers {:.2}, visible {:.2}, residual {:.1}, correlation {:.2}, trimmed {:.2} keeping {:.2}, gain {:.2}",
+                                t.x,
+                                t.y,
+                                t.z,
+                                a.x,
+                                a.y,
+                                a.z,
+                                if outcome.verdict_from_landmarks { ", from the landmark pose" } else { ", from a database view" },
                                 q.inlier_ratio,
                                 q.visible_ratio,
                                 q.residual_rms,
@@ -187,6 +198,13 @@ impl Tally {
             self.retrieved_near,
             100.0 * self.success_given_near as f64 / self.retrieved_near.max(1) as f64
         );
+        let elsewhere = self.wrong.iter().filter(|w| w.0 > 1.0).count();
+        if !self.wrong.is_empty() {
+            println!(
+                "    of the accepted but off: {elsewhere} more than 1 m off (another place: a look-alike room), {} within 1 m",
+                self.wrong.len() - elsewhere
+            );
+        }
         for (m, deg, quality) in &self.wrong {
             println!("      accepted but off by {m:.3} m, {deg:.2} deg ({quality})");
         }
