@@ -26,6 +26,8 @@
 //!   - [`region`]: where to search (near the last position, or everywhere).
 //!   - [`search`]: radius-bounded Hamming search and the ranking of the
 //!     candidates by coarse alignment.
+//!   - [`rivals`]: the candidates at another place that must fail the
+//!     gate before a pose is accepted (look-alike rooms).
 //!   - [`verify`]: the strict acceptance gate a rendered candidate passes
 //!     (its correlation test is [`crate::track::correlation`]).
 //! - [`config`]: the `[reloc]` section.
@@ -44,6 +46,7 @@ pub mod landmark_index;
 pub mod landmarks;
 pub mod pnp;
 pub mod region;
+pub mod rivals;
 pub mod search;
 pub mod verify;
 pub mod vocabulary;

@@ -78,6 +78,9 @@ pub(super) struct Bench {
     pub(super) returned: Vec<Box<Keyframe>>,
     pub(super) aligner: Aligner,
     pub(super) pyramid: Pyramid,
+    /// Whether an accepted pose's rivals at other places are verified
+    /// ([`crate::reloc::rivals`]; off with `STAR_BENCH_NO_RIVALS`).
+    pub(super) check_rivals: bool,
 }
 
 impl Bench {
@@ -277,6 +280,7 @@ impl Bench {
             pinhole,
             tracker,
             spare,
+            check_rivals: std::env::var_os("STAR_BENCH_NO_RIVALS").is_none(),
         })
     }
 

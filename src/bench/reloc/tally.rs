@@ -109,6 +109,10 @@ pub(super) struct Tally {
     pub(super) recall_found: usize,
     /// Corners x landmarks of brute-force matching, per query.
     pub(super) brute_force: Vec<f64>,
+    /// Rivals (candidates at another place, [`crate::reloc::rivals`])
+    /// verified, and the accepted poses they refused as ambiguous.
+    pub(super) rivals_tried: usize,
+    pub(super) ambiguous: usize,
 }
 
 impl Tally {
@@ -197,6 +201,10 @@ impl Tally {
             self.success_given_near,
             self.retrieved_near,
             100.0 * self.success_given_near as f64 / self.retrieved_near.max(1) as f64
+        );
+        println!(
+            "    look-alike places: {} rivals at another place verified, {} poses refused because one passed too (counted in no pose)",
+            self.rivals_tried, self.ambiguous
         );
         let elsewhere = self.wrong.iter().filter(|w| w.0 > 1.0).count();
         if !self.wrong.is_empty() {
