@@ -8,41 +8,65 @@
 //! first candidate to pass would win whichever twin it stands in. Takes
 //! the candidates of one attempt (the landmark pose and the descriptor's,
 //! with their coarse-alignment scores) and the pose that passed; gives the
-//! rivals to verify: at most [`MAX_RIVALS`], each more than
-//! [`RIVAL_MIN_M`] from that pose, scored by the coarse alignment within
-//! [`RIVAL_SCORE_MARGIN`] of the best candidate near it (a landmark pose
+//! rivals to verify: at most [`MAX_RIVALS`] over the whole map (fewer
+//! near the last position), each more than [`RIVAL_MIN_M`] from that
+//! pose, scored by the coarse alignment within [`RIVAL_SCORE_MARGIN`]
+//! (less near the last position) of the best candidate near it (a landmark pose
 //! elsewhere always qualifies). The caller renders and verifies them
-//! through the same gate; if one passes, the frame is ambiguous. Nothing
-//! here allocates.
+//! through the same gate; if one passes at another place ([`elsewhere`]:
+//! a rival may align back onto the accepted pose), the frame is ambiguous.
+//! Nothing here allocates.
 
 use crate::geometry::Pose;
 
+use super::region::SearchRegion;
 use super::search::Candidate;
 
 /// A candidate farther than this from the accepted pose stands at another
 /// place, meters.
 pub const RIVAL_MIN_M: f64 = 1.0;
 /// A candidate at another place is a rival when its coarse-alignment score
-/// is at least the best near the accepted pose less this.
-pub const RIVAL_SCORE_MARGIN: f32 = 0.15;
-/// Most rivals verified per accepted pose.
-pub const MAX_RIVALS: usize = 2;
+/// is at least the best near the accepted pose less this: over the whole
+/// map (look-alikes anywhere) ...
+pub const RIVAL_SCORE_MARGIN: f32 = 0.3;
+/// ... and near the last position (where only the place's own symmetry
+/// can fool the gate: the twins are out of reach).
+pub const NEAR_RIVAL_SCORE_MARGIN: f32 = 0.15;
+/// Most rivals verified per accepted pose, over the whole map ...
+pub const MAX_RIVALS: usize = 4;
+/// ... and near the last position.
+pub const NEAR_MAX_RIVALS: usize = 2;
+
+/// Whether a rival verified at `rival` stands at another place than
+/// `accepted` (a rival can align back to the accepted pose itself: that is
+/// no ambiguity).
+pub fn elsewhere(accepted: &Pose, rival: &Pose) -> bool {
+    (rival.translation.vector - accepted.translation.vector).norm() > RIVAL_MIN_M
+}
 
 /// Writes to `out` the indices into `candidates` of the rivals of
-/// `accepted` (in the candidates' order, best first) and returns how many.
-pub fn rivals(candidates: &[Candidate], accepted: &Pose, out: &mut [usize; MAX_RIVALS]) -> usize {
-    let far = |c: &Candidate| {
-        (c.world_from_camera.translation.vector - accepted.translation.vector).norm() > RIVAL_MIN_M
+/// `accepted`, found in `region` (in the candidates' order, best first),
+/// and returns how many.
+pub fn rivals(
+    candidates: &[Candidate],
+    accepted: &Pose,
+    region: SearchRegion,
+    out: &mut [usize; MAX_RIVALS],
+) -> usize {
+    let (max, margin) = match region {
+        SearchRegion::Everywhere => (MAX_RIVALS, RIVAL_SCORE_MARGIN),
+        SearchRegion::Near { .. } => (NEAR_MAX_RIVALS, NEAR_RIVAL_SCORE_MARGIN),
     };
+    let far = |c: &Candidate| elsewhere(accepted, &c.world_from_camera);
     let near_best = candidates
         .iter()
         .filter(|c| !far(c) && c.score.is_finite())
         .map(|c| c.score)
         .fold(f32::NEG_INFINITY, f32::max);
-    let bar = near_best - RIVAL_SCORE_MARGIN;
+    let bar = near_best - margin;
     let mut n = 0;
     for (i, c) in candidates.iter().enumerate() {
-        if n == MAX_RIVALS {
+        if n == max {
             break;
         }
         // -inf scores (not aligned) pass only when nothing near was scored.
@@ -93,7 +117,7 @@ mod tests {
         let accepted = at(0.0, 0.0).world_from_camera;
         let candidates = [at(0.1, f32::NEG_INFINITY), at(3.0, f32::NEG_INFINITY)];
         let mut out = [usize::MAX; MAX_RIVALS];
-        let n = rivals(&candidates, &accepted, &mut out);
+        let n = rivals(&candidates, &accepted, SearchRegion::Everywhere, &mut out);
         assert_eq!(&out[..n], &[1]);
     }
 
@@ -102,6 +126,9 @@ mod tests {
         let accepted = at(0.0, 0.0).world_from_camera;
         let candidates = [at(0.3, 0.9), at(-0.8, 0.99)];
         let mut out = [usize::MAX; MAX_RIVALS];
-        assert_eq!(rivals(&candidates, &accepted, &mut out), 0);
+        assert_eq!(
+            rivals(&candidates, &accepted, SearchRegion::Everywhere, &mut out),
+            0
+        );
     }
 }

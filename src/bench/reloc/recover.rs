@@ -124,12 +124,19 @@ impl Bench {
         match (verdict, self.check_rivals) {
             (Some(v), true) => {
                 let mut rivals = [0usize; MAX_RIVALS];
-                let n =
-                    crate::reloc::rivals::rivals(&candidates, &v.world_from_camera, &mut rivals);
+                let n = crate::reloc::rivals::rivals(
+                    &candidates,
+                    &v.world_from_camera,
+                    region,
+                    &mut rivals,
+                );
                 for &i in &rivals[..n] {
                     let c = candidates[i];
                     tally.rivals_tried += 1;
-                    if self.try_one(&c, tally).is_some() {
+                    let passed = self.try_one(&c, tally);
+                    if passed.is_some_and(|r| {
+                        crate::reloc::rivals::elsewhere(&v.world_from_camera, &r.world_from_camera)
+                    }) {
                         tally.ambiguous += 1;
                         verdict = None;
                         break;
