@@ -100,15 +100,23 @@ mod tests {
     fn rivals_are_far_and_score_near_the_best_near_the_pose() {
         let accepted = at(0.0, 0.0).world_from_camera;
         let candidates = [
-            at(0.2, 0.9),             // near: sets the bar at 0.75
+            at(0.2, 0.9),             // near
             at(5.2, 0.88),            // a twin room: a rival
-            at(0.5, 0.95),            // near
-            at(12.0, 0.6),            // far but scored too low
+            at(0.5, 0.95),            // near, the best: the bar is 0.65 (0.8 near)
+            at(12.0, 0.55),           // far but scored too low
             at(-20.0, f32::INFINITY), // a landmark pose elsewhere: a rival
-            at(30.0, 0.8),            // a third, beyond MAX_RIVALS
+            at(30.0, 0.7),            // a rival over the whole map only
+            at(31.0, 0.8),            // a rival
+            at(32.0, 0.8),            // beyond MAX_RIVALS
         ];
         let mut out = [usize::MAX; MAX_RIVALS];
-        let n = rivals(&candidates, &accepted, &mut out);
+        let n = rivals(&candidates, &accepted, SearchRegion::Everywhere, &mut out);
+        assert_eq!(&out[..n], &[1, 4, 5, 6]);
+        let near = SearchRegion::Near {
+            center_m: accepted.translation.vector,
+            radius_m: 2.0,
+        };
+        let n = rivals(&candidates, &accepted, near, &mut out);
         assert_eq!(&out[..n], &[1, 4]);
     }
 
