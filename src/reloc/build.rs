@@ -16,6 +16,15 @@
 //! thread count). With a checkpoint ([`super::checkpoint`]), each batch is
 //! appended to it as it is done, and a build started again with the same
 //! inputs takes the units already there and renders only the rest.
+//!
+//! On the CPU rasterizer, a grid position's views and each landmark view
+//! are first rendered with the far limit cut to twice `min_depth_m`
+//! (clearance probes: only the nearby chunks are set up), and a position
+//! or view that has geometry nearer than `min_depth_m` (inside or against
+//! furniture or a wall) is dropped without a full render. A pixel nearer
+//! than the cut has the same depth either way, so the probes drop exactly
+//! what the full renders would. Each worker counts where its time goes
+//! ([`super::build_stats`]).
 
 use std::path::PathBuf;
 use std::sync::Mutex;
