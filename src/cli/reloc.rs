@@ -10,7 +10,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::config::Config;
 use crate::dataset::{CameraFile, Trajectory};
-use crate::reloc::{build_parallel, checkpoint_path, AlongTrajectory, BuildError, BuildOptions};
+use crate::reloc::{
+    build_parallel, checkpoint_path, AlongTrajectory, BuildError, BuildOptions, StageTimes,
+};
 
 /// `star reloc` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -67,6 +69,11 @@ pub struct BuildArgs {
     /// point, for the tests.
     #[arg(long, hide = true)]
     pub stop_after_units: Option<usize>,
+    /// Render only every N-th work unit and print where the time went and
+    /// what the whole build would take on these cores (no database is
+    /// written, the checkpoint is left alone).
+    #[arg(long, value_name = "N")]
+    pub sample_every: Option<usize>,
 }
 
 /// The frame a `--poses` trajectory is given in.
@@ -163,16 +170,16 @@ fn build(args: &BuildArgs) -> Result<()> {
     // Part of the checkpoint's key: views drawn with another far limit
     // are not resumed.
     let renderer_name = format!("cpu far {far_m:?}");
-    let make_renderer =
-        || -> Result<Box<dyn crate::render::Renderer>, crate::render::RenderError> {
-            let mut r = crate::render::cpu::CpuRenderer::new(mesh.clone())?;
-            r.set_far_m(far_m);
-            Ok(Box::new(r))
-        };
+    let make_renderer = || crate::render::cpu::CpuRenderer::new(mesh.clone());
     let mut progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     };
+    let sample_every = args.sample_every.unwrap_or(1);
+    if sample_every == 0 {
+        anyhow::bail!("--sample-every must be at least 1");
+    }
+    let mut times = StageTimes::default();
     let built = build_parallel(
         &mesh,
         &camera,
@@ -186,6 +193,9 @@ fn build(args: &BuildArgs) -> Result<()> {
             checkpoint: Some(checkpoint.clone()),
             stop_after: args.stop_after_units,
             progress: &mut progress,
+            sample_every,
+            stage_times: Some(&mut times),
+            far_m,
         },
     );
     bar.finish_and_clear();
@@ -200,6 +210,18 @@ fn build(args: &BuildArgs) -> Result<()> {
                 .with_context(|| format!("building the database of {}", map_path.display()))
         }
     };
+    let wall_s = t0.elapsed().as_secs_f64();
+    println!("reloc build: {times}");
+    if sample_every > 1 {
+        println!(
+            "reloc build: sampled every {sample_every}th work unit: {} keyframes and {} landmarks in {wall_s:.1} s ({:.1} s in the stages); the whole build would take about {:.0} s on these cores (nothing written)",
+            db.entries.len(),
+            db.landmarks.len(),
+            times.total_s(),
+            wall_s * sample_every as f64,
+        );
+        return Ok(());
+    }
     let size_bytes = db.write(&args.output)?;
     if let Err(e) = std::fs::remove_file(&checkpoint) {
         tracing::warn!(path = %checkpoint.display(), error = %e, "could not remove the build checkpoint");

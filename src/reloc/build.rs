@@ -16,9 +16,19 @@
 //! thread count). With a checkpoint ([`super::checkpoint`]), each batch is
 //! appended to it as it is done, and a build started again with the same
 //! inputs takes the units already there and renders only the rest.
+//!
+//! On the CPU rasterizer, a grid position's views and each landmark view
+//! are first rendered with the far limit cut to twice `min_depth_m`
+//! (clearance probes: only the nearby chunks are set up), and a position
+//! or view that has geometry nearer than `min_depth_m` (inside or against
+//! furniture or a wall) is dropped without a full render. A pixel nearer
+//! than the cut has the same depth either way, so the probes drop exactly
+//! what the full renders would. Each worker counts where its time goes
+//! ([`super::build_stats`]).
 
 use std::path::PathBuf;
 use std::sync::Mutex;
+use std::time::Instant;
 
 use nalgebra::{Translation3, Vector3};
 use rayon::prelude::*;
@@ -26,8 +36,10 @@ use rayon::prelude::*;
 use crate::geometry::look::camera_rotation;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
+use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderError, RenderedView, Renderer};
 
+use super::build_stats::StageTimes;
 use super::checkpoint::{Checkpoint, UnitOutput};
 use super::coarse::{CoarseExtractor, CoarsePoint};
 use super::config::RelocConfig;
@@ -53,6 +65,14 @@ pub struct BuildOptions<'a> {
     pub stop_after: Option<usize>,
     /// Called with the units done and the total, after each batch.
     pub progress: &'a mut dyn FnMut(usize, usize),
+    /// Renders only every `sample_every`-th work unit (1 or 0: all) and
+    /// ignores the checkpoint: a quick look at where a build's time would
+    /// go ([`StageTimes`]), not a database to keep.
+    pub sample_every: usize,
+    /// Gets where the time went, summed over the workers.
+    pub stage_times: Option<&'a mut StageTimes>,
+    /// Far limit of the parallel build's views, meters (`None`: none).
+    pub far_m: Option<f64>,
 }
 
 /// A work unit.
@@ -149,6 +169,8 @@ impl Plan {
 
 /// One worker's scratch: the views and the describers.
 struct Scratch {
+    /// Where this worker's time went.
+    times: StageTimes,
     thumb_camera: PinholeCamera,
     pinhole: PinholeCamera,
     thumb_view: RenderedView,
@@ -166,6 +188,7 @@ impl Scratch {
             ..*camera
         };
         Self {
+            times: StageTimes::default(),
             thumb_view: RenderedView::for_camera(&thumb_camera),
             full_view: RenderedView::for_camera(&pinhole),
             thumbnailer: Thumbnailer::new(),
@@ -179,7 +202,7 @@ impl Scratch {
     /// Renders and describes `unit`.
     fn run(
         &mut self,
-        renderer: &mut dyn Renderer,
+        renderer: &mut Drawer,
         plan: &Plan,
         unit: &Unit,
     ) -> Result<UnitOutput, BuildError> {
@@ -188,18 +211,26 @@ impl Scratch {
         let n_pixels = (self.thumb_camera.width * self.thumb_camera.height) as f64;
         match unit {
             Unit::Position(p) => {
+                if self.too_close(renderer, config, p)? {
+                    // Inside or against furniture or a wall: the position
+                    // is dropped without a full render.
+                    self.times.positions_skipped += 1;
+                    return Ok(UnitOutput::default());
+                }
                 for &pitch_deg in &config.pitches_deg {
                     for yaw_rad in config.yaws_rad() {
                         let world_from_camera = Pose::from_parts(
                             Translation3::from(*p),
                             camera_rotation(yaw_rad, pitch_deg.to_radians(), 0.0),
                         );
-                        let seen = render_view(
-                            renderer,
-                            &world_from_camera,
-                            &self.thumb_camera,
-                            &mut self.thumb_view,
-                        )?;
+                        let seen = self.times.render_thumb(|| {
+                            render_view(
+                                renderer,
+                                &world_from_camera,
+                                &self.thumb_camera,
+                                &mut self.thumb_view,
+                            )
+                        })?;
                         if (seen.nearest_m as f64) < config.min_depth_m {
                             // Inside or against furniture: the whole
                             // position is dropped.
@@ -214,12 +245,14 @@ impl Scratch {
             Unit::Sample(sample) => {
                 let views = trajectory_views(sample, plan.half_yaw_rad, plan.half_spacing_m);
                 for world_from_camera in views {
-                    let seen = render_view(
-                        renderer,
-                        &world_from_camera,
-                        &self.thumb_camera,
-                        &mut self.thumb_view,
-                    )?;
+                    let seen = self.times.render_thumb(|| {
+                        render_view(
+                            renderer,
+                            &world_from_camera,
+                            &self.thumb_camera,
+                            &mut self.thumb_view,
+                        )
+                    })?;
                     if (seen.nearest_m as f64) >= config.min_depth_m
                         && (seen.hits as f64) >= config.min_valid_fraction * n_pixels
                     {
@@ -228,23 +261,82 @@ impl Scratch {
                 }
             }
             Unit::Landmarks(world_from_camera) => {
+                let t = Instant::now();
+                let probe = renderer.probe(
+                    world_from_camera,
+                    &self.pinhole,
+                    &mut self.full_view,
+                    2.0 * config.min_depth_m,
+                );
+                self.times.probe_views += u64::from(probe.is_some());
+                self.times.probe_s += t.elapsed().as_secs_f64();
+                if let Some(seen) = probe {
+                    if (seen?.nearest_m as f64) < config.min_depth_m {
+                        self.times.landmarks_skipped += 1;
+                        return Ok(out);
+                    }
+                }
+                let t = Instant::now();
                 let seen = render_view(
                     renderer,
                     world_from_camera,
                     &self.pinhole,
                     &mut self.full_view,
                 )?;
+                self.times.landmark_views += 1;
+                self.times.render_landmark_s += t.elapsed().as_secs_f64();
                 if seen.nearest_m as f64 >= config.min_depth_m {
+                    let t = Instant::now();
                     self.lifter.lift(
                         &self.full_view,
                         &self.pinhole,
                         world_from_camera,
                         &mut out.features,
                     );
+                    self.times.lift_s += t.elapsed().as_secs_f64();
                 }
             }
         }
         Ok(out)
+    }
+
+    /// Whether a view of the grid position `p` has geometry nearer than
+    /// `min_depth_m`, decided from renders cut at twice that depth (only
+    /// the chunks within it are set up): what the full renders would find,
+    /// exactly, since a pixel nearer than the cut has the same depth with
+    /// and without it. `false` when the renderer cannot cut (then the full
+    /// renders decide).
+    fn too_close(
+        &mut self,
+        renderer: &mut Drawer,
+        config: &RelocConfig,
+        p: &Vector3<f64>,
+    ) -> Result<bool, BuildError> {
+        let cut_m = 2.0 * config.min_depth_m;
+        for &pitch_deg in &config.pitches_deg {
+            for yaw_rad in config.yaws_rad() {
+                let world_from_camera = Pose::from_parts(
+                    Translation3::from(*p),
+                    camera_rotation(yaw_rad, pitch_deg.to_radians(), 0.0),
+                );
+                let t = Instant::now();
+                let seen = renderer.probe(
+                    &world_from_camera,
+                    &self.thumb_camera,
+                    &mut self.thumb_view,
+                    cut_m,
+                );
+                self.times.probe_views += 1;
+                self.times.probe_s += t.elapsed().as_secs_f64();
+                let Some(seen) = seen else {
+                    return Ok(false);
+                };
+                if (seen?.nearest_m as f64) < config.min_depth_m {
+                    return Ok(true);
+                }
+            }
+        }
+        Ok(false)
     }
 
     /// Adds the entry of the thumbnail view rendered at `world_from_camera`
@@ -252,16 +344,21 @@ impl Scratch {
     fn describe(&mut self, config: &RelocConfig, world_from_camera: Pose, out: &mut UnitOutput) {
         let view = &self.thumb_view;
         let (w, h) = (view.gray.width(), view.gray.height());
-        let Some(descriptor) = self.thumbnailer.describe_f32(
+        let t = Instant::now();
+        let described = self.thumbnailer.describe_f32(
             view.gray.data(),
             Some(view.depth_m.data()),
             w,
             h,
             config.min_contrast_gray,
-        ) else {
+        );
+        self.times.describe_s += t.elapsed().as_secs_f64();
+        let Some(descriptor) = described else {
             return;
         };
+        let t = Instant::now();
         let n = self.coarse.extract(view, &mut out.points) as u32;
+        self.times.coarse_s += t.elapsed().as_secs_f64();
         out.entries.push((world_from_camera, descriptor, n));
     }
 }
@@ -274,9 +371,61 @@ struct Seen {
     nearest_m: f32,
 }
 
+/// What a build worker draws the views with.
+pub enum Drawer<'a> {
+    /// Any renderer (the one-thread build).
+    Any(&'a mut dyn Renderer),
+    /// The CPU rasterizer, views drawn with the far limit `far_m`; it also
+    /// draws the clearance probes ([`Scratch::too_close`]) cut short.
+    Cpu {
+        /// The rasterizer.
+        renderer: &'a mut CpuRenderer,
+        /// Far limit of the views, meters (`None`: none).
+        far_m: Option<f64>,
+    },
+}
+
+impl Drawer<'_> {
+    /// Renders a database view.
+    fn render(
+        &mut self,
+        world_from_camera: &Pose,
+        camera: &PinholeCamera,
+        view: &mut RenderedView,
+    ) -> Result<(), RenderError> {
+        match self {
+            Drawer::Any(r) => r.render(world_from_camera, camera, view),
+            Drawer::Cpu { renderer, far_m } => {
+                renderer.set_far_m(*far_m);
+                renderer.render(world_from_camera, camera, view)
+            }
+        }
+    }
+
+    /// Renders only what lies within `cut_m` of the camera (along the
+    /// optical axis) and counts it; `None` when this renderer cannot.
+    fn probe(
+        &mut self,
+        world_from_camera: &Pose,
+        camera: &PinholeCamera,
+        view: &mut RenderedView,
+        cut_m: f64,
+    ) -> Option<Result<Seen, BuildError>> {
+        let Drawer::Cpu { renderer, far_m } = self else {
+            return None;
+        };
+        if far_m.is_some_and(|f| f < cut_m) {
+            return None;
+        }
+        renderer.set_far_m(Some(cut_m));
+        let mut cut = Drawer::Any(&mut **renderer);
+        Some(render_view(&mut cut, world_from_camera, camera, view))
+    }
+}
+
 /// Renders `view` at `world_from_camera` and counts what it saw.
 fn render_view(
-    renderer: &mut dyn Renderer,
+    renderer: &mut Drawer,
     world_from_camera: &Pose,
     camera: &PinholeCamera,
     view: &mut RenderedView,
@@ -350,21 +499,26 @@ pub fn build_database_along(
         checkpoint: None,
         stop_after: None,
         progress,
+        sample_every: 1,
+        stage_times: None,
+        far_m: None,
     };
     // One unit per batch: no checkpoint to write, and progress per unit.
+    let mut drawer = Drawer::Any(renderer);
     let outputs = run_units(&plan, &mut options, "", 1, &mut |units| {
         units
             .iter()
-            .map(|u| scratch.run(renderer, &plan, u))
+            .map(|u| scratch.run(&mut drawer, &plan, u))
             .collect()
     })?;
     Ok(assemble(&plan, outputs))
 }
 
 /// Builds the database as [`build_database_along`] does, on
-/// `options.threads` workers, each rendering through a renderer from
-/// `make_renderer` (which must draw `mesh`, the same for every worker);
-/// `renderer` names it in the checkpoint's key.
+/// `options.threads` workers, each rendering through a CPU rasterizer from
+/// `make_renderer` (which must draw `mesh`, the same for every worker) with
+/// the far limit `options.far_m`; `renderer` names it in the checkpoint's
+/// key.
 #[allow(clippy::too_many_arguments)]
 pub fn build_parallel(
     mesh: &Mesh,
@@ -373,10 +527,15 @@ pub fn build_parallel(
     region: Option<([f32; 3], [f32; 3])>,
     along: &AlongTrajectory,
     renderer: &str,
-    make_renderer: &(dyn Fn() -> Result<Box<dyn Renderer>, RenderError> + Sync),
+    make_renderer: &(dyn Fn() -> Result<CpuRenderer, RenderError> + Sync),
     mut options: BuildOptions,
 ) -> Result<RelocDatabase, BuildError> {
-    let plan = Plan::new(mesh, camera, config, region, along)?;
+    let mut plan = Plan::new(mesh, camera, config, region, along)?;
+    if options.sample_every > 1 {
+        let every = options.sample_every;
+        plan.units = plan.units.into_iter().step_by(every).collect();
+        options.checkpoint = None;
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(options.threads)
         .thread_name(|i| format!("star-reloc-build-{i}"))
@@ -386,7 +545,8 @@ pub fn build_parallel(
                 "cannot start the build threads: {e}"
             )))
         })?;
-    let workers: Mutex<Vec<(Box<dyn Renderer>, Scratch)>> = Mutex::new(Vec::new());
+    let far_m = options.far_m;
+    let workers: Mutex<Vec<(CpuRenderer, Scratch)>> = Mutex::new(Vec::new());
     let run_one = |unit: &Unit| -> Result<UnitOutput, BuildError> {
         let taken = workers.lock().ok().and_then(|mut w| w.pop());
         let (mut renderer, mut scratch) = match taken {
@@ -396,7 +556,11 @@ pub fn build_parallel(
                 Scratch::new(camera, &plan.config),
             ),
         };
-        let out = scratch.run(renderer.as_mut(), &plan, unit);
+        let mut drawer = Drawer::Cpu {
+            renderer: &mut renderer,
+            far_m,
+        };
+        let out = scratch.run(&mut drawer, &plan, unit);
         if let Ok(mut w) = workers.lock() {
             w.push((renderer, scratch));
         }
@@ -410,8 +574,18 @@ pub fn build_parallel(
     );
     let outputs = run_units(&plan, &mut options, renderer, BATCH_UNITS, &mut |units| {
         pool.install(|| units.par_iter().map(run_one).collect())
-    })?;
-    Ok(assemble(&plan, outputs))
+    });
+    let mut times = StageTimes::default();
+    if let Ok(w) = workers.lock() {
+        for (_, scratch) in w.iter() {
+            times.add(&scratch.times);
+        }
+    }
+    tracing::info!(%times, "relocalization database build stages");
+    if let Some(out) = options.stage_times {
+        *out = times;
+    }
+    Ok(assemble(&plan, outputs?))
 }
 
 /// Renders a batch of units, giving their outputs in order.

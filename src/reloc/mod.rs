@@ -10,7 +10,8 @@
 //!   and its checks (magic, version, length, checksum, fields).
 //! - [`grid`]: `star reloc build`: virtual cameras on a grid in free space.
 //! - [`build`]: rendering and describing them on every core;
-//!   [`checkpoint`]: resuming an interrupted build.
+//!   [`checkpoint`]: resuming an interrupted build; [`build_stats`]: where
+//!   its time goes.
 //! - [`landmarks`]: map points with feature descriptors, and the pose of a
 //!   frame from them (features matched, then RANSAC PnP).
 //! - [`features`]: FAST corners and 256-bit upright BRIEF descriptors on an
@@ -25,11 +26,14 @@
 //!   - [`region`]: where to search (near the last position, or everywhere).
 //!   - [`search`]: radius-bounded Hamming search and the ranking of the
 //!     candidates by coarse alignment.
+//!   - [`rivals`]: the candidates at another place that must fail the
+//!     gate before a pose is accepted (look-alike rooms).
 //!   - [`verify`]: the strict acceptance gate a rendered candidate passes
 //!     (its correlation test is [`crate::track::correlation`]).
 //! - [`config`]: the `[reloc]` section.
 
 pub mod build;
+pub mod build_stats;
 pub mod checkpoint;
 pub mod coarse;
 pub mod config;
@@ -42,6 +46,7 @@ pub mod landmark_index;
 pub mod landmarks;
 pub mod pnp;
 pub mod region;
+pub mod rivals;
 pub mod search;
 pub mod verify;
 pub mod vocabulary;
@@ -52,6 +57,7 @@ mod database_tests;
 pub use build::{
     build_database, build_database_along, build_database_in, build_parallel, BuildOptions,
 };
+pub use build_stats::StageTimes;
 pub use checkpoint::checkpoint_path;
 pub use config::RelocConfig;
 pub use database::{

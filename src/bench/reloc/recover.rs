@@ -6,6 +6,7 @@
 use std::time::Instant;
 
 use crate::geometry::{PinholeCamera, Pose};
+use crate::reloc::rivals::MAX_RIVALS;
 use crate::reloc::{
     try_candidate, Candidate, Query, RelocConfig, SearchRegion, Verified, LANDMARK_CANDIDATE,
 };
@@ -27,6 +28,8 @@ pub(super) struct Outcome {
     pub(super) near_truth: bool,
     /// Recovery time, ms.
     pub(super) ms: f64,
+    /// The accepted candidate was the landmark pose.
+    pub(super) verdict_from_landmarks: bool,
 }
 
 impl Bench {
@@ -59,7 +62,9 @@ impl Bench {
             .landmark_ms
             .push(t_landmarks.elapsed().as_secs_f64() * 1e3);
         // Outside the timing: how much the search compared, and whether it
-        // found what comparing with every landmark finds.
+        // found what comparing with every landmark finds (brute force over
+        // the whole map).
+        let t_untimed = Instant::now();
         let locator = self.reloc.landmarks_mut();
         tally.comparisons.push(locator.comparisons() as f64);
         let (found, of) = locator.recall_of_last();
@@ -68,6 +73,7 @@ impl Bench {
         tally
             .brute_force
             .push(locator.brute_force_comparisons() as f64);
+        let mut untimed_ms = t_untimed.elapsed().as_secs_f64() * 1e3;
         let mut candidates: Vec<Candidate> = Vec::new();
         if let Some((c, found)) = landmark {
             let e = query.truth.inverse() * c.world_from_camera;
@@ -81,13 +87,15 @@ impl Bench {
             candidates.push(c);
         }
         let mut verdict = None;
-        let mut untimed_ms = 0.0;
+        let mut verdict_from_landmarks = false;
         let mut tried = 0;
+        let mut rank_untimed_ms = 0.0;
         for pass in 0..2 {
             if pass == 1 {
                 // The descriptor search runs for the retrieval figures
                 // even when the landmark pose was accepted; it counts in
-                // the recovery time only when it was needed.
+                // the recovery time only when it was needed (for the
+                // candidates, or for the rivals of the landmark pose).
                 let t_rank = Instant::now();
                 let ranked =
                     self.reloc
@@ -96,46 +104,46 @@ impl Bench {
                 let rank_ms = t_rank.elapsed().as_secs_f64() * 1e3;
                 tally.rank_ms.push(rank_ms);
                 if verdict.is_some() {
-                    untimed_ms += rank_ms;
+                    rank_untimed_ms = rank_ms;
                     break;
                 }
             }
             while tried < candidates.len() {
                 let c = candidates[tried];
                 tried += 1;
-                let r = &c.ranked;
-                let (candidate_r, pinhole, kview, tracker) = (
-                    &mut self.candidate_r,
-                    &self.pinhole,
-                    &mut self.kview,
-                    &self.tracker,
-                );
-                let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
-                    let t_render = Instant::now();
-                    candidate_r
-                        .render(world_from_keyframe, pinhole, kview)
-                        .ok()?;
-                    tally.renders += 1;
-                    let t_prepare = Instant::now();
-                    kf.prepare(kview, *world_from_keyframe, u64::from(r.index), tracker);
-                    tally.prepare_ms += t_prepare.elapsed().as_secs_f64() * 1e3;
-                    tally.render_ms += t_render.elapsed().as_secs_f64() * 1e3;
-                    Some(())
-                };
-                verdict = attempt(
-                    &mut self.aligner,
-                    &self.pyramid,
-                    &self.camera,
-                    &self.config.reloc,
-                    (&c.world_from_camera, c.yaw_rad),
-                    (&mut self.spare, &mut self.returned),
-                    &mut render,
-                );
+                verdict = self.try_one(&c, tally);
                 if verdict.is_some() {
-                    tally.from_landmarks += usize::from(r.index == LANDMARK_CANDIDATE);
+                    verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
+                    tally.from_landmarks += usize::from(verdict_from_landmarks);
                     break;
                 }
             }
+        }
+        // Another place that passes the gate as well: the frame is
+        // ambiguous (a look-alike room), and no pose is given.
+        match (verdict, self.check_rivals) {
+            (Some(v), true) => {
+                let mut rivals = [0usize; MAX_RIVALS];
+                let n = crate::reloc::rivals::rivals(
+                    &candidates,
+                    &v.world_from_camera,
+                    region,
+                    &mut rivals,
+                );
+                for &i in &rivals[..n] {
+                    let c = candidates[i];
+                    tally.rivals_tried += 1;
+                    let passed = self.try_one(&c, tally);
+                    if passed.is_some_and(|r| {
+                        crate::reloc::rivals::elsewhere(&v.world_from_camera, &r.world_from_camera)
+                    }) {
+                        tally.ambiguous += 1;
+                        verdict = None;
+                        break;
+                    }
+                }
+            }
+            _ => untimed_ms += rank_untimed_ms,
         }
         let ms = t_query.elapsed().as_secs_f64() * 1e3 - untimed_ms;
         tally.recovery_ms.push(ms);
@@ -166,7 +174,40 @@ impl Bench {
             verdict,
             near_truth,
             ms,
+            verdict_from_landmarks,
         })
+    }
+
+    /// Renders and verifies one candidate through the gate.
+    fn try_one(&mut self, c: &Candidate, tally: &mut Tally) -> Option<Verified> {
+        let index = c.ranked.index;
+        let (candidate_r, pinhole, kview, tracker) = (
+            &mut self.candidate_r,
+            &self.pinhole,
+            &mut self.kview,
+            &self.tracker,
+        );
+        let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
+            let t_render = Instant::now();
+            candidate_r
+                .render(world_from_keyframe, pinhole, kview)
+                .ok()?;
+            tally.renders += 1;
+            let t_prepare = Instant::now();
+            kf.prepare(kview, *world_from_keyframe, u64::from(index), tracker);
+            tally.prepare_ms += t_prepare.elapsed().as_secs_f64() * 1e3;
+            tally.render_ms += t_render.elapsed().as_secs_f64() * 1e3;
+            Some(())
+        };
+        attempt(
+            &mut self.aligner,
+            &self.pyramid,
+            &self.camera,
+            &self.config.reloc,
+            (&c.world_from_camera, c.yaw_rad),
+            (&mut self.spare, &mut self.returned),
+            &mut render,
+        )
     }
 
     /// Where the nearest good keyframe sits in the full ranking: what a

@@ -78,6 +78,9 @@ pub(super) struct Bench {
     pub(super) returned: Vec<Box<Keyframe>>,
     pub(super) aligner: Aligner,
     pub(super) pyramid: Pyramid,
+    /// Whether an accepted pose's rivals at other places are verified
+    /// ([`crate::reloc::rivals`]; off with `STAR_BENCH_NO_RIVALS`).
+    pub(super) check_rivals: bool,
 }
 
 impl Bench {
@@ -105,10 +108,7 @@ impl Bench {
         let bar = indicatif::ProgressBar::new(0);
         // One CPU rasterizer per core: the same database as one renderer
         // on one thread, byte for byte.
-        let make_renderer =
-            || -> Result<Box<dyn crate::render::Renderer>, crate::render::RenderError> {
-                Ok(Box::new(CpuRenderer::new(map.clone())?))
-            };
+        let make_renderer = || CpuRenderer::new(map.clone());
         let db = build_parallel(
             &map,
             &camera,
@@ -125,6 +125,9 @@ impl Bench {
                     bar.set_length(total as u64);
                     bar.set_position(done as u64);
                 },
+                sample_every: 1,
+                stage_times: None,
+                far_m: None,
             },
         )?;
         bar.finish_and_clear();
@@ -277,6 +280,7 @@ impl Bench {
             pinhole,
             tracker,
             spare,
+            check_rivals: std::env::var_os("STAR_BENCH_NO_RIVALS").is_none(),
         })
     }
 

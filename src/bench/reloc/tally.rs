@@ -109,6 +109,10 @@ pub(super) struct Tally {
     pub(super) recall_found: usize,
     /// Corners x landmarks of brute-force matching, per query.
     pub(super) brute_force: Vec<f64>,
+    /// Rivals (candidates at another place, [`crate::reloc::rivals`])
+    /// verified, and the accepted poses they refused as ambiguous.
+    pub(super) rivals_tried: usize,
+    pub(super) ambiguous: usize,
 }
 
 impl Tally {
@@ -136,11 +140,22 @@ impl Tally {
                     self.success_ms.push(outcome.ms);
                 } else {
                     let q = v.alignment.quality;
+                    let (t, a) = (
+                        query.truth.translation.vector,
+                        v.world_from_camera.translation.vector,
+                    );
                     self.wrong.push((
                             err_m,
                             err_deg,
                             format!(
-                                "inliers {:.2}, visible {:.2}, residual {:.1}, correlation {:.2}, trimmed {:.2} keeping {:.2}, gain {:.2}",
+                                "truth at ({:.2}, {:.2}, {:.2}) m, accepted at ({:.2}, {:.2}, {:.2}) m{}; inliers {:.2}, visible {:.2}, residual {:.1}, correlation {:.2}, trimmed {:.2} keeping {:.2}, gain {:.2}",
+                                t.x,
+                                t.y,
+                                t.z,
+                                a.x,
+                                a.y,
+                                a.z,
+                                if outcome.verdict_from_landmarks { ", from the landmark pose" } else { ", from a database view" },
                                 q.inlier_ratio,
                                 q.visible_ratio,
                                 q.residual_rms,
@@ -187,6 +202,17 @@ impl Tally {
             self.retrieved_near,
             100.0 * self.success_given_near as f64 / self.retrieved_near.max(1) as f64
         );
+        println!(
+            "    look-alike places: {} rivals at another place verified, {} poses refused because one passed too (counted in no pose)",
+            self.rivals_tried, self.ambiguous
+        );
+        let elsewhere = self.wrong.iter().filter(|w| w.0 > 1.0).count();
+        if !self.wrong.is_empty() {
+            println!(
+                "    of the accepted but off: {elsewhere} more than 1 m off (another place: a look-alike room), {} within 1 m",
+                self.wrong.len() - elsewhere
+            );
+        }
         for (m, deg, quality) in &self.wrong {
             println!("      accepted but off by {m:.3} m, {deg:.2} deg ({quality})");
         }
