@@ -49,6 +49,7 @@ mod tests_scenes;
 
 use std::sync::Arc;
 
+use rayon::iter::Either;
 use rayon::prelude::*;
 
 use self::occlusion::Occlusion;
@@ -87,6 +88,8 @@ pub struct CpuRenderer {
     occlusion: Occlusion,
     /// Per chunk, whether it is set up in the current batch.
     in_batch: Vec<bool>,
+    /// The chunks of the current batch.
+    batch: Vec<u32>,
 }
 
 impl std::fmt::Debug for CpuRenderer {
@@ -131,6 +134,7 @@ impl CpuRenderer {
             occlusion_cull: true,
             occlusion: Occlusion::new(chunked_count),
             in_batch: vec![false; chunked_count],
+            batch: Vec::with_capacity(chunked_count),
         })
     }
 
@@ -186,6 +190,42 @@ impl CpuRenderer {
         self.far_m = far_m.filter(|f| f.is_finite() && *f > f64::from(NEAR_M));
     }
 
+    /// Chunks and triangles of the chunks that own at least one pixel of
+    /// the last render's image (`out`, as it left it): what an exact
+    /// chunk-level visibility cull would still have to draw. For benchmarks
+    /// and tests; allocates.
+    pub fn seen_chunks(&self, out: &RenderedView) -> (usize, usize) {
+        let mut chunk_of = vec![0u32; self.chunked.triangle_count()];
+        for (c, chunk) in self.chunked.chunks.iter().enumerate() {
+            for t in chunk.triangles.clone() {
+                if let Some(&src) = self.chunked.source_triangle.get(t as usize) {
+                    if let Some(slot) = chunk_of.get_mut(src as usize) {
+                        *slot = c as u32;
+                    }
+                }
+            }
+        }
+        let mut seen = vec![false; self.chunked.chunks.len()];
+        for (&d, &t) in out.depth_m.data().iter().zip(&self.tri_order) {
+            if RenderedView::is_hit(d) {
+                if let Some(&c) = chunk_of.get(t as usize) {
+                    if let Some(s) = seen.get_mut(c as usize) {
+                        *s = true;
+                    }
+                }
+            }
+        }
+        let triangles = self
+            .chunked
+            .chunks
+            .iter()
+            .zip(&seen)
+            .filter(|(_, &s)| s)
+            .map(|(c, _)| c.triangle_count())
+            .sum();
+        (seen.iter().filter(|&&s| s).count(), triangles)
+    }
+
     /// Bytes the renderer holds for the mesh: the chunked copy (vertices,
     /// indices, triangle numbers) plus the shared mesh's textures.
     pub fn mesh_bytes(&self) -> u64 {
@@ -228,6 +268,7 @@ impl Renderer for CpuRenderer {
             occlusion_cull,
             occlusion,
             in_batch,
+            batch,
             ..
         } = self;
         *stats = chunked.mark_visible(cull.then_some(&frustum), visible);
@@ -244,7 +285,7 @@ impl Renderer for CpuRenderer {
                 tri_order,
                 out,
                 occlusion,
-                in_batch,
+                (in_batch, batch),
             )
         };
         let (hidden_chunks, hidden_triangles) = match pool {
@@ -259,10 +300,11 @@ impl Renderer for CpuRenderer {
 
 /// Runs the two stages on the chunks marked in `visible`: all at once, or,
 /// with `occlusion`, in nearest-first batches, each later batch without the
-/// chunks hidden behind what the earlier ones drew ([`occlusion`]). `out`
-/// has been checked against `view`; `tri_order` has one element per pixel;
-/// `in_batch` has one element per chunk. Returns the chunks and triangles
-/// the occlusion cull skipped.
+/// chunks and triangles hidden behind what the earlier ones drew
+/// ([`occlusion`]). `out` has been checked against `view`; `tri_order` has
+/// one element per pixel; `in_batch` has one element per chunk (all false)
+/// and `batch` room for every chunk. Returns the chunks and triangles (in
+/// those chunks) the occlusion cull skipped.
 #[allow(clippy::too_many_arguments)]
 fn draw(
     mesh: &ChunkedMesh,
@@ -273,55 +315,93 @@ fn draw(
     tri_order: &mut [u32],
     out: &mut RenderedView,
     mut occlusion: Option<&mut Occlusion>,
-    in_batch: &mut [bool],
+    (in_batch, batch): (&mut [bool], &mut Vec<u32>),
 ) -> (usize, usize) {
     let bands = view.height.div_ceil(BAND_ROWS);
-    let batches = if occlusion.is_some() {
-        occlusion::BATCHES
-    } else {
-        1
-    };
     if let Some(occ) = occlusion.as_deref_mut() {
         occ.prepare(&mesh.chunks, visible, view);
     }
+    let first_batch = occlusion
+        .as_deref()
+        .map_or(0, |occ| occlusion::first_batch(occ.order.len()));
+    // Next chunk of the nearest-first order to consider.
+    let mut cursor = 0;
     let mut skipped = (0, 0);
-    for batch in 0..batches {
-        match occlusion.as_deref() {
-            None => in_batch.copy_from_slice(visible),
+    for pass in 0.. {
+        batch.clear();
+        let last = match occlusion.as_deref() {
+            None => {
+                batch.extend((0..visible.len() as u32).filter(|&i| visible[i as usize]));
+                true
+            }
             Some(occ) => {
-                in_batch.fill(false);
-                for &i in occ.order.get(occ.batch(batch)).unwrap_or(&[]) {
-                    let i = i as usize;
-                    if batch > 0 && occ.hidden(i) {
+                let order = &occ.order;
+                // The first batch untested; then twice as many drawn chunks
+                // each batch, the last batch taking the rest.
+                let quota = if pass + 1 >= occlusion::MAX_BATCHES {
+                    usize::MAX
+                } else {
+                    first_batch << pass
+                };
+                while cursor < order.len() && batch.len() < quota {
+                    let i = order[cursor];
+                    cursor += 1;
+                    if pass > 0 && occ.hidden(i as usize) {
                         skipped.0 += 1;
-                        skipped.1 += mesh.chunks.get(i).map_or(0, MeshChunk::triangle_count);
-                    } else if let Some(slot) = in_batch.get_mut(i) {
-                        *slot = true;
+                        skipped.1 += mesh
+                            .chunks
+                            .get(i as usize)
+                            .map_or(0, MeshChunk::triangle_count);
+                    } else {
+                        batch.push(i);
                     }
                 }
+                cursor >= order.len()
+            }
+        };
+        for &i in batch.iter() {
+            if let Some(slot) = in_batch.get_mut(i as usize) {
+                *slot = true;
             }
         }
+        let occluders = occlusion
+            .as_deref()
+            .filter(|_| pass > 0)
+            .map(Occlusion::tiles);
         chunks
             .par_iter_mut()
             .zip(mesh.chunks.par_iter())
             .zip(in_batch.par_iter())
-            .for_each(|((scratch, chunk), &drawn)| {
-                if drawn {
-                    scratch.build(chunk, mesh, view, bands);
-                } else {
-                    scratch.skip();
+            .with_min_len(64)
+            .for_each(|((scratch, chunk), &set_up)| {
+                if set_up {
+                    scratch.build(chunk, mesh, view, bands, occluders);
                 }
             });
-        let stage = (batch == 0, batch + 1 == batches);
-        let drawn = &*chunks;
+        for &i in batch.iter() {
+            if let Some(slot) = in_batch.get_mut(i as usize) {
+                *slot = false;
+            }
+        }
+        let stage = (pass == 0, last);
+        let drawn = (&*chunks, batch.as_slice());
         let band_len = view.width * BAND_ROWS;
+        // The bands fill the occlusion tiles (one row each) between batches.
+        let tile_rows = match occlusion.as_deref_mut().filter(|_| !last) {
+            Some(occ) => {
+                let (tiles, tiles_x) = occ.tile_rows_mut();
+                Either::Left(tiles.par_chunks_mut(tiles_x).map(Some))
+            }
+            None => Either::Right((0..bands).into_par_iter().map(|_| None)),
+        };
         out.gray
             .data_mut()
             .par_chunks_mut(band_len)
             .zip(out.depth_m.data_mut().par_chunks_mut(band_len))
             .zip(tri_order.par_chunks_mut(band_len))
+            .zip(tile_rows)
             .enumerate()
-            .for_each(|(band, ((gray, depth_m), order))| {
+            .for_each(|(band, (((gray, depth_m), order), tiles))| {
                 raster::draw_band(
                     band,
                     view.width,
@@ -332,13 +412,11 @@ fn draw(
                     gray,
                     depth_m,
                     order,
+                    tiles,
                 );
             });
-        if let Some(occ) = occlusion.as_deref_mut() {
-            if batch + 1 < batches {
-                // Between batches the depth image holds 1/z.
-                occ.update_tiles(out.depth_m.data(), view.width);
-            }
+        if last {
+            break;
         }
     }
     skipped

@@ -1,17 +1,33 @@
-//! Occlusion culling of whole chunks for the CPU rasterizer, exact.
+//! Occlusion culling for the CPU rasterizer, exact, of whole chunks and of
+//! single triangles.
 //!
 //! Takes the chunks that passed the frustum test and the depth buffer as
-//! the render draws it; decides which chunks are hidden behind what has
-//! already been drawn. The visible chunks are drawn in [`BATCHES`] batches
-//! (an eighth of them, an eighth, a quarter, the rest), nearest first (by the nearest camera depth of their box); after each
-//! batch every 16 x 16-pixel tile of the image gets the farthest depth
-//! drawn in it (as the smallest `1/z`, 0 when a pixel of it is still
-//! empty). A chunk of a later batch is skipped when, over every tile its
-//! box's projection touches, that farthest depth is nearer than the box's
-//! nearest point, with a relative margin far above `f32` rounding: then no
-//! pixel of it could pass the depth test, then or later (the z-buffer only
-//! gets nearer), and the image is the same, bit for bit, as without the
-//! cull. A box reaching behind the near plane is never skipped.
+//! the render draws it; decides which chunks, and which triangles of the
+//! chunks set up, are hidden behind what has already been drawn. The
+//! visible chunks are ordered nearest first (by the nearest camera depth of
+//! their box) and drawn in batches: the first [`first_batch`] chunks, then
+//! batches of twice as many *drawn* chunks each time (the chunks found
+//! hidden on the way do not count), at most [`MAX_BATCHES`] in all (the
+//! last takes the rest). After each batch but the last every 16 x
+//! 16-pixel tile of the image (one tile row per raster band) gets the
+//! farthest depth drawn in it (as the smallest `1/z`, 0 when a pixel of it
+//! is still empty); the raster bands compute their own tiles as they
+//! finish. Then, in the next batch:
+//!
+//! - a chunk is skipped when, over every tile its box's projection touches
+//!   (padded by 2 pixels), that farthest depth is nearer than the box's
+//!   nearest point (a box reaching behind the near plane is never skipped);
+//! - of the chunks set up, a projected triangle is dropped when, over every
+//!   tile its pixel bounds touch, that farthest depth is nearer than its
+//!   nearest vertex (depth over a triangle lies between its vertices'
+//!   depths, and the rasterizer's interpolated `1/z`, rounded to `f32`, never
+//!   exceeds its largest vertex value).
+//!
+//! Both comparisons have a relative margin far above `f32` rounding; the
+//! z-buffer only gets nearer, so no pixel of what is dropped could pass the
+//! depth test, then or later, and the image is the same, bit for bit, as
+//! without the cull (the tie-break by mesh triangle number makes the
+//! drawing order irrelevant).
 //!
 //! All scratch is sized at construction (per chunk) or on the first render
 //! of an image size (per tile), and reused.
@@ -21,8 +37,12 @@ use crate::render::chunks::MeshChunk;
 
 /// Tile edge, pixels.
 pub(super) const TILE_PX: usize = 16;
-/// Batches of nearest-first chunks; the first is never culled.
-pub(super) const BATCHES: usize = 4;
+/// Most batches of one render; the first is never culled.
+pub(super) const MAX_BATCHES: usize = 8;
+/// The first batch holds this share of the visible chunks...
+const FIRST_BATCH_DIVISOR: usize = 32;
+/// ...and at least this many.
+const FIRST_BATCH_MIN: usize = 4;
 /// Relative margin of the depth comparison.
 const MARGIN: f32 = 1e-3;
 /// Padding of the boxes, meters (as the frustum test's).
@@ -128,38 +148,18 @@ impl Occlusion {
             .sort_unstable_by(|a, b| key(b).total_cmp(&key(a)).then(a.cmp(b)));
     }
 
-    /// The range of [`Occlusion::order`] in batch `batch`.
-    pub fn batch(&self, batch: usize) -> std::ops::Range<usize> {
-        let n = self.order.len();
-        // An eighth, an eighth, a quarter, the rest.
-        let edge = |b: usize| match b {
-            0 => 0,
-            1 => n / 8,
-            2 => n / 4,
-            3 => n / 2,
-            _ => n,
-        };
-        edge(batch)..edge(batch + 1)
+    /// The tiles as last updated, for the triangle test.
+    pub fn tiles(&self) -> TileDepth<'_> {
+        TileDepth {
+            min_inv_z: &self.tile_min_inv_z,
+            tiles_x: self.tiles_x,
+        }
     }
 
-    /// Takes the farthest depth drawn per tile from the band-major `inv_z`
-    /// buffer (`width` pixels a row).
-    pub fn update_tiles(&mut self, inv_z: &[f32], width: usize) {
-        self.tile_min_inv_z.fill(f32::INFINITY);
-        for (y, row) in inv_z.chunks_exact(width.max(1)).enumerate() {
-            let ty = y / TILE_PX;
-            let Some(tiles) = self
-                .tile_min_inv_z
-                .get_mut(ty * self.tiles_x..(ty + 1) * self.tiles_x)
-            else {
-                continue;
-            };
-            for (tile, px) in tiles.iter_mut().zip(row.chunks(TILE_PX)) {
-                for &d in px {
-                    *tile = tile.min(d);
-                }
-            }
-        }
+    /// The tiles, one row (of `tiles_x`) per raster band, for the bands to
+    /// fill, and the row length.
+    pub fn tile_rows_mut(&mut self) -> (&mut [f32], usize) {
+        (&mut self.tile_min_inv_z, self.tiles_x.max(1))
     }
 
     /// Whether chunk `i` is hidden behind the tiles as last updated.
@@ -178,6 +178,48 @@ impl Occlusion {
                     .get(ty * self.tiles_x + tx)
                     .is_some_and(|&t| t > limit)
             })
+        })
+    }
+}
+
+/// Chunks in the first batch when `visible` chunks pass the frustum test.
+pub(super) fn first_batch(visible: usize) -> usize {
+    (visible / FIRST_BATCH_DIVISOR).max(FIRST_BATCH_MIN)
+}
+
+/// Sets each element of `tiles` (one row of tiles) to the smallest `1/z`
+/// of the `width`-wide band `inv_z` under it (0 where a pixel is empty).
+pub(super) fn band_tiles(inv_z: &[f32], width: usize, tiles: &mut [f32]) {
+    tiles.fill(f32::INFINITY);
+    for row in inv_z.chunks_exact(width.max(1)) {
+        for (tile, px) in tiles.iter_mut().zip(row.chunks(TILE_PX)) {
+            *tile = px.iter().fold(*tile, |m, &d| m.min(d));
+        }
+    }
+}
+
+/// The farthest depth drawn per tile, read-only, for the triangle test.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct TileDepth<'a> {
+    min_inv_z: &'a [f32],
+    tiles_x: usize,
+}
+
+impl TileDepth<'_> {
+    /// Whether a triangle whose covered pixel centers lie in columns
+    /// `x0..=x1` and rows `y0..=y1` and whose largest vertex `1/z` is
+    /// `max_inv_z` is hidden behind every tile it touches.
+    #[inline]
+    pub fn hides(&self, [x0, x1, y0, y1]: [usize; 4], max_inv_z: f32) -> bool {
+        let limit = max_inv_z * (1.0 + MARGIN);
+        if !(limit > 0.0) {
+            return false;
+        }
+        let (tx0, tx1) = (x0 / TILE_PX, x1 / TILE_PX);
+        (y0 / TILE_PX..=y1 / TILE_PX).all(|ty| {
+            self.min_inv_z
+                .get(ty * self.tiles_x + tx0..=ty * self.tiles_x + tx1)
+                .is_some_and(|row| row.iter().all(|&t| t > limit))
         })
     }
 }

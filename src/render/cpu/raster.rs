@@ -12,28 +12,35 @@
 //! While a band is drawn, its depth slice holds `1/z` (0 = empty); the band
 //! is finished by turning it into metric depth.
 
+use super::occlusion::{band_tiles, TILE_PX};
 use super::setup::{Chunk, ScreenTri, BAND_ROWS, NO_TEXTURE};
 use super::view::SUBPIXEL;
 use crate::map::GrayTexture;
 use crate::render::NO_DEPTH;
 
+// A band is one row of occlusion tiles.
+const _: () = assert!(TILE_PX == BAND_ROWS);
+
 /// Draws band `band` (rows `band * BAND_ROWS ..`) of a `width`-wide image
 /// into `gray` and `depth_m` (the band's rows only), with `order` (as many
-/// pixels) as scratch for the depth tie-break; pixels with `1/z` below
-/// `min_inv_z` are not drawn. A render may draw a band in several passes
-/// (one per batch of chunks): `first` clears it, `last` turns its `1/z`
-/// into metric depth; in between `depth_m` holds `1/z`.
+/// pixels) as scratch for the depth tie-break: the triangles of the chunks
+/// numbered in `batch` (of `chunks`); pixels with `1/z` below `min_inv_z`
+/// are not drawn. A render may draw a band in several passes (one per
+/// batch of chunks): `first` clears it, `last` turns its `1/z` into metric
+/// depth; in between `depth_m` holds `1/z`, and `tiles`, when given, gets
+/// the band's row of occlusion tiles.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn draw_band(
     band: usize,
     width: usize,
     min_inv_z: f32,
     (first, last): (bool, bool),
-    chunks: &[Chunk],
+    (chunks, batch): (&[Chunk], &[u32]),
     textures: &[GrayTexture],
     gray: &mut [f32],
     depth_m: &mut [f32],
     order: &mut [u32],
+    tiles: Option<&mut [f32]>,
 ) {
     if first {
         gray.fill(0.0);
@@ -51,7 +58,7 @@ pub(super) fn draw_band(
         inv_z: depth_m,
         order,
     };
-    for chunk in chunks.iter().filter(|c| c.drawn) {
+    for chunk in batch.iter().filter_map(|&i| chunks.get(i as usize)) {
         if let Some(bin) = chunk.bins.get(band) {
             for &t in bin {
                 if let Some(tri) = chunk.tris.get(t as usize) {
@@ -64,6 +71,8 @@ pub(super) fn draw_band(
         for d in target.inv_z.iter_mut() {
             *d = if *d > 0.0 { 1.0 / *d } else { NO_DEPTH };
         }
+    } else if let Some(tiles) = tiles {
+        band_tiles(target.inv_z, width, tiles);
     }
 }
 

@@ -9,6 +9,7 @@
 //! sees its triangles depends on the thread count.
 
 use super::clip::{ClipVertex, Polygon, MAX_POLY};
+use super::occlusion::TileDepth;
 use super::view::{CamVertex, View, CLIP_MASK, CULL_MASK, OUT_INVALID, SUBPIXEL_BITS};
 use crate::render::chunks::{ChunkedMesh, MeshChunk};
 
@@ -47,9 +48,6 @@ pub(super) struct ScreenTri {
 pub(super) struct Chunk {
     /// Texture index of the chunk's group, or [`NO_TEXTURE`].
     texture: u32,
-    /// Whether the chunk was set up in the current render (false: it is
-    /// outside the view and `tris` and `bins` are stale).
-    pub drawn: bool,
     /// The chunk's vertices in the camera frame.
     verts: Vec<CamVertex>,
     /// The chunk's screen triangles.
@@ -81,16 +79,18 @@ impl Chunk {
         }
     }
 
-    /// Marks the chunk as not drawn in this render.
-    pub fn skip(&mut self) {
-        self.drawn = false;
-    }
-
     /// Transforms the vertices of `chunk` (of `mesh`), then sets up and
-    /// bins its triangles for `view`. `bands` is the number of bands of
-    /// the image.
-    pub fn build(&mut self, chunk: &MeshChunk, mesh: &ChunkedMesh, view: &View, bands: usize) {
-        self.drawn = true;
+    /// bins its triangles for `view`, less those that `occluders` (the
+    /// depth drawn so far, per tile) hides. `bands` is the number of bands
+    /// of the image.
+    pub fn build(
+        &mut self,
+        chunk: &MeshChunk,
+        mesh: &ChunkedMesh,
+        view: &View,
+        bands: usize,
+        occluders: Option<TileDepth<'_>>,
+    ) {
         let texture = self.texture;
         self.tris.clear();
         if self.bins.len() != bands {
@@ -130,7 +130,7 @@ impl Chunk {
                     gray: mesh.gray[idx[k]],
                     uv: uv_at(idx[k]),
                 };
-                self.emit([p(0), p(1), p(2)], texture, order, view);
+                self.emit([p(0), p(1), p(2)], texture, order, view, occluders);
             } else {
                 let c = |k: usize| ClipVertex {
                     p: view.camera_point(mesh.positions[idx[k]]).into(),
@@ -154,7 +154,13 @@ impl Chunk {
                     };
                 }
                 for k in 1..poly.len - 1 {
-                    self.emit([proj[0], proj[k], proj[k + 1]], texture, order, view);
+                    self.emit(
+                        [proj[0], proj[k], proj[k + 1]],
+                        texture,
+                        order,
+                        view,
+                        occluders,
+                    );
                 }
             }
         }
@@ -163,9 +169,16 @@ impl Chunk {
     }
 
     /// Orients, bounds and bins one projected triangle; drops it when it is
-    /// degenerate or covers no pixel center.
+    /// degenerate, covers no pixel center or is hidden behind `occluders`.
     #[inline]
-    fn emit(&mut self, mut v: [Projected; 3], texture: u32, order: u32, view: &View) {
+    fn emit(
+        &mut self,
+        mut v: [Projected; 3],
+        texture: u32,
+        order: u32,
+        view: &View,
+        occluders: Option<TileDepth<'_>>,
+    ) {
         let area2 = (i64::from(v[1].sx) - i64::from(v[0].sx))
             * (i64::from(v[2].sy) - i64::from(v[0].sy))
             - (i64::from(v[1].sy) - i64::from(v[0].sy)) * (i64::from(v[2].sx) - i64::from(v[0].sx));
@@ -187,6 +200,13 @@ impl Chunk {
         let y1 = (max_y >> bits).min(view.height as i32 - 1);
         if x0 > x1 || y0 > y1 {
             return;
+        }
+        if let Some(tiles) = occluders {
+            let nearest = v[0].inv_z.max(v[1].inv_z).max(v[2].inv_z);
+            let bounds = [x0, x1, y0, y1].map(|c| c as usize);
+            if tiles.hides(bounds, nearest) {
+                return;
+            }
         }
         let index = self.tris.len() as u32;
         self.tris.push(ScreenTri {
