@@ -90,6 +90,8 @@ pub struct CpuRenderer {
     in_batch: Vec<bool>,
     /// The chunks of the current batch.
     batch: Vec<u32>,
+    /// Screen triangles binned in the last render.
+    binned_triangles: usize,
 }
 
 impl std::fmt::Debug for CpuRenderer {
@@ -113,6 +115,7 @@ impl CpuRenderer {
             .map(|c| {
                 Chunk::new(
                     c,
+                    &chunked,
                     mesh.groups
                         .get(c.group as usize)
                         .and_then(|g| g.texture)
@@ -135,6 +138,7 @@ impl CpuRenderer {
             occlusion: Occlusion::new(chunked_count),
             in_batch: vec![false; chunked_count],
             batch: Vec::with_capacity(chunked_count),
+            binned_triangles: 0,
         })
     }
 
@@ -176,6 +180,13 @@ impl CpuRenderer {
         self.stats
     }
 
+    /// Screen triangles the last render binned for rasterization: those of
+    /// the chunks it set up that cover a pixel center, after near-plane
+    /// clipping, less those the occlusion cull dropped.
+    pub fn binned_triangles(&self) -> usize {
+        self.binned_triangles
+    }
+
     /// Turns the skipping of chunks hidden behind nearer ones on (the
     /// default) or off. It works only with the frustum cull on. The output
     /// is the same either way.
@@ -195,6 +206,13 @@ impl CpuRenderer {
     /// chunk-level visibility cull would still have to draw. For benchmarks
     /// and tests; allocates.
     pub fn seen_chunks(&self, out: &RenderedView) -> (usize, usize) {
+        let (chunks, triangles, _) = self.seen(out);
+        (chunks, triangles)
+    }
+
+    /// [`CpuRenderer::seen_chunks`], and the number of mesh triangles that
+    /// own at least one pixel.
+    pub fn seen(&self, out: &RenderedView) -> (usize, usize, usize) {
         let mut chunk_of = vec![0u32; self.chunked.triangle_count()];
         for (c, chunk) in self.chunked.chunks.iter().enumerate() {
             for t in chunk.triangles.clone() {
@@ -206,8 +224,12 @@ impl CpuRenderer {
             }
         }
         let mut seen = vec![false; self.chunked.chunks.len()];
+        let mut seen_triangle = vec![false; self.chunked.triangle_count()];
         for (&d, &t) in out.depth_m.data().iter().zip(&self.tri_order) {
             if RenderedView::is_hit(d) {
+                if let Some(s) = seen_triangle.get_mut(t as usize) {
+                    *s = true;
+                }
                 if let Some(&c) = chunk_of.get(t as usize) {
                     if let Some(s) = seen.get_mut(c as usize) {
                         *s = true;
@@ -223,7 +245,11 @@ impl CpuRenderer {
             .filter(|(_, &s)| s)
             .map(|(c, _)| c.triangle_count())
             .sum();
-        (seen.iter().filter(|&&s| s).count(), triangles)
+        (
+            seen.iter().filter(|&&s| s).count(),
+            triangles,
+            seen_triangle.iter().filter(|&&s| s).count(),
+        )
     }
 
     /// Bytes the renderer holds for the mesh: the chunked copy (vertices,
@@ -269,29 +295,38 @@ impl Renderer for CpuRenderer {
             occlusion,
             in_batch,
             batch,
+            binned_triangles,
             ..
         } = self;
         *stats = chunked.mark_visible(cull.then_some(&frustum), visible);
         // Sized once per image size; no allocation in steady state.
         tri_order.resize(view.width * view.height, 0);
-        let occlusion = (*cull && *occlusion_cull).then_some(occlusion);
+        let position = world_from_camera.translation.vector;
+        let position_m = [position.x, position.y, position.z];
+        let occlusion = if *cull && *occlusion_cull {
+            Some(occlusion)
+        } else {
+            occlusion.forget();
+            None
+        };
         let work = || {
             draw(
                 chunked,
                 &mesh.textures,
                 visible,
                 chunks,
-                &view,
+                (&view, cull.then_some(&frustum)),
                 tri_order,
                 out,
-                occlusion,
+                occlusion.map(|o| (o, position_m)),
                 (in_batch, batch),
             )
         };
-        let (hidden_chunks, hidden_triangles) = match pool {
+        let (hidden_chunks, hidden_triangles, binned) = match pool {
             Some(pool) => pool.install(work),
             None => work(),
         };
+        *binned_triangles = binned;
         stats.visible_chunks -= hidden_chunks;
         stats.visible_triangles -= hidden_triangles;
         Ok(())
@@ -304,35 +339,48 @@ impl Renderer for CpuRenderer {
 /// ([`occlusion`]). `out` has been checked against `view`; `tri_order` has
 /// one element per pixel; `in_batch` has one element per chunk (all false)
 /// and `batch` room for every chunk. Returns the chunks and triangles (in
-/// those chunks) the occlusion cull skipped.
+/// those chunks) the occlusion cull skipped, and the screen triangles
+/// binned.
 #[allow(clippy::too_many_arguments)]
 fn draw(
     mesh: &ChunkedMesh,
     textures: &[GrayTexture],
     visible: &[bool],
     chunks: &mut [Chunk],
-    view: &View,
+    (view, frustum): (&View, Option<&Frustum>),
     tri_order: &mut [u32],
     out: &mut RenderedView,
-    mut occlusion: Option<&mut Occlusion>,
+    occlusion: Option<(&mut Occlusion, [f64; 3])>,
     (in_batch, batch): (&mut [bool], &mut Vec<u32>),
-) -> (usize, usize) {
+) -> (usize, usize, usize) {
     let bands = view.height.div_ceil(BAND_ROWS);
-    if let Some(occ) = occlusion.as_deref_mut() {
-        occ.prepare(&mesh.chunks, visible, view);
-    }
+    let mut occlusion = occlusion.map(|(occ, position_m)| {
+        occ.prepare(&mesh.chunks, visible, view, position_m);
+        occ
+    });
     let first_batch = occlusion
         .as_deref()
         .map_or(0, |occ| occlusion::first_batch(occ.order.len()));
     // Next chunk of the nearest-first order to consider.
     let mut cursor = 0;
     let mut skipped = (0, 0);
+    let mut binned = 0;
     for pass in 0.. {
         batch.clear();
         let last = match occlusion.as_deref() {
             None => {
                 batch.extend((0..visible.len() as u32).filter(|&i| visible[i as usize]));
                 true
+            }
+            Some(occ) if pass == 0 && occ.coherent => {
+                // What the previous render saw, untested.
+                batch.extend(
+                    occ.order
+                        .iter()
+                        .copied()
+                        .filter(|&i| occ.seen_before.get(i as usize) == Some(&true)),
+                );
+                occ.order.len() == batch.len()
             }
             Some(occ) => {
                 let order = &occ.order;
@@ -346,6 +394,10 @@ fn draw(
                 while cursor < order.len() && batch.len() < quota {
                     let i = order[cursor];
                     cursor += 1;
+                    if occ.coherent && occ.seen_before.get(i as usize) == Some(&true) {
+                        // Drawn in the first batch.
+                        continue;
+                    }
                     if pass > 0 && occ.hidden(i as usize) {
                         skipped.0 += 1;
                         skipped.1 += mesh
@@ -375,25 +427,35 @@ fn draw(
             .with_min_len(64)
             .for_each(|((scratch, chunk), &set_up)| {
                 if set_up {
-                    scratch.build(chunk, mesh, view, bands, occluders);
+                    scratch.build(chunk, mesh, view, bands, (frustum, occluders));
                 }
             });
         for &i in batch.iter() {
             if let Some(slot) = in_batch.get_mut(i as usize) {
                 *slot = false;
             }
+            binned += chunks.get(i as usize).map_or(0, |c| c.tris.len());
         }
         let stage = (pass == 0, last);
-        let drawn = (&*chunks, batch.as_slice());
         let band_len = view.width * BAND_ROWS;
-        // The bands fill the occlusion tiles (one row each) between batches.
-        let tile_rows = match occlusion.as_deref_mut().filter(|_| !last) {
+        // The bands mark the chunks seen, and fill the occlusion tiles (the
+        // rows under each) between batches.
+        let (tile_rows, seen) = match occlusion.as_deref_mut() {
             Some(occ) => {
-                let (tiles, tiles_x) = occ.tile_rows_mut();
-                Either::Left(tiles.par_chunks_mut(tiles_x).map(Some))
+                let (tiles, per_band, seen) = occ.raster_targets();
+                let rows = if last {
+                    Either::Right((0..bands).into_par_iter().map(no_tiles))
+                } else {
+                    Either::Left(tiles.par_chunks_mut(per_band).map(Some))
+                };
+                (rows, Some(seen))
             }
-            None => Either::Right((0..bands).into_par_iter().map(|_| None)),
+            None => (
+                Either::Right((0..bands).into_par_iter().map(no_tiles)),
+                None,
+            ),
         };
+        let drawn = (&*chunks, batch.as_slice(), seen);
         out.gray
             .data_mut()
             .par_chunks_mut(band_len)
@@ -419,5 +481,10 @@ fn draw(
             break;
         }
     }
-    skipped
+    (skipped.0, skipped.1, binned)
+}
+
+/// No occlusion tiles for a band to fill.
+fn no_tiles<'a>(_band: usize) -> Option<&'a mut [f32]> {
+    None
 }

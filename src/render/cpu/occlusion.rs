@@ -32,17 +32,23 @@
 //! All scratch is sized at construction (per chunk) or on the first render
 //! of an image size (per tile), and reused.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use super::setup::BAND_ROWS;
 use super::view::{View, NEAR_M};
-use crate::render::chunks::MeshChunk;
+use crate::render::chunks::{Aabb, MeshChunk};
 
 /// Tile edge, pixels.
-pub(super) const TILE_PX: usize = 16;
+pub(super) const TILE_PX: usize = 8;
 /// Most batches of one render; the first is never culled.
 pub(super) const MAX_BATCHES: usize = 8;
 /// The first batch holds this share of the visible chunks...
 const FIRST_BATCH_DIVISOR: usize = 32;
 /// ...and at least this many.
 const FIRST_BATCH_MIN: usize = 4;
+/// The previous render's visible chunks are drawn first when its camera
+/// was less than this far away, meters.
+pub(super) const COHERENT_M: f64 = 2.0;
 /// Relative margin of the depth comparison.
 const MARGIN: f32 = 1e-3;
 /// Padding of the boxes, meters (as the frustum test's).
@@ -63,6 +69,17 @@ pub(super) struct Occlusion {
     tile_min_inv_z: Vec<f32>,
     tiles_x: usize,
     tiles_y: usize,
+    /// Per chunk: whether a triangle of it won a pixel's depth test in the
+    /// render being drawn (set by the raster bands).
+    pub seen: Vec<AtomicBool>,
+    /// Per chunk: whether the previous render, from nearby, marked it
+    /// [`Occlusion::seen`]: the first batch of this one.
+    pub seen_before: Vec<bool>,
+    /// Whether `seen_before` holds any chunk.
+    pub coherent: bool,
+    /// Camera position of the previous render with the cull, world frame,
+    /// meters.
+    last_position_m: Option<[f64; 3]>,
 }
 
 impl Occlusion {
@@ -72,68 +89,51 @@ impl Occlusion {
             near_inv_z: vec![0.0; chunks],
             rect: vec![[0; 4]; chunks],
             order: Vec::with_capacity(chunks),
+            seen: (0..chunks).map(|_| AtomicBool::new(false)).collect(),
+            seen_before: vec![false; chunks],
             ..Self::default()
         }
     }
 
     /// Measures every visible chunk's box in `view` and orders the visible
-    /// chunks nearest first.
-    pub fn prepare(&mut self, chunks: &[MeshChunk], visible: &[bool], view: &View) {
+    /// chunks nearest first; takes the chunks the previous render saw as
+    /// this one's first batch when it was made less than [`COHERENT_M`]
+    /// from `position_m` (the camera's, world frame).
+    pub fn prepare(
+        &mut self,
+        chunks: &[MeshChunk],
+        visible: &[bool],
+        view: &View,
+        position_m: [f64; 3],
+    ) {
+        let near = self.last_position_m.is_some_and(|p| {
+            let d2: f64 = (0..3).map(|k| (p[k] - position_m[k]).powi(2)).sum();
+            d2 < COHERENT_M * COHERENT_M
+        });
+        self.last_position_m = Some(position_m);
+        self.seen
+            .resize_with(chunks.len(), || AtomicBool::new(false));
+        self.seen_before.resize(chunks.len(), false);
+        self.coherent = false;
+        for ((before, seen), &in_view) in self.seen_before.iter_mut().zip(&self.seen).zip(visible) {
+            *before = near && in_view && seen.swap(false, Ordering::Relaxed);
+            self.coherent |= *before;
+        }
         self.tiles_x = view.width.div_ceil(TILE_PX);
         self.tiles_y = view.height.div_ceil(TILE_PX);
         self.tile_min_inv_z.resize(self.tiles_x * self.tiles_y, 0.0);
         self.near_inv_z.resize(chunks.len(), 0.0);
         self.rect.resize(chunks.len(), [0; 4]);
         self.order.clear();
-        let (w, h) = (view.width as f32, view.height as f32);
         for (i, (chunk, &seen)) in chunks.iter().zip(visible).enumerate() {
             if !seen {
                 continue;
             }
-            let b = &chunk.bounds;
             self.order.push(i as u32);
-            let mut near = f32::INFINITY;
-            let (mut u0, mut v0, mut u1, mut v1) = (
-                f32::INFINITY,
-                f32::INFINITY,
-                f32::NEG_INFINITY,
-                f32::NEG_INFINITY,
-            );
-            for corner in 0..8 {
-                let pick = |k: usize, bit: usize| {
-                    if corner >> bit & 1 == 0 {
-                        b.min_m[k] - BOX_PAD_M
-                    } else {
-                        b.max_m[k] + BOX_PAD_M
-                    }
-                };
-                let p = view.camera_point([pick(0, 0), pick(1, 1), pick(2, 2)]);
-                near = near.min(p.z);
-                if p.z > NEAR_M {
-                    let (u, v) = view.pixel_f32(p);
-                    u0 = u0.min(u);
-                    v0 = v0.min(v);
-                    u1 = u1.max(u);
-                    v1 = v1.max(v);
-                }
-            }
             let (Some(inv), Some(r)) = (self.near_inv_z.get_mut(i), self.rect.get_mut(i)) else {
                 continue;
             };
-            if !(near > NEAR_M && near.is_finite()) {
-                *inv = 0.0;
-                continue;
-            }
-            *inv = 1.0 / near;
-            let tile = |x: f32, limit: f32| {
-                ((x.clamp(0.0, limit - 1.0)) as usize / TILE_PX).min(u16::MAX as usize) as u16
-            };
-            *r = [
-                tile(u0 - RECT_PAD_PX, w),
-                tile(v0 - RECT_PAD_PX, h),
-                tile(u1 + RECT_PAD_PX, w),
-                tile(v1 + RECT_PAD_PX, h),
-            ];
+            (*inv, *r) = screen_box(view, &chunk.bounds).unwrap_or((0.0, [0; 4]));
         }
         let key = |i: &u32| {
             let inv = self.near_inv_z.get(*i as usize).copied().unwrap_or(0.0);
@@ -156,30 +156,76 @@ impl Occlusion {
         }
     }
 
-    /// The tiles, one row (of `tiles_x`) per raster band, for the bands to
-    /// fill, and the row length.
-    pub fn tile_rows_mut(&mut self) -> (&mut [f32], usize) {
-        (&mut self.tile_min_inv_z, self.tiles_x.max(1))
+    /// What the raster bands write: the tiles, to fill, with the number of
+    /// them under one band ([`BAND_ROWS`]` / `[`TILE_PX`] rows of
+    /// `tiles_x`), and the per-chunk flags of [`Occlusion::seen`].
+    pub fn raster_targets(&mut self) -> (&mut [f32], usize, &[AtomicBool]) {
+        (
+            &mut self.tile_min_inv_z,
+            (self.tiles_x * (BAND_ROWS / TILE_PX)).max(1),
+            &self.seen,
+        )
+    }
+
+    /// Forgets the chunks seen so far (a render without the cull).
+    pub fn forget(&mut self) {
+        self.last_position_m = None;
     }
 
     /// Whether chunk `i` is hidden behind the tiles as last updated.
     pub fn hidden(&self, i: usize) -> bool {
-        let (Some(&inv), Some(&[x0, y0, x1, y1])) = (self.near_inv_z.get(i), self.rect.get(i))
-        else {
-            return false;
-        };
-        if inv == 0.0 {
-            return false;
+        match (self.near_inv_z.get(i), self.rect.get(i)) {
+            (Some(&inv), Some(&rect)) => self.tiles().hides_box(rect, inv),
+            _ => false,
         }
-        let limit = inv * (1.0 + MARGIN);
-        (y0 as usize..=y1 as usize).all(|ty| {
-            (x0 as usize..=x1 as usize).all(|tx| {
-                self.tile_min_inv_z
-                    .get(ty * self.tiles_x + tx)
-                    .is_some_and(|&t| t > limit)
-            })
-        })
     }
+}
+
+/// The nearest `1/z` of box `b` (padded) in `view` and the tiles its
+/// projection touches (padded), `[x0, y0, x1, y1]` inclusive; `None` when
+/// the box reaches behind the near plane (it cannot be proved hidden).
+pub(super) fn screen_box(view: &View, b: &Aabb) -> Option<(f32, [u16; 4])> {
+    let mut near = f32::INFINITY;
+    let (mut u0, mut v0, mut u1, mut v1) = (
+        f32::INFINITY,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NEG_INFINITY,
+    );
+    for corner in 0..8 {
+        let pick = |k: usize, bit: usize| {
+            if corner >> bit & 1 == 0 {
+                b.min_m[k] - BOX_PAD_M
+            } else {
+                b.max_m[k] + BOX_PAD_M
+            }
+        };
+        let p = view.camera_point([pick(0, 0), pick(1, 1), pick(2, 2)]);
+        near = near.min(p.z);
+        if p.z > NEAR_M {
+            let (u, v) = view.pixel_f32(p);
+            u0 = u0.min(u);
+            v0 = v0.min(v);
+            u1 = u1.max(u);
+            v1 = v1.max(v);
+        }
+    }
+    if !(near > NEAR_M && near.is_finite()) {
+        return None;
+    }
+    let (w, h) = (view.width as f32, view.height as f32);
+    let tile = |x: f32, limit: f32| {
+        ((x.clamp(0.0, limit - 1.0)) as usize / TILE_PX).min(u16::MAX as usize) as u16
+    };
+    Some((
+        1.0 / near,
+        [
+            tile(u0 - RECT_PAD_PX, w),
+            tile(v0 - RECT_PAD_PX, h),
+            tile(u1 + RECT_PAD_PX, w),
+            tile(v1 + RECT_PAD_PX, h),
+        ],
+    ))
 }
 
 /// Chunks in the first batch when `visible` chunks pass the frustum test.
@@ -187,12 +233,18 @@ pub(super) fn first_batch(visible: usize) -> usize {
     (visible / FIRST_BATCH_DIVISOR).max(FIRST_BATCH_MIN)
 }
 
-/// Sets each element of `tiles` (one row of tiles) to the smallest `1/z`
-/// of the `width`-wide band `inv_z` under it (0 where a pixel is empty).
+/// Sets each element of `tiles` (the rows of tiles under one band) to the
+/// smallest `1/z` of the `width`-wide band `inv_z` under it (0 where a
+/// pixel is empty).
 pub(super) fn band_tiles(inv_z: &[f32], width: usize, tiles: &mut [f32]) {
     tiles.fill(f32::INFINITY);
-    for row in inv_z.chunks_exact(width.max(1)) {
-        for (tile, px) in tiles.iter_mut().zip(row.chunks(TILE_PX)) {
+    let tiles_x = width.div_ceil(TILE_PX).max(1);
+    for (y, row) in inv_z.chunks_exact(width.max(1)).enumerate() {
+        let first = y / TILE_PX * tiles_x;
+        let Some(tile_row) = tiles.get_mut(first..first + tiles_x) else {
+            continue;
+        };
+        for (tile, px) in tile_row.iter_mut().zip(row.chunks(TILE_PX)) {
             *tile = px.iter().fold(*tile, |m, &d| m.min(d));
         }
     }
@@ -206,6 +258,23 @@ pub(super) struct TileDepth<'a> {
 }
 
 impl TileDepth<'_> {
+    /// Whether a box whose nearest `1/z` is `near_inv_z` (0: not
+    /// occludable) and whose projection touches tiles `[x0, y0, x1, y1]`
+    /// (as [`screen_box`] gives them) is hidden behind every one of them.
+    #[inline]
+    pub fn hides_box(&self, [x0, y0, x1, y1]: [u16; 4], near_inv_z: f32) -> bool {
+        if near_inv_z == 0.0 {
+            return false;
+        }
+        let limit = near_inv_z * (1.0 + MARGIN);
+        let (x0, x1) = (usize::from(x0), usize::from(x1));
+        (usize::from(y0)..=usize::from(y1)).all(|ty| {
+            self.min_inv_z
+                .get(ty * self.tiles_x + x0..=ty * self.tiles_x + x1)
+                .is_some_and(|row| row.iter().all(|&t| t > limit))
+        })
+    }
+
     /// Whether a triangle whose covered pixel centers lie in columns
     /// `x0..=x1` and rows `y0..=y1` and whose largest vertex `1/z` is
     /// `max_inv_z` is hidden behind every tile it touches.

@@ -12,19 +12,22 @@
 //! While a band is drawn, its depth slice holds `1/z` (0 = empty); the band
 //! is finished by turning it into metric depth.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use super::occlusion::{band_tiles, TILE_PX};
 use super::setup::{Chunk, ScreenTri, BAND_ROWS, NO_TEXTURE};
 use super::view::SUBPIXEL;
 use crate::map::GrayTexture;
 use crate::render::NO_DEPTH;
 
-// A band is one row of occlusion tiles.
-const _: () = assert!(TILE_PX == BAND_ROWS);
+// A band is whole rows of occlusion tiles.
+const _: () = assert!(BAND_ROWS % TILE_PX == 0);
 
 /// Draws band `band` (rows `band * BAND_ROWS ..`) of a `width`-wide image
 /// into `gray` and `depth_m` (the band's rows only), with `order` (as many
 /// pixels) as scratch for the depth tie-break: the triangles of the chunks
-/// numbered in `batch` (of `chunks`); pixels with `1/z` below `min_inv_z`
+/// numbered in `batch` (of `chunks`), marking in `seen` (when given) each
+/// chunk of which a triangle wins a pixel's depth test; pixels with `1/z` below `min_inv_z`
 /// are not drawn. A render may draw a band in several passes (one per
 /// batch of chunks): `first` clears it, `last` turns its `1/z` into metric
 /// depth; in between `depth_m` holds `1/z`, and `tiles`, when given, gets
@@ -35,7 +38,7 @@ pub(super) fn draw_band(
     width: usize,
     min_inv_z: f32,
     (first, last): (bool, bool),
-    (chunks, batch): (&[Chunk], &[u32]),
+    (chunks, batch, seen): (&[Chunk], &[u32], Option<&[AtomicBool]>),
     textures: &[GrayTexture],
     gray: &mut [f32],
     depth_m: &mut [f32],
@@ -58,12 +61,23 @@ pub(super) fn draw_band(
         inv_z: depth_m,
         order,
     };
-    for chunk in batch.iter().filter_map(|&i| chunks.get(i as usize)) {
-        if let Some(bin) = chunk.bins.get(band) {
-            for &t in bin {
-                if let Some(tri) = chunk.tris.get(t as usize) {
-                    target.draw(tri, textures);
-                }
+    for &i in batch {
+        let Some(bin) = chunks
+            .get(i as usize)
+            .and_then(|c| Some((c, c.bins.get(band)?)))
+        else {
+            continue;
+        };
+        let (chunk, bin) = bin;
+        let mut won = false;
+        for &t in bin {
+            if let Some(tri) = chunk.tris.get(t as usize) {
+                won |= target.draw(tri, textures);
+            }
+        }
+        if won {
+            if let Some(flag) = seen.and_then(|s| s.get(i as usize)) {
+                flag.store(true, Ordering::Relaxed);
             }
         }
     }
@@ -119,8 +133,9 @@ impl Edge {
 }
 
 impl Band<'_> {
+    /// Draws `tri`; true when it won the depth test on some pixel.
     #[inline]
-    fn draw(&mut self, tri: &ScreenTri, textures: &[GrayTexture]) {
+    fn draw(&mut self, tri: &ScreenTri, textures: &[GrayTexture]) -> bool {
         let plane = |a: [f32; 3]| {
             let a0 = f64::from(a[0]);
             (a0, f64::from(a[1]) - a0, f64::from(a[2]) - a0)
@@ -137,6 +152,7 @@ impl Band<'_> {
         let (y0, width, min_inv_z) = (self.y0, self.width, self.min_inv_z);
         let (gray, inv_z_buf, order_buf) = (&mut *self.gray, &mut *self.inv_z, &mut *self.order);
         let order = tri.order;
+        let mut won = false;
         for_each_span(tri, y0, y_hi, |span, dw1, dw2| {
             let start = (span.y - y0) * width + span.x_start;
             let end = (span.y - y0) * width + span.x_end;
@@ -154,6 +170,7 @@ impl Band<'_> {
                 if (inv_z32 > *d || (inv_z32 == *d && order < *o)) && inv_z32 >= min_inv_z {
                     *d = inv_z32;
                     *o = order;
+                    won = true;
                     let z = 1.0 / inv_z;
                     let mut g = (gz.0 + w1 * gz.1 + w2 * gz.2) * z;
                     if let Some(tex) = texture {
@@ -167,6 +184,7 @@ impl Band<'_> {
                 w2 += dw2;
             }
         });
+        won
     }
 }
 
