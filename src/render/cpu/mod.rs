@@ -10,24 +10,30 @@
 //! At construction the mesh is split into spatial chunks
 //! ([`crate::render::chunks`]); a render sets up only the chunks whose box
 //! meets the view frustum (cut at the far limit, when one is set with
-//! [`CpuRenderer::set_far_m`]), and of those, in nearest-first batches,
-//! skips the ones hidden behind what earlier batches drew ([`occlusion`]),
-//! so its cost follows what is visible.
+//! [`CpuRenderer::set_far_m`]), and draws them in batches (first what the
+//! previous render saw when its camera was near, then nearest first),
+//! skipping the chunks, the clusters of 256 triangles and the triangles
+//! hidden behind what earlier batches drew ([`occlusion`]), so its cost
+//! follows what is visible.
 //!
-//! Pipeline, each stage parallel over fixed work units (rayon):
-//! 1. [`setup`], per visible chunk: its vertices into the camera frame
-//!    ([`view`]: outcodes, projection to fixed-point pixels, 8 fraction
-//!    bits, pixel centers at integers), then its triangles culled, clipped
-//!    against the near plane (`z = 0.05 m`) and the guard band ([`clip`]),
-//!    and binned into bands of [`setup::BAND_ROWS`] rows;
+//! Pipeline, per batch, each stage parallel over fixed work units (rayon):
+//! 1. [`setup`], per chunk of the batch, cluster by cluster (a cluster
+//!    outside the frustum or hidden is skipped whole): its vertices into
+//!    the camera frame ([`view`]: outcodes, projection to fixed-point
+//!    pixels, 8 fraction bits, pixel centers at integers), then its
+//!    triangles culled, clipped against the near plane (`z = 0.05 m`) and
+//!    the guard band ([`clip`]), and, unless hidden, binned into bands of
+//!    [`setup::BAND_ROWS`] rows;
 //! 2. [`raster`]: per band, integer edge functions with a top-left rule,
-//!    z-buffer on `1/z`, perspective-correct interpolation, shading.
+//!    z-buffer on `1/z`, perspective-correct interpolation, shading; then
+//!    the band's occlusion tiles for the next batch.
 //!
 //! Each band is owned by one task and sees its triangles in a fixed order;
 //! of two at equal depth on a pixel the one first in mesh order wins (a
 //! per-pixel triangle number breaks the tie), so the output is the same as
 //! drawing the whole mesh in mesh order, bit for bit, for any thread count
-//! and with or without the chunk cull. No back-face culling. All scratch
+//! and with or without the culls, whatever was rendered before. No
+//! back-face culling. All scratch
 //! (camera-frame vertices, sized at construction; screen triangles and bins,
 //! which grow per chunk to the most it has shown, as before the cull) lives
 //! in the renderer and keeps its capacity, so steady-state renders do not
@@ -53,7 +59,7 @@ use rayon::iter::Either;
 use rayon::prelude::*;
 
 use self::occlusion::Occlusion;
-use self::setup::{Chunk, BAND_ROWS, NO_TEXTURE};
+use self::setup::{Chunk, Clusters, BAND_ROWS, NO_TEXTURE};
 use self::view::{View, NEAR_M};
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::{GrayTexture, Mesh};
@@ -109,7 +115,7 @@ impl CpuRenderer {
     pub fn new(mesh: Arc<Mesh>) -> Result<Self, RenderError> {
         validate::validate_mesh(&mesh)?;
         let chunked = ChunkedMesh::build(&mesh)?;
-        let chunks = chunked
+        let chunks: Vec<Chunk> = chunked
             .chunks
             .iter()
             .map(|c| {
@@ -124,6 +130,7 @@ impl CpuRenderer {
             })
             .collect();
         let chunked_count = chunked.chunks.len();
+        let occlusion = Occlusion::new(chunks.iter().map(Chunk::cluster_count));
         Ok(Self {
             visible: vec![true; chunked.chunks.len()],
             mesh,
@@ -135,7 +142,7 @@ impl CpuRenderer {
             stats: CullStats::default(),
             far_m: None,
             occlusion_cull: true,
-            occlusion: Occlusion::new(chunked_count),
+            occlusion,
             in_batch: vec![false; chunked_count],
             batch: Vec::with_capacity(chunked_count),
             binned_triangles: 0,
@@ -378,9 +385,9 @@ fn draw(
                     occ.order
                         .iter()
                         .copied()
-                        .filter(|&i| occ.seen_before.get(i as usize) == Some(&true)),
+                        .filter(|&i| occ.chunk_seen_before.get(i as usize) == Some(&true)),
                 );
-                occ.order.len() == batch.len()
+                false
             }
             Some(occ) => {
                 let order = &occ.order;
@@ -394,11 +401,12 @@ fn draw(
                 while cursor < order.len() && batch.len() < quota {
                     let i = order[cursor];
                     cursor += 1;
-                    if occ.coherent && occ.seen_before.get(i as usize) == Some(&true) {
-                        // Drawn in the first batch.
-                        continue;
-                    }
+                    let drawn_before = occ.chunk_seen_before.get(i as usize) == Some(&true);
                     if pass > 0 && occ.hidden(i as usize) {
+                        if drawn_before {
+                            // Its other clusters are hidden.
+                            continue;
+                        }
                         skipped.0 += 1;
                         skipped.1 += mesh
                             .chunks
@@ -420,15 +428,38 @@ fn draw(
             .as_deref()
             .filter(|_| pass > 0)
             .map(Occlusion::tiles);
+        let occ = occlusion.as_deref();
         chunks
             .par_iter_mut()
             .zip(mesh.chunks.par_iter())
             .zip(in_batch.par_iter())
+            .enumerate()
             .with_min_len(64)
-            .for_each(|((scratch, chunk), &set_up)| {
-                if set_up {
-                    scratch.build(chunk, mesh, view, bands, (frustum, occluders));
+            .for_each(|(i, ((scratch, chunk), &set_up))| {
+                if !set_up {
+                    return;
                 }
+                // With a coherent first batch, each chunk's clusters the
+                // previous render saw are drawn in it, the rest later.
+                let clusters = match occ {
+                    Some(occ) if occ.coherent && occ.chunk_seen_before.get(i) == Some(&true) => {
+                        let before = occ.clusters_seen_before(i);
+                        if pass == 0 {
+                            Clusters::Only(before)
+                        } else {
+                            Clusters::Except(before)
+                        }
+                    }
+                    _ => Clusters::All,
+                };
+                let first_cluster = occ.map_or(0, |o| o.first_cluster(i));
+                scratch.build(
+                    chunk,
+                    mesh,
+                    (view, bands),
+                    (frustum, occluders),
+                    (clusters, first_cluster),
+                );
             });
         for &i in batch.iter() {
             if let Some(slot) = in_batch.get_mut(i as usize) {

@@ -69,13 +69,18 @@ pub(super) struct Occlusion {
     tile_min_inv_z: Vec<f32>,
     tiles_x: usize,
     tiles_y: usize,
-    /// Per chunk: whether a triangle of it won a pixel's depth test in the
-    /// render being drawn (set by the raster bands).
+    /// Per chunk, the number of its first cluster (of the setup clusters,
+    /// numbered chunk by chunk); one more element for the end.
+    cluster_first: Vec<u32>,
+    /// Per cluster: whether a triangle of it won a pixel's depth test in
+    /// the render being drawn (set by the raster bands).
     pub seen: Vec<AtomicBool>,
-    /// Per chunk: whether the previous render, from nearby, marked it
-    /// [`Occlusion::seen`]: the first batch of this one.
-    pub seen_before: Vec<bool>,
-    /// Whether `seen_before` holds any chunk.
+    /// Per cluster: whether the previous render, from nearby, marked it
+    /// [`Occlusion::seen`]: the first batch of this one draws these.
+    seen_before: Vec<bool>,
+    /// Per chunk: whether any of its clusters is `seen_before`.
+    pub chunk_seen_before: Vec<bool>,
+    /// Whether `seen_before` holds any cluster.
     pub coherent: bool,
     /// Camera position of the previous render with the cull, world frame,
     /// meters.
@@ -83,16 +88,37 @@ pub(super) struct Occlusion {
 }
 
 impl Occlusion {
-    /// Scratch for `chunks` chunks.
-    pub fn new(chunks: usize) -> Self {
+    /// Scratch for chunks of `clusters[i]` setup clusters each.
+    pub fn new(clusters: impl Iterator<Item = usize>) -> Self {
+        let mut cluster_first = vec![0u32];
+        for n in clusters {
+            let last = cluster_first.last().copied().unwrap_or(0);
+            cluster_first.push(last.saturating_add(n as u32));
+        }
+        let chunks = cluster_first.len() - 1;
+        let total = cluster_first.last().copied().unwrap_or(0) as usize;
         Self {
             near_inv_z: vec![0.0; chunks],
             rect: vec![[0; 4]; chunks],
             order: Vec::with_capacity(chunks),
-            seen: (0..chunks).map(|_| AtomicBool::new(false)).collect(),
-            seen_before: vec![false; chunks],
+            cluster_first,
+            seen: (0..total).map(|_| AtomicBool::new(false)).collect(),
+            seen_before: vec![false; total],
+            chunk_seen_before: vec![false; chunks],
             ..Self::default()
         }
+    }
+
+    /// The first cluster number of chunk `i`.
+    pub fn first_cluster(&self, i: usize) -> usize {
+        self.cluster_first.get(i).copied().unwrap_or(0) as usize
+    }
+
+    /// Per cluster of chunk `i`, whether the previous render saw it.
+    pub fn clusters_seen_before(&self, i: usize) -> &[bool] {
+        let first = self.first_cluster(i);
+        let end = self.first_cluster(i + 1).max(first);
+        self.seen_before.get(first..end).unwrap_or(&[])
     }
 
     /// Measures every visible chunk's box in `view` and orders the visible
@@ -111,13 +137,23 @@ impl Occlusion {
             d2 < COHERENT_M * COHERENT_M
         });
         self.last_position_m = Some(position_m);
-        self.seen
-            .resize_with(chunks.len(), || AtomicBool::new(false));
-        self.seen_before.resize(chunks.len(), false);
+        self.chunk_seen_before.resize(chunks.len(), false);
         self.coherent = false;
-        for ((before, seen), &in_view) in self.seen_before.iter_mut().zip(&self.seen).zip(visible) {
-            *before = near && in_view && seen.swap(false, Ordering::Relaxed);
-            self.coherent |= *before;
+        for (i, (any, &in_view)) in self.chunk_seen_before.iter_mut().zip(visible).enumerate() {
+            let first = self.cluster_first.get(i).copied().unwrap_or(0) as usize;
+            let end = (self.cluster_first.get(i + 1).copied().unwrap_or(0) as usize).max(first);
+            let (Some(before), Some(seen)) = (
+                self.seen_before.get_mut(first..end),
+                self.seen.get(first..end),
+            ) else {
+                continue;
+            };
+            *any = false;
+            for (b, s) in before.iter_mut().zip(seen) {
+                *b = near && in_view && s.swap(false, Ordering::Relaxed);
+                *any |= *b;
+            }
+            self.coherent |= *any;
         }
         self.tiles_x = view.width.div_ceil(TILE_PX);
         self.tiles_y = view.height.div_ceil(TILE_PX);
@@ -158,7 +194,7 @@ impl Occlusion {
 
     /// What the raster bands write: the tiles, to fill, with the number of
     /// them under one band ([`BAND_ROWS`]` / `[`TILE_PX`] rows of
-    /// `tiles_x`), and the per-chunk flags of [`Occlusion::seen`].
+    /// `tiles_x`), and the per-cluster flags of [`Occlusion::seen`].
     pub fn raster_targets(&mut self) -> (&mut [f32], usize, &[AtomicBool]) {
         (
             &mut self.tile_min_inv_z,

@@ -26,8 +26,9 @@ const _: () = assert!(BAND_ROWS % TILE_PX == 0);
 /// Draws band `band` (rows `band * BAND_ROWS ..`) of a `width`-wide image
 /// into `gray` and `depth_m` (the band's rows only), with `order` (as many
 /// pixels) as scratch for the depth tie-break: the triangles of the chunks
-/// numbered in `batch` (of `chunks`), marking in `seen` (when given) each
-/// chunk of which a triangle wins a pixel's depth test; pixels with `1/z` below `min_inv_z`
+/// numbered in `batch` (of `chunks`), marking in `seen` (when given, per
+/// cluster of [`Chunk`]) each cluster of which a triangle wins a pixel's
+/// depth test; pixels with `1/z` below `min_inv_z`
 /// are not drawn. A render may draw a band in several passes (one per
 /// batch of chunks): `first` clears it, `last` turns its `1/z` into metric
 /// depth; in between `depth_m` holds `1/z`, and `tiles`, when given, gets
@@ -69,15 +70,16 @@ pub(super) fn draw_band(
             continue;
         };
         let (chunk, bin) = bin;
-        let mut won = false;
         for &t in bin {
             if let Some(tri) = chunk.tris.get(t as usize) {
-                won |= target.draw(tri, textures);
-            }
-        }
-        if won {
-            if let Some(flag) = seen.and_then(|s| s.get(i as usize)) {
-                flag.store(true, Ordering::Relaxed);
+                if target.draw(tri, textures) {
+                    let cluster = chunk.tri_cluster.get(t as usize).copied().unwrap_or(0);
+                    if let Some(flag) =
+                        seen.and_then(|s| s.get(chunk.first_cluster + usize::from(cluster)))
+                    {
+                        flag.store(true, Ordering::Relaxed);
+                    }
+                }
             }
         }
     }

@@ -60,10 +60,40 @@ pub(super) struct Chunk {
     /// The chunk's triangles in runs of [`CLUSTER_TRIS`], each tested
     /// against the view before its vertices are transformed.
     clusters: Vec<Cluster>,
+    /// Per screen triangle, the number of its cluster in the chunk.
+    pub tri_cluster: Vec<u8>,
+    /// The number of the chunk's first cluster among all chunks' (as the
+    /// current render's setup was told).
+    pub first_cluster: usize,
+}
+
+/// Which of a chunk's clusters to set up.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Clusters<'a> {
+    /// All of them.
+    All,
+    /// Those marked true (one flag per cluster).
+    Only(&'a [bool]),
+    /// Those not marked true.
+    Except(&'a [bool]),
+}
+
+impl Clusters<'_> {
+    /// Whether cluster `k` is set up.
+    fn takes(&self, k: usize) -> bool {
+        match self {
+            Self::All => true,
+            Self::Only(flags) => flags.get(k) == Some(&true),
+            Self::Except(flags) => flags.get(k) != Some(&true),
+        }
+    }
 }
 
 /// Triangles per cluster (the last of a chunk may have fewer).
 pub(super) const CLUSTER_TRIS: usize = 256;
+
+// A cluster's number within its chunk fits `u8`.
+const _: () = assert!(crate::render::chunks::MAX_CHUNK_TRIS / CLUSTER_TRIS <= 256);
 
 /// A run of consecutive triangles of one chunk, with the chunk-local range
 /// of vertices they use and their bounds.
@@ -132,22 +162,30 @@ impl Chunk {
         }
     }
 
+    /// Number of setup clusters.
+    pub fn cluster_count(&self) -> usize {
+        self.clusters.len()
+    }
+
     /// Sets up and bins the triangles of `chunk` (of `mesh`) for `view`,
-    /// cluster by cluster: a cluster outside `frustum` (when given) or
-    /// hidden behind `occluders` (the depth drawn so far, per tile) is
-    /// skipped whole; of the others the vertices are transformed and each
-    /// triangle that `occluders` does not hide is binned. `bands` is the
-    /// number of bands of the image.
+    /// cluster by cluster, of the clusters `which` takes: a cluster outside
+    /// `frustum` (when given) or hidden behind `occluders` (the depth drawn
+    /// so far, per tile) is skipped whole; of the others the vertices are
+    /// transformed and each triangle that `occluders` does not hide is
+    /// binned. `bands` is the number of bands of the image;
+    /// `first_cluster` the number of the chunk's first cluster.
     pub fn build(
         &mut self,
         chunk: &MeshChunk,
         mesh: &ChunkedMesh,
-        view: &View,
-        bands: usize,
+        (view, bands): (&View, usize),
         (frustum, occluders): (Option<&Frustum>, Option<TileDepth<'_>>),
+        (which, first_cluster): (Clusters<'_>, usize),
     ) {
         let texture = self.texture;
+        self.first_cluster = first_cluster;
         self.tris.clear();
+        self.tri_cluster.clear();
         if self.bins.len() != bands {
             self.bins.resize_with(bands, Vec::new);
         }
@@ -170,8 +208,8 @@ impl Chunk {
         let orders = mesh.source_triangle.get(t0..t1).unwrap_or(&[]);
         // The local vertices transformed in this render so far: `done`.
         let mut done = 0..0;
-        for cluster in &clusters {
-            if frustum.is_some_and(|f| !f.intersects(&cluster.bounds)) {
+        for (number, cluster) in clusters.iter().enumerate() {
+            if !which.takes(number) || frustum.is_some_and(|f| !f.intersects(&cluster.bounds)) {
                 continue;
             }
             if let Some(tiles) = occluders {
@@ -254,6 +292,8 @@ impl Chunk {
                     }
                 }
             }
+            // The triangles just binned are of this cluster.
+            self.tri_cluster.resize(self.tris.len(), number as u8);
         }
         // Keeps the capacity for the next render.
         self.verts = verts;
