@@ -21,7 +21,10 @@
 //! (VmRSS) after loading and with each renderer built, and the wgpu
 //! renderer's device memory (mesh buffers, textures, targets).
 //!
-//! `--cpu-default` times only the CPU rasterizer with its default cull.
+//! `--cpu-default` times only the CPU rasterizer with its default cull;
+//! `--interleaved` times only that, on all the datasets in alternating
+//! blocks (so that a changing machine load falls on each alike), and prints
+//! each median's ratio to the first dataset's.
 //!
 //! Run: `cargo bench --bench render_map -- /tmp/sc1 /tmp/rs1` (a TSDF map
 //! of `star synth --scanned`, and `star synth --preset realistic`); for
@@ -254,6 +257,71 @@ fn bench_dataset(dir: &Path, only: Only) {
     }
 }
 
+/// Blocks of each dataset's renders in turn.
+const INTERLEAVED_ROUNDS: usize = 6;
+
+/// One dataset of [`bench_interleaved`]: its renderer, camera, poses,
+/// output and render times.
+struct Interleaved {
+    cpu: CpuRenderer,
+    camera: PinholeCamera,
+    poses: Vec<Pose>,
+    out: RenderedView,
+    samples_ms: Vec<f64>,
+}
+
+/// The CPU rasterizer (default cull) on every dataset, in alternating
+/// blocks: all poses of the first dataset, then of the second, and so on,
+/// [`INTERLEAVED_ROUNDS`] times, so that a change of the machine's load
+/// falls on all of them alike (a block keeps its renders in trajectory
+/// order, as a tracker renders keyframes). Prints each median and p95 and
+/// the ratio of each median to the first dataset's.
+fn bench_interleaved(dirs: &[PathBuf]) {
+    let mut runs: Vec<Interleaved> = dirs
+        .iter()
+        .map(|dir| {
+            let (mesh, camera, poses, far_m) = load(dir);
+            let mut cpu = CpuRenderer::new(Arc::new(mesh)).expect("valid mesh");
+            cpu.set_far_m(far_m);
+            let out = RenderedView::for_camera(&camera);
+            Interleaved {
+                cpu,
+                camera,
+                poses,
+                out,
+                samples_ms: Vec::new(),
+            }
+        })
+        .collect();
+    for r in &mut runs {
+        for p in &r.poses {
+            r.cpu.render(p, &r.camera, &mut r.out).expect("render");
+        }
+    }
+    for _ in 0..INTERLEAVED_ROUNDS {
+        for r in &mut runs {
+            for p in &r.poses {
+                let t = Instant::now();
+                r.cpu.render(p, &r.camera, &mut r.out).expect("render");
+                r.samples_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+    }
+    println!("interleaved, cpu (default cull), {INTERLEAVED_ROUNDS} alternating blocks of each dataset's poses:");
+    let mut first_median = None;
+    for (dir, r) in dirs.iter().zip(&mut runs) {
+        let n = r.samples_ms.len();
+        let (median, p95) = median_p95(&mut r.samples_ms);
+        let first = *first_median.get_or_insert(median);
+        println!(
+            "  {}: median {median:.1} ms, p95 {p95:.1} ms over {n} renders ({} threads); {:.2}x the first",
+            dir.display(),
+            r.cpu.threads(),
+            median / first,
+        );
+    }
+}
+
 fn main() {
     let dirs: Vec<PathBuf> = std::env::args()
         .skip(1)
@@ -262,6 +330,10 @@ fn main() {
         .collect();
     if dirs.is_empty() {
         println!("render_map: no dataset given (cargo bench --bench render_map -- DATASET...)");
+        return;
+    }
+    if std::env::args().any(|a| a == "--interleaved") {
+        bench_interleaved(&dirs);
         return;
     }
     let only = Only {
