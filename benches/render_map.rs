@@ -4,7 +4,9 @@
 //! `groundtruth.txt` (every 10th of 500; each rendered `ROUNDS` times): median and p95, with the
 //! mesh size and the share of triangles in chunks that pass the frustum
 //! test (what the renderers set up and draw; for the CPU rasterizer less
-//! the chunks its occlusion cull skips), mean and range over the poses. Both renderers are also timed with the chunk cull off (every
+//! the chunks its occlusion cull skips), mean and range over the poses, and
+//! for the CPU rasterizer the screen triangles it binned and the mesh
+//! triangles that own a pixel, mean per view. Both renderers are also timed with the chunk cull off (every
 //! triangle set up and drawn, as before the cull), for a comparison within
 //! one run.
 //!
@@ -18,6 +20,11 @@
 //! Also printed: the map's load time, the process's resident memory
 //! (VmRSS) after loading and with each renderer built, and the wgpu
 //! renderer's device memory (mesh buffers, textures, targets).
+//!
+//! `--cpu-default` times only the CPU rasterizer with its default cull;
+//! `--interleaved` times only that, on all the datasets in alternating
+//! blocks (so that a changing machine load falls on each alike), and prints
+//! each median's ratio to the first dataset's.
 //!
 //! Run: `cargo bench --bench render_map -- /tmp/sc1 /tmp/rs1` (a TSDF map
 //! of `star synth --scanned`, and `star synth --preset realistic`); for
@@ -125,7 +132,14 @@ fn time_renders(
     (median, p95, n)
 }
 
-fn bench_dataset(dir: &Path) {
+/// Which measurements to take.
+#[derive(Clone, Copy)]
+struct Only {
+    /// `--cpu-default`: only the CPU rasterizer with its default cull.
+    cpu_default: bool,
+}
+
+fn bench_dataset(dir: &Path, only: Only) {
     let rss_before_mb = status_mb("VmRSS:");
     let t = Instant::now();
     let (mesh, camera, poses, far_m) = load(dir);
@@ -162,10 +176,13 @@ fn bench_dataset(dir: &Path) {
     );
     let split_vertices = ChunkedMesh::build(&mesh).expect("chunks").positions.len();
     let mut out = RenderedView::for_camera(&camera);
+    let (mut binned, mut seen_triangles) = (0, 0);
     let fractions: Vec<f64> = poses
         .iter()
         .map(|p| {
             cpu.render(p, &camera, &mut out).expect("render");
+            binned += cpu.binned_triangles();
+            seen_triangles += cpu.seen(&out).2;
             cpu.cull_stats().visible_fraction()
         })
         .collect();
@@ -178,12 +195,23 @@ fn bench_dataset(dir: &Path) {
         100.0 * fractions.iter().copied().fold(f64::INFINITY, f64::min),
         100.0 * fractions.iter().copied().fold(0.0, f64::max),
     );
+    println!(
+        "  per view: {:.0} screen triangles binned, {:.0} mesh triangles seen (owning a pixel)",
+        binned as f64 / poses.len().max(1) as f64,
+        seen_triangles as f64 / poses.len().max(1) as f64,
+    );
     // Frustum and occlusion cull (the default), frustum only, none.
-    for (cull, occlusion, what) in [
+    let modes = [
         (true, true, "frustum + occlusion"),
         (true, false, "frustum only"),
         (false, false, "off"),
-    ] {
+    ];
+    let modes = if only.cpu_default {
+        &modes[..1]
+    } else {
+        &modes[..]
+    };
+    for &(cull, occlusion, what) in modes {
         cpu.set_frustum_cull(cull);
         cpu.set_occlusion_cull(occlusion);
         let (median, p95, n) = time_renders(&mut cpu, &camera, &poses);
@@ -193,6 +221,9 @@ fn bench_dataset(dir: &Path) {
         );
     }
     drop(cpu);
+    if only.cpu_default {
+        return;
+    }
 
     let t = Instant::now();
     match GpuRenderer::new(Arc::clone(&mesh), AdapterPreference::Software) {
@@ -226,6 +257,71 @@ fn bench_dataset(dir: &Path) {
     }
 }
 
+/// Blocks of each dataset's renders in turn.
+const INTERLEAVED_ROUNDS: usize = 6;
+
+/// One dataset of [`bench_interleaved`]: its renderer, camera, poses,
+/// output and render times.
+struct Interleaved {
+    cpu: CpuRenderer,
+    camera: PinholeCamera,
+    poses: Vec<Pose>,
+    out: RenderedView,
+    samples_ms: Vec<f64>,
+}
+
+/// The CPU rasterizer (default cull) on every dataset, in alternating
+/// blocks: all poses of the first dataset, then of the second, and so on,
+/// [`INTERLEAVED_ROUNDS`] times, so that a change of the machine's load
+/// falls on all of them alike (a block keeps its renders in trajectory
+/// order, as a tracker renders keyframes). Prints each median and p95 and
+/// the ratio of each median to the first dataset's.
+fn bench_interleaved(dirs: &[PathBuf]) {
+    let mut runs: Vec<Interleaved> = dirs
+        .iter()
+        .map(|dir| {
+            let (mesh, camera, poses, far_m) = load(dir);
+            let mut cpu = CpuRenderer::new(Arc::new(mesh)).expect("valid mesh");
+            cpu.set_far_m(far_m);
+            let out = RenderedView::for_camera(&camera);
+            Interleaved {
+                cpu,
+                camera,
+                poses,
+                out,
+                samples_ms: Vec::new(),
+            }
+        })
+        .collect();
+    for r in &mut runs {
+        for p in &r.poses {
+            r.cpu.render(p, &r.camera, &mut r.out).expect("render");
+        }
+    }
+    for _ in 0..INTERLEAVED_ROUNDS {
+        for r in &mut runs {
+            for p in &r.poses {
+                let t = Instant::now();
+                r.cpu.render(p, &r.camera, &mut r.out).expect("render");
+                r.samples_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+    }
+    println!("interleaved, cpu (default cull), {INTERLEAVED_ROUNDS} alternating blocks of each dataset's poses:");
+    let mut first_median = None;
+    for (dir, r) in dirs.iter().zip(&mut runs) {
+        let n = r.samples_ms.len();
+        let (median, p95) = median_p95(&mut r.samples_ms);
+        let first = *first_median.get_or_insert(median);
+        println!(
+            "  {}: median {median:.1} ms, p95 {p95:.1} ms over {n} renders ({} threads); {:.2}x the first",
+            dir.display(),
+            r.cpu.threads(),
+            median / first,
+        );
+    }
+}
+
 fn main() {
     let dirs: Vec<PathBuf> = std::env::args()
         .skip(1)
@@ -236,7 +332,14 @@ fn main() {
         println!("render_map: no dataset given (cargo bench --bench render_map -- DATASET...)");
         return;
     }
+    if std::env::args().any(|a| a == "--interleaved") {
+        bench_interleaved(&dirs);
+        return;
+    }
+    let only = Only {
+        cpu_default: std::env::args().any(|a| a == "--cpu-default"),
+    };
     for dir in &dirs {
-        bench_dataset(dir);
+        bench_dataset(dir, only);
     }
 }

@@ -10,29 +10,36 @@
 //! At construction the mesh is split into spatial chunks
 //! ([`crate::render::chunks`]); a render sets up only the chunks whose box
 //! meets the view frustum (cut at the far limit, when one is set with
-//! [`CpuRenderer::set_far_m`]), and of those, in nearest-first batches,
-//! skips the ones hidden behind what earlier batches drew ([`occlusion`]),
-//! so its cost follows what is visible.
+//! [`CpuRenderer::set_far_m`]), and draws them in batches (first what the
+//! previous render saw when its camera was near, then nearest first),
+//! skipping the chunks, the clusters of 256 triangles and the triangles
+//! hidden behind what earlier batches drew ([`occlusion`]), so its cost
+//! follows what is visible.
 //!
-//! Pipeline, each stage parallel over fixed work units (rayon):
-//! 1. [`setup`], per visible chunk: its vertices into the camera frame
-//!    ([`view`]: outcodes, projection to fixed-point pixels, 8 fraction
-//!    bits, pixel centers at integers), then its triangles culled, clipped
-//!    against the near plane (`z = 0.05 m`) and the guard band ([`clip`]),
-//!    and binned into bands of [`setup::BAND_ROWS`] rows;
+//! Pipeline, per batch, each stage parallel over fixed work units (rayon):
+//! 1. [`setup`], per chunk of the batch, cluster by cluster (a cluster
+//!    outside the frustum or hidden is skipped whole): its vertices into
+//!    the camera frame ([`view`]: outcodes, projection to fixed-point
+//!    pixels, 8 fraction bits, pixel centers at integers), then its
+//!    triangles culled, clipped against the near plane (`z = 0.05 m`) and
+//!    the guard band ([`clip`]), and, unless hidden, binned into bands of
+//!    [`setup::BAND_ROWS`] rows;
 //! 2. [`raster`]: per band, integer edge functions with a top-left rule,
-//!    z-buffer on `1/z`, perspective-correct interpolation, shading.
+//!    z-buffer on `1/z`, perspective-correct interpolation, shading; then
+//!    the band's occlusion tiles for the next batch.
 //!
 //! Each band is owned by one task and sees its triangles in a fixed order;
 //! of two at equal depth on a pixel the one first in mesh order wins (a
 //! per-pixel triangle number breaks the tie), so the output is the same as
 //! drawing the whole mesh in mesh order, bit for bit, for any thread count
-//! and with or without the chunk cull. No back-face culling. All scratch
+//! and with or without the culls, whatever was rendered before. No
+//! back-face culling. All scratch
 //! (camera-frame vertices, sized at construction; screen triangles and bins,
 //! which grow per chunk to the most it has shown, as before the cull) lives
 //! in the renderer and keeps its capacity, so steady-state renders do not
 //! allocate beyond what rayon does to schedule tasks.
 
+mod batches;
 mod clip;
 mod occlusion;
 mod raster;
@@ -49,14 +56,13 @@ mod tests_scenes;
 
 use std::sync::Arc;
 
-use rayon::prelude::*;
-
+use self::batches::draw;
 use self::occlusion::Occlusion;
-use self::setup::{Chunk, BAND_ROWS, NO_TEXTURE};
+use self::setup::{Chunk, NO_TEXTURE};
 use self::view::{View, NEAR_M};
 use crate::geometry::{PinholeCamera, Pose};
-use crate::map::{GrayTexture, Mesh};
-use crate::render::chunks::{ChunkedMesh, CullStats, MeshChunk};
+use crate::map::Mesh;
+use crate::render::chunks::{ChunkedMesh, CullStats};
 use crate::render::frustum::Frustum;
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
@@ -87,6 +93,10 @@ pub struct CpuRenderer {
     occlusion: Occlusion,
     /// Per chunk, whether it is set up in the current batch.
     in_batch: Vec<bool>,
+    /// The chunks of the current batch.
+    batch: Vec<u32>,
+    /// Screen triangles binned in the last render.
+    binned_triangles: usize,
 }
 
 impl std::fmt::Debug for CpuRenderer {
@@ -104,12 +114,13 @@ impl CpuRenderer {
     pub fn new(mesh: Arc<Mesh>) -> Result<Self, RenderError> {
         validate::validate_mesh(&mesh)?;
         let chunked = ChunkedMesh::build(&mesh)?;
-        let chunks = chunked
+        let chunks: Vec<Chunk> = chunked
             .chunks
             .iter()
             .map(|c| {
                 Chunk::new(
                     c,
+                    &chunked,
                     mesh.groups
                         .get(c.group as usize)
                         .and_then(|g| g.texture)
@@ -118,6 +129,7 @@ impl CpuRenderer {
             })
             .collect();
         let chunked_count = chunked.chunks.len();
+        let occlusion = Occlusion::new(chunks.iter().map(Chunk::cluster_count));
         Ok(Self {
             visible: vec![true; chunked.chunks.len()],
             mesh,
@@ -129,8 +141,10 @@ impl CpuRenderer {
             stats: CullStats::default(),
             far_m: None,
             occlusion_cull: true,
-            occlusion: Occlusion::new(chunked_count),
+            occlusion,
             in_batch: vec![false; chunked_count],
+            batch: Vec::with_capacity(chunked_count),
+            binned_triangles: 0,
         })
     }
 
@@ -172,6 +186,13 @@ impl CpuRenderer {
         self.stats
     }
 
+    /// Screen triangles the last render binned for rasterization: those of
+    /// the chunks it set up that cover a pixel center, after near-plane
+    /// clipping, less those the occlusion cull dropped.
+    pub fn binned_triangles(&self) -> usize {
+        self.binned_triangles
+    }
+
     /// Turns the skipping of chunks hidden behind nearer ones on (the
     /// default) or off. It works only with the frustum cull on. The output
     /// is the same either way.
@@ -184,6 +205,57 @@ impl CpuRenderer {
     /// beyond it are not set up.
     pub fn set_far_m(&mut self, far_m: Option<f64>) {
         self.far_m = far_m.filter(|f| f.is_finite() && *f > f64::from(NEAR_M));
+    }
+
+    /// Chunks and triangles of the chunks that own at least one pixel of
+    /// the last render's image (`out`, as it left it): what an exact
+    /// chunk-level visibility cull would still have to draw. For benchmarks
+    /// and tests; allocates.
+    pub fn seen_chunks(&self, out: &RenderedView) -> (usize, usize) {
+        let (chunks, triangles, _) = self.seen(out);
+        (chunks, triangles)
+    }
+
+    /// [`CpuRenderer::seen_chunks`], and the number of mesh triangles that
+    /// own at least one pixel.
+    pub fn seen(&self, out: &RenderedView) -> (usize, usize, usize) {
+        let mut chunk_of = vec![0u32; self.chunked.triangle_count()];
+        for (c, chunk) in self.chunked.chunks.iter().enumerate() {
+            for t in chunk.triangles.clone() {
+                if let Some(&src) = self.chunked.source_triangle.get(t as usize) {
+                    if let Some(slot) = chunk_of.get_mut(src as usize) {
+                        *slot = c as u32;
+                    }
+                }
+            }
+        }
+        let mut seen = vec![false; self.chunked.chunks.len()];
+        let mut seen_triangle = vec![false; self.chunked.triangle_count()];
+        for (&d, &t) in out.depth_m.data().iter().zip(&self.tri_order) {
+            if RenderedView::is_hit(d) {
+                if let Some(s) = seen_triangle.get_mut(t as usize) {
+                    *s = true;
+                }
+                if let Some(&c) = chunk_of.get(t as usize) {
+                    if let Some(s) = seen.get_mut(c as usize) {
+                        *s = true;
+                    }
+                }
+            }
+        }
+        let triangles = self
+            .chunked
+            .chunks
+            .iter()
+            .zip(&seen)
+            .filter(|(_, &s)| s)
+            .map(|(c, _)| c.triangle_count())
+            .sum();
+        (
+            seen.iter().filter(|&&s| s).count(),
+            triangles,
+            seen_triangle.iter().filter(|&&s| s).count(),
+        )
     }
 
     /// Bytes the renderer holds for the mesh: the chunked copy (vertices,
@@ -228,118 +300,41 @@ impl Renderer for CpuRenderer {
             occlusion_cull,
             occlusion,
             in_batch,
+            batch,
+            binned_triangles,
             ..
         } = self;
         *stats = chunked.mark_visible(cull.then_some(&frustum), visible);
         // Sized once per image size; no allocation in steady state.
         tri_order.resize(view.width * view.height, 0);
-        let occlusion = (*cull && *occlusion_cull).then_some(occlusion);
+        let position = world_from_camera.translation.vector;
+        let position_m = [position.x, position.y, position.z];
+        let occlusion = if *cull && *occlusion_cull {
+            Some(occlusion)
+        } else {
+            occlusion.forget();
+            None
+        };
         let work = || {
             draw(
                 chunked,
                 &mesh.textures,
                 visible,
                 chunks,
-                &view,
+                (&view, cull.then_some(&frustum)),
                 tri_order,
                 out,
-                occlusion,
-                in_batch,
+                occlusion.map(|o| (o, position_m)),
+                (in_batch, batch),
             )
         };
-        let (hidden_chunks, hidden_triangles) = match pool {
+        let (hidden_chunks, hidden_triangles, binned) = match pool {
             Some(pool) => pool.install(work),
             None => work(),
         };
+        *binned_triangles = binned;
         stats.visible_chunks -= hidden_chunks;
         stats.visible_triangles -= hidden_triangles;
         Ok(())
     }
-}
-
-/// Runs the two stages on the chunks marked in `visible`: all at once, or,
-/// with `occlusion`, in nearest-first batches, each later batch without the
-/// chunks hidden behind what the earlier ones drew ([`occlusion`]). `out`
-/// has been checked against `view`; `tri_order` has one element per pixel;
-/// `in_batch` has one element per chunk. Returns the chunks and triangles
-/// the occlusion cull skipped.
-#[allow(clippy::too_many_arguments)]
-fn draw(
-    mesh: &ChunkedMesh,
-    textures: &[GrayTexture],
-    visible: &[bool],
-    chunks: &mut [Chunk],
-    view: &View,
-    tri_order: &mut [u32],
-    out: &mut RenderedView,
-    mut occlusion: Option<&mut Occlusion>,
-    in_batch: &mut [bool],
-) -> (usize, usize) {
-    let bands = view.height.div_ceil(BAND_ROWS);
-    let batches = if occlusion.is_some() {
-        occlusion::BATCHES
-    } else {
-        1
-    };
-    if let Some(occ) = occlusion.as_deref_mut() {
-        occ.prepare(&mesh.chunks, visible, view);
-    }
-    let mut skipped = (0, 0);
-    for batch in 0..batches {
-        match occlusion.as_deref() {
-            None => in_batch.copy_from_slice(visible),
-            Some(occ) => {
-                in_batch.fill(false);
-                for &i in occ.order.get(occ.batch(batch)).unwrap_or(&[]) {
-                    let i = i as usize;
-                    if batch > 0 && occ.hidden(i) {
-                        skipped.0 += 1;
-                        skipped.1 += mesh.chunks.get(i).map_or(0, MeshChunk::triangle_count);
-                    } else if let Some(slot) = in_batch.get_mut(i) {
-                        *slot = true;
-                    }
-                }
-            }
-        }
-        chunks
-            .par_iter_mut()
-            .zip(mesh.chunks.par_iter())
-            .zip(in_batch.par_iter())
-            .for_each(|((scratch, chunk), &drawn)| {
-                if drawn {
-                    scratch.build(chunk, mesh, view, bands);
-                } else {
-                    scratch.skip();
-                }
-            });
-        let stage = (batch == 0, batch + 1 == batches);
-        let drawn = &*chunks;
-        let band_len = view.width * BAND_ROWS;
-        out.gray
-            .data_mut()
-            .par_chunks_mut(band_len)
-            .zip(out.depth_m.data_mut().par_chunks_mut(band_len))
-            .zip(tri_order.par_chunks_mut(band_len))
-            .enumerate()
-            .for_each(|(band, ((gray, depth_m), order))| {
-                raster::draw_band(
-                    band,
-                    view.width,
-                    view.min_inv_z,
-                    stage,
-                    drawn,
-                    textures,
-                    gray,
-                    depth_m,
-                    order,
-                );
-            });
-        if let Some(occ) = occlusion.as_deref_mut() {
-            if batch + 1 < batches {
-                // Between batches the depth image holds 1/z.
-                occ.update_tiles(out.depth_m.data(), view.width);
-            }
-        }
-    }
-    skipped
 }

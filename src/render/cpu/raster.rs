@@ -12,28 +12,39 @@
 //! While a band is drawn, its depth slice holds `1/z` (0 = empty); the band
 //! is finished by turning it into metric depth.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use super::occlusion::{band_tiles, TILE_PX};
 use super::setup::{Chunk, ScreenTri, BAND_ROWS, NO_TEXTURE};
 use super::view::SUBPIXEL;
 use crate::map::GrayTexture;
 use crate::render::NO_DEPTH;
 
+// A band is whole rows of occlusion tiles.
+const _: () = assert!(BAND_ROWS % TILE_PX == 0);
+
 /// Draws band `band` (rows `band * BAND_ROWS ..`) of a `width`-wide image
 /// into `gray` and `depth_m` (the band's rows only), with `order` (as many
-/// pixels) as scratch for the depth tie-break; pixels with `1/z` below
-/// `min_inv_z` are not drawn. A render may draw a band in several passes
-/// (one per batch of chunks): `first` clears it, `last` turns its `1/z`
-/// into metric depth; in between `depth_m` holds `1/z`.
+/// pixels) as scratch for the depth tie-break: the triangles of the chunks
+/// numbered in `batch` (of `chunks`), marking in `seen` (when given, per
+/// cluster of [`Chunk`]) each cluster of which a triangle wins a pixel's
+/// depth test; pixels with `1/z` below `min_inv_z`
+/// are not drawn. A render may draw a band in several passes (one per
+/// batch of chunks): `first` clears it, `last` turns its `1/z` into metric
+/// depth; in between `depth_m` holds `1/z`, and `tiles`, when given, gets
+/// the band's row of occlusion tiles.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn draw_band(
     band: usize,
     width: usize,
     min_inv_z: f32,
     (first, last): (bool, bool),
-    chunks: &[Chunk],
+    (chunks, batch, seen): (&[Chunk], &[u32], Option<&[AtomicBool]>),
     textures: &[GrayTexture],
     gray: &mut [f32],
     depth_m: &mut [f32],
     order: &mut [u32],
+    tiles: Option<&mut [f32]>,
 ) {
     if first {
         gray.fill(0.0);
@@ -51,11 +62,23 @@ pub(super) fn draw_band(
         inv_z: depth_m,
         order,
     };
-    for chunk in chunks.iter().filter(|c| c.drawn) {
-        if let Some(bin) = chunk.bins.get(band) {
-            for &t in bin {
-                if let Some(tri) = chunk.tris.get(t as usize) {
-                    target.draw(tri, textures);
+    for &i in batch {
+        let Some(bin) = chunks
+            .get(i as usize)
+            .and_then(|c| Some((c, c.bins.get(band)?)))
+        else {
+            continue;
+        };
+        let (chunk, bin) = bin;
+        for &t in bin {
+            if let Some(tri) = chunk.tris.get(t as usize) {
+                if target.draw(tri, textures) {
+                    let cluster = chunk.tri_cluster.get(t as usize).copied().unwrap_or(0);
+                    if let Some(flag) =
+                        seen.and_then(|s| s.get(chunk.first_cluster + usize::from(cluster)))
+                    {
+                        flag.store(true, Ordering::Relaxed);
+                    }
                 }
             }
         }
@@ -64,6 +87,8 @@ pub(super) fn draw_band(
         for d in target.inv_z.iter_mut() {
             *d = if *d > 0.0 { 1.0 / *d } else { NO_DEPTH };
         }
+    } else if let Some(tiles) = tiles {
+        band_tiles(target.inv_z, width, tiles);
     }
 }
 
@@ -110,8 +135,9 @@ impl Edge {
 }
 
 impl Band<'_> {
+    /// Draws `tri`; true when it won the depth test on some pixel.
     #[inline]
-    fn draw(&mut self, tri: &ScreenTri, textures: &[GrayTexture]) {
+    fn draw(&mut self, tri: &ScreenTri, textures: &[GrayTexture]) -> bool {
         let plane = |a: [f32; 3]| {
             let a0 = f64::from(a[0]);
             (a0, f64::from(a[1]) - a0, f64::from(a[2]) - a0)
@@ -128,6 +154,7 @@ impl Band<'_> {
         let (y0, width, min_inv_z) = (self.y0, self.width, self.min_inv_z);
         let (gray, inv_z_buf, order_buf) = (&mut *self.gray, &mut *self.inv_z, &mut *self.order);
         let order = tri.order;
+        let mut won = false;
         for_each_span(tri, y0, y_hi, |span, dw1, dw2| {
             let start = (span.y - y0) * width + span.x_start;
             let end = (span.y - y0) * width + span.x_end;
@@ -145,6 +172,7 @@ impl Band<'_> {
                 if (inv_z32 > *d || (inv_z32 == *d && order < *o)) && inv_z32 >= min_inv_z {
                     *d = inv_z32;
                     *o = order;
+                    won = true;
                     let z = 1.0 / inv_z;
                     let mut g = (gz.0 + w1 * gz.1 + w2 * gz.2) * z;
                     if let Some(tex) = texture {
@@ -158,6 +186,7 @@ impl Band<'_> {
                 w2 += dw2;
             }
         });
+        won
     }
 }
 

@@ -9,8 +9,12 @@
 //! sees its triangles depends on the thread count.
 
 use super::clip::{ClipVertex, Polygon, MAX_POLY};
+use std::ops::Range;
+
+use super::occlusion::{screen_box, TileDepth};
 use super::view::{CamVertex, View, CLIP_MASK, CULL_MASK, OUT_INVALID, SUBPIXEL_BITS};
-use crate::render::chunks::{ChunkedMesh, MeshChunk};
+use crate::render::chunks::{Aabb, ChunkedMesh, MeshChunk};
+use crate::render::frustum::Frustum;
 
 /// Rows per band: the unit of work of the raster stage.
 pub(super) const BAND_ROWS: usize = 16;
@@ -47,15 +51,61 @@ pub(super) struct ScreenTri {
 pub(super) struct Chunk {
     /// Texture index of the chunk's group, or [`NO_TEXTURE`].
     texture: u32,
-    /// Whether the chunk was set up in the current render (false: it is
-    /// outside the view and `tris` and `bins` are stale).
-    pub drawn: bool,
     /// The chunk's vertices in the camera frame.
     verts: Vec<CamVertex>,
     /// The chunk's screen triangles.
     pub tris: Vec<ScreenTri>,
     /// Per band, the indices into `tris` of the triangles touching it.
     pub bins: Vec<Vec<u32>>,
+    /// The chunk's triangles in runs of [`CLUSTER_TRIS`], each tested
+    /// against the view before its vertices are transformed.
+    clusters: Vec<Cluster>,
+    /// Per screen triangle, the number of its cluster in the chunk.
+    pub tri_cluster: Vec<u8>,
+    /// The number of the chunk's first cluster among all chunks' (as the
+    /// current render's setup was told).
+    pub first_cluster: usize,
+}
+
+/// Which of a chunk's clusters to set up.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Clusters<'a> {
+    /// All of them.
+    All,
+    /// Those marked true (one flag per cluster).
+    Only(&'a [bool]),
+    /// Those not marked true.
+    Except(&'a [bool]),
+}
+
+impl Clusters<'_> {
+    /// Whether cluster `k` is set up.
+    fn takes(&self, k: usize) -> bool {
+        match self {
+            Self::All => true,
+            Self::Only(flags) => flags.get(k) == Some(&true),
+            Self::Except(flags) => flags.get(k) != Some(&true),
+        }
+    }
+}
+
+/// Triangles per cluster (the last of a chunk may have fewer).
+pub(super) const CLUSTER_TRIS: usize = 256;
+
+// A cluster's number within its chunk fits `u8`.
+const _: () = assert!(crate::render::chunks::MAX_CHUNK_TRIS / CLUSTER_TRIS <= 256);
+
+/// A run of consecutive triangles of one chunk, with the chunk-local range
+/// of vertices they use and their bounds.
+#[derive(Debug, Clone)]
+struct Cluster {
+    /// Chunk-local triangle numbers.
+    triangles: Range<usize>,
+    /// Chunk-local vertex numbers: every vertex of these triangles lies in
+    /// this range.
+    vertices: Range<usize>,
+    /// Bounds of those triangles' vertices, world frame.
+    bounds: Aabb,
 }
 
 /// A vertex after projection, before orientation.
@@ -73,26 +123,69 @@ impl Chunk {
     /// [`NO_TEXTURE`]), with room for its camera-frame vertices. (Screen
     /// triangles and bins grow to what the chunk has shown so far, as the
     /// first views of a part of the map are drawn.)
-    pub fn new(chunk: &MeshChunk, texture: u32) -> Self {
+    pub fn new(chunk: &MeshChunk, mesh: &ChunkedMesh, texture: u32) -> Self {
+        let first_vertex = chunk.vertices.start as usize;
+        let (t0, t1) = (chunk.triangles.start as usize, chunk.triangles.end as usize);
+        let indices = mesh.indices.get(3 * t0..3 * t1).unwrap_or(&[]);
+        let clusters = indices
+            .chunks(3 * CLUSTER_TRIS)
+            .enumerate()
+            .map(|(k, run)| {
+                let mut bounds = Aabb {
+                    min_m: [f32::INFINITY; 3],
+                    max_m: [f32::NEG_INFINITY; 3],
+                };
+                let (mut lo, mut hi) = (usize::MAX, 0);
+                for &i in run {
+                    let p = mesh.positions.get(i as usize).copied().unwrap_or([0.0; 3]);
+                    for a in 0..3 {
+                        bounds.min_m[a] = bounds.min_m[a].min(p[a]);
+                        bounds.max_m[a] = bounds.max_m[a].max(p[a]);
+                    }
+                    let local = (i as usize).saturating_sub(first_vertex);
+                    lo = lo.min(local);
+                    hi = hi.max(local + 1);
+                }
+                let first = k * CLUSTER_TRIS;
+                Cluster {
+                    triangles: first..first + run.len() / 3,
+                    vertices: lo.min(hi)..hi,
+                    bounds,
+                }
+            })
+            .collect();
         Self {
             texture,
             verts: Vec::with_capacity(chunk.vertices.len()),
+            clusters,
             ..Self::default()
         }
     }
 
-    /// Marks the chunk as not drawn in this render.
-    pub fn skip(&mut self) {
-        self.drawn = false;
+    /// Number of setup clusters.
+    pub fn cluster_count(&self) -> usize {
+        self.clusters.len()
     }
 
-    /// Transforms the vertices of `chunk` (of `mesh`), then sets up and
-    /// bins its triangles for `view`. `bands` is the number of bands of
-    /// the image.
-    pub fn build(&mut self, chunk: &MeshChunk, mesh: &ChunkedMesh, view: &View, bands: usize) {
-        self.drawn = true;
+    /// Sets up and bins the triangles of `chunk` (of `mesh`) for `view`,
+    /// cluster by cluster, of the clusters `which` takes: a cluster outside
+    /// `frustum` (when given) or hidden behind `occluders` (the depth drawn
+    /// so far, per tile) is skipped whole; of the others the vertices are
+    /// transformed and each triangle that `occluders` does not hide is
+    /// binned. `bands` is the number of bands of the image;
+    /// `first_cluster` the number of the chunk's first cluster.
+    pub fn build(
+        &mut self,
+        chunk: &MeshChunk,
+        mesh: &ChunkedMesh,
+        (view, bands): (&View, usize),
+        (frustum, occluders): (Option<&Frustum>, Option<TileDepth<'_>>),
+        (which, first_cluster): (Clusters<'_>, usize),
+    ) {
         let texture = self.texture;
+        self.first_cluster = first_cluster;
         self.tris.clear();
+        self.tri_cluster.clear();
         if self.bins.len() != bands {
             self.bins.resize_with(bands, Vec::new);
         }
@@ -104,68 +197,120 @@ impl Chunk {
             .positions
             .get(first_vertex..chunk.vertices.end as usize)
             .unwrap_or(&[]);
-        self.verts.clear();
-        self.verts.extend(positions.iter().map(|&p| view.vertex(p)));
+        // Within capacity: no allocation.
+        self.verts.resize(positions.len(), CamVertex::default());
         // Taken out while `emit` borrows `self`; put back below.
-        let verts = std::mem::take(&mut self.verts);
+        let mut verts = std::mem::take(&mut self.verts);
+        let clusters = std::mem::take(&mut self.clusters);
         let uv_at = |i: usize| mesh.uvs.get(i).copied().unwrap_or([0.0, 0.0]);
         let (t0, t1) = (chunk.triangles.start as usize, chunk.triangles.end as usize);
         let indices = mesh.indices.get(3 * t0..3 * t1).unwrap_or(&[]);
         let orders = mesh.source_triangle.get(t0..t1).unwrap_or(&[]);
-        for (tri, &order) in indices.chunks_exact(3).zip(orders) {
-            let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
-            // Every index of a chunk lies in its vertex range (ChunkedMesh).
-            let local = idx.map(|i| i - first_vertex);
-            let cv = [verts[local[0]], verts[local[1]], verts[local[2]]];
-            let all = cv[0].code & cv[1].code & cv[2].code;
-            let any = cv[0].code | cv[1].code | cv[2].code;
-            if all & CULL_MASK != 0 || any & OUT_INVALID != 0 {
+        // The local vertices transformed in this render so far: `done`.
+        let mut done = 0..0;
+        for (number, cluster) in clusters.iter().enumerate() {
+            if !which.takes(number) || frustum.is_some_and(|f| !f.intersects(&cluster.bounds)) {
                 continue;
             }
-            if any & CLIP_MASK == 0 {
-                let p = |k: usize| Projected {
-                    sx: cv[k].sx,
-                    sy: cv[k].sy,
-                    inv_z: cv[k].inv_z,
-                    gray: mesh.gray[idx[k]],
-                    uv: uv_at(idx[k]),
-                };
-                self.emit([p(0), p(1), p(2)], texture, order, view);
-            } else {
-                let c = |k: usize| ClipVertex {
-                    p: view.camera_point(mesh.positions[idx[k]]).into(),
-                    gray: mesh.gray[idx[k]],
-                    uv: uv_at(idx[k]),
-                };
-                let mut poly = Polygon::triangle([c(0), c(1), c(2)]);
-                poly.clip(view, any & CLIP_MASK);
-                if poly.len < 3 {
-                    continue;
-                }
-                let mut proj = [Projected::default(); MAX_POLY];
-                for (slot, cvx) in proj.iter_mut().zip(&poly.verts[..poly.len]) {
-                    let (sx, sy, inv_z) = view.project(cvx.p.into());
-                    *slot = Projected {
-                        sx,
-                        sy,
-                        inv_z,
-                        gray: cvx.gray,
-                        uv: cvx.uv,
-                    };
-                }
-                for k in 1..poly.len - 1 {
-                    self.emit([proj[0], proj[k], proj[k + 1]], texture, order, view);
+            if let Some(tiles) = occluders {
+                if let Some((near_inv_z, rect)) = screen_box(view, &cluster.bounds) {
+                    if tiles.hides_box(rect, near_inv_z) {
+                        continue;
+                    }
                 }
             }
+            let need = cluster.vertices.clone();
+            let todo = if need.start >= done.start && need.start <= done.end {
+                let todo = done.end..need.end.max(done.end);
+                done.end = todo.end;
+                todo
+            } else {
+                done = need.clone();
+                need
+            };
+            if let (Some(out), Some(src)) = (verts.get_mut(todo.clone()), positions.get(todo)) {
+                for (v, &p) in out.iter_mut().zip(src) {
+                    *v = view.vertex(p);
+                }
+            }
+            let tris = cluster.triangles.clone();
+            let (Some(indices), Some(orders)) =
+                (indices.get(3 * tris.start..3 * tris.end), orders.get(tris))
+            else {
+                continue;
+            };
+            for (tri, &order) in indices.chunks_exact(3).zip(orders) {
+                let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
+                // Every index of a chunk lies in its vertex range (ChunkedMesh),
+                // and of a cluster in the cluster's, transformed above.
+                let local = idx.map(|i| i - first_vertex);
+                let cv = [verts[local[0]], verts[local[1]], verts[local[2]]];
+                let all = cv[0].code & cv[1].code & cv[2].code;
+                let any = cv[0].code | cv[1].code | cv[2].code;
+                if all & CULL_MASK != 0 || any & OUT_INVALID != 0 {
+                    continue;
+                }
+                if any & CLIP_MASK == 0 {
+                    let p = |k: usize| Projected {
+                        sx: cv[k].sx,
+                        sy: cv[k].sy,
+                        inv_z: cv[k].inv_z,
+                        gray: mesh.gray[idx[k]],
+                        uv: uv_at(idx[k]),
+                    };
+                    self.emit([p(0), p(1), p(2)], texture, order, view, occluders);
+                } else {
+                    let c = |k: usize| ClipVertex {
+                        p: view.camera_point(mesh.positions[idx[k]]).into(),
+                        gray: mesh.gray[idx[k]],
+                        uv: uv_at(idx[k]),
+                    };
+                    let mut poly = Polygon::triangle([c(0), c(1), c(2)]);
+                    poly.clip(view, any & CLIP_MASK);
+                    if poly.len < 3 {
+                        continue;
+                    }
+                    let mut proj = [Projected::default(); MAX_POLY];
+                    for (slot, cvx) in proj.iter_mut().zip(&poly.verts[..poly.len]) {
+                        let (sx, sy, inv_z) = view.project(cvx.p.into());
+                        *slot = Projected {
+                            sx,
+                            sy,
+                            inv_z,
+                            gray: cvx.gray,
+                            uv: cvx.uv,
+                        };
+                    }
+                    for k in 1..poly.len - 1 {
+                        self.emit(
+                            [proj[0], proj[k], proj[k + 1]],
+                            texture,
+                            order,
+                            view,
+                            occluders,
+                        );
+                    }
+                }
+            }
+            // The triangles just binned are of this cluster.
+            self.tri_cluster.resize(self.tris.len(), number as u8);
         }
         // Keeps the capacity for the next render.
         self.verts = verts;
+        self.clusters = clusters;
     }
 
     /// Orients, bounds and bins one projected triangle; drops it when it is
-    /// degenerate or covers no pixel center.
+    /// degenerate, covers no pixel center or is hidden behind `occluders`.
     #[inline]
-    fn emit(&mut self, mut v: [Projected; 3], texture: u32, order: u32, view: &View) {
+    fn emit(
+        &mut self,
+        mut v: [Projected; 3],
+        texture: u32,
+        order: u32,
+        view: &View,
+        occluders: Option<TileDepth<'_>>,
+    ) {
         let area2 = (i64::from(v[1].sx) - i64::from(v[0].sx))
             * (i64::from(v[2].sy) - i64::from(v[0].sy))
             - (i64::from(v[1].sy) - i64::from(v[0].sy)) * (i64::from(v[2].sx) - i64::from(v[0].sx));
@@ -187,6 +332,13 @@ impl Chunk {
         let y1 = (max_y >> bits).min(view.height as i32 - 1);
         if x0 > x1 || y0 > y1 {
             return;
+        }
+        if let Some(tiles) = occluders {
+            let nearest = v[0].inv_z.max(v[1].inv_z).max(v[2].inv_z);
+            let bounds = [x0, x1, y0, y1].map(|c| c as usize);
+            if tiles.hides(bounds, nearest) {
+                return;
+            }
         }
         let index = self.tris.len() as u32;
         self.tris.push(ScreenTri {

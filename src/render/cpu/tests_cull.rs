@@ -213,3 +213,106 @@ fn depth_ties_are_won_in_mesh_order() {
         "a pixel shows the second quad"
     );
 }
+
+/// Two rooms of [`room`]'s kind side by side along x (the second shifted
+/// by 8.2 m), joined by a doorway cut into the wall between them: the
+/// building's case of a room seen through a door, with the far room's
+/// walls, floor and boxes hidden behind the wall around the door.
+fn two_rooms() -> Mesh {
+    let mut mesh = room();
+    let second = room();
+    let base = mesh.positions.len() as u32;
+    let first_index = mesh.indices.len() as u32;
+    mesh.positions
+        .extend(second.positions.iter().map(|p| [p[0] + 8.2, p[1], p[2]]));
+    mesh.gray.extend(second.gray.iter().map(|g| 255.0 - g));
+    mesh.uvs.extend(&second.uvs);
+    mesh.indices.extend(second.indices.iter().map(|i| i + base));
+    for g in &second.groups {
+        mesh.groups.push(crate::map::MeshGroup {
+            first_index: g.first_index + first_index,
+            ..*g
+        });
+    }
+    // Cut the door (y 2.5..3.5 m, z below 2.2 m) out of both faces of the
+    // wall between the rooms (x = 8 of the first, x = 8.2 of the second):
+    // drop their triangles whose centroid lies in the opening.
+    let p = mesh.positions.clone();
+    let mut kept = Vec::new();
+    let mut groups = Vec::new();
+    for g in &mesh.groups {
+        let start = kept.len() as u32;
+        let range = g.first_index as usize..(g.first_index + g.index_count) as usize;
+        for t in mesh.indices[range].chunks_exact(3) {
+            let c =
+                |k: usize| (p[t[0] as usize][k] + p[t[1] as usize][k] + p[t[2] as usize][k]) / 3.0;
+            let in_wall = (c(0) - 8.0).abs() < 1e-3 || (c(0) - 8.2).abs() < 1e-3;
+            if in_wall && (2.5..3.5).contains(&c(1)) && c(2) < 2.2 {
+                continue;
+            }
+            kept.extend_from_slice(t);
+        }
+        groups.push(crate::map::MeshGroup {
+            first_index: start,
+            index_count: kept.len() as u32 - start,
+            ..*g
+        });
+    }
+    mesh.indices = kept;
+    mesh.groups = groups;
+    mesh
+}
+
+/// The first batch of a render is what the previous one saw when its
+/// camera was near: along walks through two rooms joined by a door (small
+/// steps and turns, with jumps back and about-turns in place), renders
+/// with every cull are the same, bit for bit, as without any.
+#[test]
+fn cull_after_nearby_renders_never_changes_the_image() {
+    let mesh = Arc::new(two_rooms());
+    let cam = camera();
+    let mut culled = CpuRenderer::with_threads(Arc::clone(&mesh), 2).unwrap();
+    let mut full = CpuRenderer::with_threads(Arc::clone(&mesh), 2).unwrap();
+    full.set_frustum_cull(false);
+    let (mut a, mut b) = (
+        RenderedView::for_camera(&cam),
+        RenderedView::for_camera(&cam),
+    );
+    let mut state = 7u64;
+    let mut rnd = || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (mut hidden, mut hits) = (0usize, 0usize);
+    let (mut x, mut y, mut yaw) = (1.0, 3.0, 0.0);
+    for k in 0..200 {
+        if k % 40 == 0 {
+            // Back to the first room's far corner.
+            (x, y) = (1.0 + rnd(), 2.0 + 2.0 * rnd());
+        }
+        // Toward the door and through it, with some wandering.
+        x += 0.1 + 0.15 * rnd();
+        y += 0.2 * (rnd() - 0.5);
+        yaw += 0.3 * (rnd() - 0.5);
+        if k % 17 == 0 {
+            // An about-turn in place.
+            yaw += std::f64::consts::PI;
+        }
+        let (x1, y1) = (x.min(15.5), y.clamp(2.6, 3.4));
+        let world_from_camera = looking([x1, y1, 1.0 + rnd()], yaw, 0.4 * (rnd() - 0.5));
+        culled.render(&world_from_camera, &cam, &mut a).unwrap();
+        full.render(&world_from_camera, &cam, &mut b).unwrap();
+        assert!(a.gray.data() == b.gray.data(), "gray differs at pose {k}");
+        assert!(
+            a.depth_m.data() == b.depth_m.data(),
+            "depth differs at pose {k}"
+        );
+        let stats = culled.cull_stats();
+        hidden += stats.visible_triangles - culled.binned_triangles().min(stats.visible_triangles);
+        hits += a.depth_m.data().iter().filter(|&&z| z > 0.0).count();
+    }
+    assert!(hits > 200 * 160 * 128 / 2, "{hits} pixels hit");
+    assert!(hidden > 0, "nothing was culled");
+}
