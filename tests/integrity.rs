@@ -327,9 +327,5 @@ fn a_twin_room_refuses_a_cold_start_and_a_hint_still_starts() {
     // A right hint is the prior that chooses: tracking starts.
     let hinted = run(StartMode::Hint);
     let i = integrity(&hinted, "right hint, twin rooms");
-    assert!(
-        i.poses_checked > FRAMES / 2,
-        "{} poses",
-        i.poses_checked
-    );
+    assert!(i.poses_checked > FRAMES / 2, "{} poses", i.poses_checked);
 }

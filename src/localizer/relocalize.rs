@@ -567,8 +567,9 @@ impl Localizer {
 /// door) may choose. Inside the reach of the last position the prior has
 /// already chosen, and nothing more is tried.
 const AMBIGUITY_CHECKS: usize = 3;
-/// How far apart two passing candidates must be to be two places, m.
-const AMBIGUITY_RADIUS_M: f64 = 1.0;
+/// How far apart two passing candidates must be to be two places, m: the
+/// relocalization benchmark's rule for rivals (`reloc::rivals`).
+const AMBIGUITY_RADIUS_M: f64 = crate::reloc::rivals::RIVAL_MIN_M;
 /// Look-alike pairs of places the localizer remembers (the map's
 /// symmetries, see [`Localizer::remember_symmetry`]).
 pub(super) const MAX_SYMMETRIES: usize = 8;
