@@ -42,6 +42,12 @@ impl Localizer {
             "relocalization enabled"
         );
         self.attempt_budget_s = relocalizer.config().attempt_budget_s;
+        // Rivals are rendered once each: a twin passes at the first render
+        // as the accepted pose did, and refining a place that fails it only
+        // costs time.
+        let mut rivals = relocalizer.config().clone();
+        rivals.refine_renders = 0;
+        self.rival_config = Some(Box::new(rivals));
         self.reloc = Some(Box::new(relocalizer));
         Ok(())
     }
@@ -344,12 +350,17 @@ impl Localizer {
                 }
                 tried[n_tried] = c;
                 n_tried += 1;
+                let rival_config = self.rival_config.take();
                 let (found, refused) = self.try_reloc_candidate(
-                    reloc.config(),
+                    match (&accepted, rival_config.as_deref()) {
+                        (Some(_), Some(rivals)) => rivals,
+                        _ => reloc.config(),
+                    },
                     &candidate.world_from_camera,
                     candidate.yaw_rad,
                     capture_ns,
                 );
+                self.rival_config = rival_config;
                 let attempt = &mut self.last_attempt;
                 if let Some(slot) = attempt.candidates.get_mut(attempt.tried) {
                     *slot = super::RelocCandidate {
@@ -408,24 +419,22 @@ impl Localizer {
             }
         }
         match accepted {
-            Some((v, kf)) => {
-                match self.twin_passes(reloc.config(), &v.world_from_camera, capture_ns) {
-                    Some(twin) => {
-                        tracing::info!(
-                            capture_ns,
-                            first = ?v.world_from_camera.translation.vector,
-                            second = ?twin.translation.vector,
-                            "relocalization refused: a known look-alike place passes the gate too"
-                        );
-                        self.worker.recycle(kf);
-                        self.stats.reloc_ambiguous += 1;
-                    }
-                    None => {
-                        tracing::debug!(checks, "no other place passes the gate; verifying");
-                        self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
-                    }
+            Some((v, kf)) => match self.twin_passes(&reloc, &v.world_from_camera, capture_ns) {
+                Some(twin) => {
+                    tracing::info!(
+                        capture_ns,
+                        first = ?v.world_from_camera.translation.vector,
+                        second = ?twin.translation.vector,
+                        "relocalization refused: a known look-alike place passes the gate too"
+                    );
+                    self.worker.recycle(kf);
+                    self.stats.reloc_ambiguous += 1;
                 }
-            }
+                None => {
+                    tracing::debug!(checks, "no other place passes the gate; verifying");
+                    self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
+                }
+            },
             None => tracing::debug!(candidates = n_tried, "relocalization failed for this frame"),
         }
         self.reloc = Some(reloc);
@@ -506,6 +515,23 @@ impl Localizer {
     /// [`AMBIGUITY_RADIUS_M`] away; `None` when none does.
     fn twin_passes(
         &mut self,
+        reloc: &Relocalizer,
+        world_from_camera: &Pose,
+        capture_ns: u64,
+    ) -> Option<Pose> {
+        let rival_config = self.rival_config.take();
+        let found = self.twin_passes_with(
+            rival_config.as_deref().unwrap_or(reloc.config()),
+            world_from_camera,
+            capture_ns,
+        );
+        self.rival_config = rival_config;
+        found
+    }
+
+    /// [`Self::twin_passes`] with the rivals' `[reloc]` settings.
+    fn twin_passes_with(
+        &mut self,
         config: &RelocConfig,
         world_from_camera: &Pose,
         capture_ns: u64,
@@ -566,7 +592,7 @@ impl Localizer {
 /// motion prior or a view that tells them apart (the corridor through the
 /// door) may choose. Inside the reach of the last position the prior has
 /// already chosen, and nothing more is tried.
-const AMBIGUITY_CHECKS: usize = 3;
+const AMBIGUITY_CHECKS: usize = 2;
 /// How far apart two passing candidates must be to be two places, m: the
 /// relocalization benchmark's rule for rivals (`reloc::rivals`).
 const AMBIGUITY_RADIUS_M: f64 = crate::reloc::rivals::RIVAL_MIN_M;
