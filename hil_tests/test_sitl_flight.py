@@ -22,13 +22,17 @@ Checked, from arming to disarming:
   at 0.5 m/s a 60 ms hiccup of it on a loaded machine is 3 cm (one flight
   measured 4.4 cm, the others 1.3-2.0 cm);
 - EKF3 never stopped using external navigation;
-- EKF3 dropped no vision sample (its 20 ms rule replayed on its own log,
-  `flight.ekf3_dropped`), with star set as the integration guide sets it
-  for ArduPilot (`autopilot_min_interval_ms = 25`: every other frame of the
-  50 Hz camera, 40 ms apart, so that neither star's `usec` nor ArduPilot's
-  jitter correction, which moves a sample by up to one 2.5 ms step of
-  SITL's loop, brings two under 20 ms). `STAR_FLIGHT_LAPS=5`: the 2-minute
-  flight of issue 20's target.
+- from arming to disarming EKF3 dropped no vision sample (its 20 ms rule
+  replayed on its own log, `flight.ekf3_dropped`), with star set as the
+  integration guide sets it for ArduPilot (`autopilot_min_interval_ms =
+  25`: every other frame of the 50 Hz camera, 40 ms apart, so that neither
+  star's `usec` nor ArduPilot's jitter correction, which moves a sample by
+  up to one 2.5 ms step of SITL's loop, brings two under 20 ms). The whole
+  log is reported, not asserted: on the ground, the stream's second sample
+  can be dropped when the first reached SITL more than 20 ms later than it
+  (one CI run: the first 27 ms, the second 4.5 ms after capture; the
+  jitter correction then dates the second 17.5 ms after the first).
+  `STAR_FLIGHT_LAPS=5`: the 2-minute flight of issue 20's target.
 
 Reported, not asserted (they depend on the machine's load): the capture to
 SITL delay of each VISION_POSITION_ESTIMATE (through the TCP tap) and the
@@ -79,4 +83,5 @@ def test_square_on_vision(star_bin, tmp_path):
     assert f["delay_matched"] > 0.5 * f["star_poses"], "VISION_POSITION_ESTIMATEs not matched to star's poses"
     assert f["visp"] > 0, "no VISP rows in SITL's log"
     assert f["visp_dropped_star_usec"] == 0, flight.report(f)
-    assert f["visp_dropped"] == 0, flight.report(f)
+    assert f["visp_armed"] > 0, "no VISP rows between arming and disarming"
+    assert f["visp_dropped_armed"] == 0, flight.report(f)
