@@ -322,6 +322,9 @@ impl Localizer {
                     if checks >= AMBIGUITY_CHECKS {
                         break;
                     }
+                    if tried[..n_tried].contains(&candidate.ranked.index) {
+                        continue;
+                    }
                     let apart_m = (candidate.world_from_camera.translation.vector
                         - a.world_from_camera.translation.vector)
                         .norm();

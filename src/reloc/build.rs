@@ -223,14 +223,7 @@ impl Scratch {
                             Translation3::from(*p),
                             camera_rotation(yaw_rad, pitch_deg.to_radians(), 0.0),
                         );
-                        let seen = self.times.render_thumb(|| {
-                            render_view(
-                                renderer,
-                                &world_from_camera,
-                                &self.thumb_camera,
-                                &mut self.thumb_view,
-                            )
-                        })?;
+                        let seen = self.thumbnail(renderer, &world_from_camera)?;
                         if (seen.nearest_m as f64) < config.min_depth_m {
                             // Inside or against furniture: the whole
                             // position is dropped.
@@ -245,14 +238,7 @@ impl Scratch {
             Unit::Sample(sample) => {
                 let views = trajectory_views(sample, plan.half_yaw_rad, plan.half_spacing_m);
                 for world_from_camera in views {
-                    let seen = self.times.render_thumb(|| {
-                        render_view(
-                            renderer,
-                            &world_from_camera,
-                            &self.thumb_camera,
-                            &mut self.thumb_view,
-                        )
-                    })?;
+                    let seen = self.thumbnail(renderer, &world_from_camera)?;
                     if (seen.nearest_m as f64) >= config.min_depth_m
                         && (seen.hits as f64) >= config.min_valid_fraction * n_pixels
                     {
@@ -341,6 +327,18 @@ impl Scratch {
 
     /// Adds the entry of the thumbnail view rendered at `world_from_camera`
     /// (none without contrast).
+    /// Renders the thumbnail at `world_from_camera` into the scratch view,
+    /// timed as a thumbnail render.
+    fn thumbnail(
+        &mut self,
+        renderer: &mut Drawer,
+        world_from_camera: &Pose,
+    ) -> Result<Seen, BuildError> {
+        let (camera, view) = (&self.thumb_camera, &mut self.thumb_view);
+        self.times
+            .render_thumb(|| render_view(renderer, world_from_camera, camera, view))
+    }
+
     fn describe(&mut self, config: &RelocConfig, world_from_camera: Pose, out: &mut UnitOutput) {
         let view = &self.thumb_view;
         let (w, h) = (view.gray.width(), view.gray.height());
