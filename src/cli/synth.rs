@@ -53,6 +53,13 @@ pub struct SynthArgs {
     /// `--rooms 4` make the smaller floors of the size table.
     #[arg(long)]
     pub rooms: Option<usize>,
+    /// Rooms of one design of the `building` preset get the same furniture
+    /// too, so they are the same to the last vertex (by default each room
+    /// is furnished on its own: look-alikes that a careful gate can tell
+    /// apart). From inside such a twin only the view through the door, or
+    /// a motion prior, says which room it is.
+    #[arg(long)]
+    pub identical_rooms: bool,
     /// TSDF voxel edge of the scanned map, meters (default: the preset's,
     /// 0.01); a coarser voxel is faster (for tests).
     #[arg(long)]
@@ -97,6 +104,12 @@ pub fn run(args: &SynthArgs) -> Result<()> {
             bail!("--rooms applies to the building preset (--preset building)");
         };
         spec.rooms = rooms;
+    }
+    if args.identical_rooms {
+        let Some(spec) = preset.scene.building.as_mut() else {
+            bail!("--identical-rooms applies to the building preset (--preset building)");
+        };
+        spec.identical_rooms = true;
     }
     if let Some(spec) = &preset.scene.building {
         spec.validate().context("--rooms")?;

@@ -86,16 +86,22 @@ impl SimScene {
             .and_then(|s| s.get("texture_seed"))
             .and_then(toml::Value::as_integer)
             .and_then(|v| u64::try_from(v).ok());
-        // A building of another size (`star synth --rooms N`).
+        // A building of another size (`star synth --rooms N`), or of
+        // identical rooms (`--identical-rooms`).
         if let Some(spec) = preset.scene.building.as_mut() {
-            if let Some(rooms) = table
-                .get("scene")
-                .and_then(|s| s.get("building"))
+            let building = table.get("scene").and_then(|s| s.get("building"));
+            if let Some(rooms) = building
                 .and_then(|b| b.get("rooms"))
                 .and_then(toml::Value::as_integer)
                 .and_then(|v| usize::try_from(v).ok())
             {
                 spec.rooms = rooms;
+            }
+            if let Some(identical) = building
+                .and_then(|b| b.get("identical_rooms"))
+                .and_then(toml::Value::as_bool)
+            {
+                spec.identical_rooms = identical;
             }
             spec.validate().map_err(|e| bad(e.to_string()))?;
         }

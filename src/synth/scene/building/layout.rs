@@ -10,7 +10,13 @@
 //! `x` along the door wall, `y` away from the corridor, the door wall at
 //! `y = 0` and the doorway's reveal at `-wall_thickness_m..0`. North rooms
 //! are placed as designed, south rooms turned by 180 degrees, so two rooms
-//! of one design look the same from inside whichever side they stand on.
+//! of one design have the same shell (size, door, textures, lights)
+//! whichever side they stand on. Each room is furnished on its own from
+//! the shared furniture atlas ([`Furnishing`]): look-alike, not the same,
+//! as rooms of one floor plan are in a real building. With
+//! [`BuildingSpec::identical_rooms`] every room takes its design's
+//! furniture instead, and two rooms of one design are the same to the last
+//! vertex.
 
 use super::super::objects::SceneBox;
 use super::furnish::{self, KeepOut};
@@ -38,13 +44,21 @@ pub struct RoomDesign {
     pub door_center_m: f64,
     /// Which of the building's texture sets its floor, ceiling and walls use.
     pub texture_set: usize,
-    /// Furniture (map and truth), room frame.
-    pub furniture: Vec<SceneBox>,
-    /// Occluders (truth only), room frame.
-    pub occluders: Vec<SceneBox>,
+    /// The design's own furnishing (what every room of it gets with
+    /// [`BuildingSpec::identical_rooms`]), room frame.
+    pub furnishing: Furnishing,
     /// The tour inside the room: in front of the door, then a loop (left,
     /// back, right), room frame.
     pub route_m: [[f64; 2]; 4],
+}
+
+/// The boxes standing in one room, room frame.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Furnishing {
+    /// Furniture (map and truth).
+    pub furniture: Vec<SceneBox>,
+    /// Occluders (truth only).
+    pub occluders: Vec<SceneBox>,
 }
 
 /// One room of the building: a design placed on the floor.
@@ -105,6 +119,8 @@ pub struct FloorPlan {
     pub designs: Vec<RoomDesign>,
     /// The rooms, in the order of their doors along the corridor.
     pub rooms: Vec<PlacedRoom>,
+    /// What stands in each room, in [`FloorPlan::rooms`] order.
+    pub furnishings: Vec<Furnishing>,
     /// Corridor floor, smallest corner, world.
     pub corridor_min_m: [f64; 2],
     /// Corridor floor, largest corner, world.
@@ -165,11 +181,21 @@ impl FloorPlan {
             r.world_from_room([c, 0.0, 0.0])[0]
         };
         rooms.sort_by(|a, b| door_x(a).total_cmp(&door_x(b)));
+        let furnishings = rooms
+            .iter()
+            .enumerate()
+            .map(|(i, r)| match designs.get(r.design) {
+                Some(d) if spec.identical_rooms => d.furnishing.clone(),
+                Some(d) => furnish_room(spec, r.design, d, root.fork(3000 + i as u64)),
+                None => Furnishing::default(),
+            })
+            .collect();
         let north_depth = deepest(&north);
         Self {
             spec: *spec,
             designs,
             rooms,
+            furnishings,
             corridor_min_m: [0.0, corridor_y0],
             corridor_max_m: [length, corridor_y1],
             size_m: [
@@ -264,7 +290,7 @@ fn design(
     spec: &BuildingSpec,
     index: usize,
     rng: &mut SplitMix64,
-    mut furniture_rng: SplitMix64,
+    furniture_rng: SplitMix64,
 ) -> RoomDesign {
     // Widths cycle so that a few designs already span the sizes.
     let w = WIDTHS_M[(index + rng.below(2)) % WIDTHS_M.len()];
@@ -281,10 +307,31 @@ fn design(
         [0.5 * w, d - 1.5],
         [0.5 * w + a, 0.5 * d],
     ];
+    let mut design = RoomDesign {
+        size_m: [w, d],
+        door_center_m,
+        texture_set: index % spec.texture_sets.max(1),
+        furnishing: Furnishing::default(),
+        route_m,
+    };
+    design.furnishing = furnish_room(spec, index, &design, furniture_rng);
+    design
+}
+
+/// Furniture (and, in every other design, occluders) for one room of
+/// design `index`, kept off the design's tour path, drawn from `rng`.
+fn furnish_room(
+    spec: &BuildingSpec,
+    index: usize,
+    design: &RoomDesign,
+    mut rng: SplitMix64,
+) -> Furnishing {
+    let [w, d] = design.size_m;
+    let route_m = design.route_m;
     let keep_out = KeepOut {
         polygon: route_m.to_vec(),
         segments: vec![
-            [[door_center_m, -1.0], route_m[0]],
+            [[design.door_center_m, -1.0], route_m[0]],
             [route_m[0], route_m[1]],
             [route_m[1], route_m[2]],
             [route_m[2], route_m[3]],
@@ -293,7 +340,7 @@ fn design(
         distance_m: KEEP_OUT_M,
     };
     let furniture = furnish::place(
-        &mut furniture_rng,
+        &mut rng,
         [w, d],
         &keep_out,
         &[],
@@ -303,7 +350,7 @@ fn design(
     // Every other design has occluders (objects the map lacks).
     let occluders = if index % 2 == 1 {
         furnish::place(
-            &mut furniture_rng,
+            &mut rng,
             [w, d],
             &keep_out,
             &furniture,
@@ -313,12 +360,8 @@ fn design(
     } else {
         Vec::new()
     };
-    RoomDesign {
-        size_m: [w, d],
-        door_center_m,
-        texture_set: index % spec.texture_sets.max(1),
+    Furnishing {
         furniture,
         occluders,
-        route_m,
     }
 }

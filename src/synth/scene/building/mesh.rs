@@ -1,5 +1,6 @@
-//! The building's meshes: each room design built once in its own frame and
-//! copied to every room of that design, and the corridor built in place.
+//! The building's meshes: each room design's shell built once in its own
+//! frame and copied to every room of that design, each room's furniture
+//! built in the room's frame, and the corridor built in place.
 //!
 //! Takes a [`FloorPlan`] and a seed; gives out the `map` mesh (rooms,
 //! corridor, furniture) and the `truth` mesh (the map plus occluders), and
@@ -8,7 +9,8 @@
 //! the lintel's underside and the threshold) through the wall's
 //! thickness. Vertex gray is shaded in the room's own frame (lights fixed
 //! to the room, darkening near the room's edges), so two rooms of one
-//! design are the same to the last vertex apart from their placement.
+//! design have the same shell to the last vertex apart from their
+//! placement (and the same furniture too with identical rooms).
 //!
 //! Textures: per texture set a floor, a ceiling and a wall texture, then
 //! the corridor's three, the furniture atlas and the occluder atlas, all
@@ -17,7 +19,7 @@
 use super::super::build::{Face, MeshBuilder, UvMap};
 use super::super::objects::add_box;
 use super::super::{lambert, room_occlusion};
-use super::layout::{FloorPlan, RoomDesign};
+use super::layout::{FloorPlan, Furnishing, RoomDesign};
 use crate::map::{GrayTexture, Mesh};
 use crate::rng::SplitMix64;
 use crate::synth::texture::{paint_surface, SurfaceKind};
@@ -104,26 +106,45 @@ pub(super) fn build_meshes(plan: &FloorPlan, seed: u64) -> (Mesh, Mesh) {
             .collect()
     };
 
-    // Each design once, in its own frame: surfaces and furniture, and the
-    // occluders apart (truth only).
-    let design_meshes: Vec<(Mesh, Mesh)> = {
+    // Each design's shell once, in its own frame; each room's furniture in
+    // the room's frame, and its occluders apart (truth only). Identical
+    // rooms draw their boxes' texture patches from the design's generator,
+    // so their furniture is the same to the last vertex too.
+    let (shells, boxes): (Vec<Mesh>, Vec<(Mesh, Mesh)>) = {
         use rayon::prelude::*;
-        plan.designs
+        let shells = plan
+            .designs
             .par_iter()
+            .map(|d| design_shell(plan, d, &ids))
+            .collect();
+        let boxes = plan
+            .rooms
+            .par_iter()
+            .zip(&plan.furnishings)
             .enumerate()
-            .map(|(i, d)| design_meshes(plan, d, &ids, SplitMix64::new(seed).fork(500 + i as u64)))
-            .collect()
+            .map(|(i, (room, f))| {
+                let stream = if spec.identical_rooms {
+                    500 + room.design as u64
+                } else {
+                    5000 + i as u64
+                };
+                room_boxes(plan, f, &ids, SplitMix64::new(seed).fork(stream))
+            })
+            .collect();
+        (shells, boxes)
     };
 
     let mut map = MeshBuilder::with_cell(ids.count(), spec.cell_m);
     let mut truth = MeshBuilder::with_cell(ids.count(), spec.cell_m);
-    for room in &plan.rooms {
-        let Some((surfaces, occluders)) = design_meshes.get(room.design) else {
+    for (room, (furniture, occluders)) in plan.rooms.iter().zip(&boxes) {
+        let Some(shell) = shells.get(room.design) else {
             continue;
         };
         let place = |p: [f64; 3]| room.world_from_room(p);
-        map.append(surfaces, &place);
-        truth.append(surfaces, &place);
+        map.append(shell, &place);
+        map.append(furniture, &place);
+        truth.append(shell, &place);
+        truth.append(furniture, &place);
         truth.append(occluders, &place);
     }
     for builder in [&mut map, &mut truth] {
@@ -207,13 +228,8 @@ fn repeat(u_m: f64, v_m: f64) -> UvMap {
     }
 }
 
-/// One design's surfaces and furniture, and its occluders, room frame.
-fn design_meshes(
-    plan: &FloorPlan,
-    d: &RoomDesign,
-    ids: &TextureIds,
-    mut rng: SplitMix64,
-) -> (Mesh, Mesh) {
+/// One design's shell (floor, ceiling, walls, doorway), room frame.
+fn design_shell(plan: &FloorPlan, d: &RoomDesign, ids: &TextureIds) -> Mesh {
     let spec = &plan.spec;
     let [w, depth] = d.size_m;
     let h = spec.height_m;
@@ -355,7 +371,20 @@ fn design_meshes(
         floor_uv,
         &lit(up),
     );
-    for bx in &d.furniture {
+    b.finish()
+}
+
+/// One room's furniture, and its occluders apart, room frame; texture
+/// patches drawn from `rng`.
+fn room_boxes(
+    plan: &FloorPlan,
+    f: &Furnishing,
+    ids: &TextureIds,
+    mut rng: SplitMix64,
+) -> (Mesh, Mesh) {
+    let cell_m = plan.spec.cell_m;
+    let mut b = MeshBuilder::with_cell(ids.count(), cell_m);
+    for bx in &f.furniture {
         add_box(
             &mut b,
             bx,
@@ -364,8 +393,8 @@ fn design_meshes(
             &mut rng,
         );
     }
-    let mut o = MeshBuilder::with_cell(ids.count(), spec.cell_m);
-    for bx in &d.occluders {
+    let mut o = MeshBuilder::with_cell(ids.count(), cell_m);
+    for bx in &f.occluders {
         add_box(&mut o, bx, ids.occluder(), OCCLUDER_ATLAS_M, &mut rng);
     }
     (b.finish(), o.finish())

@@ -10,9 +10,13 @@
 //! corridor).
 //!
 //! Look-alike places on purpose: every room is one of
-//! [`BuildingSpec::designs`] designs (size, door, textures, furniture, the
-//! same to the last vertex), dealt round the floor, and designs share
-//! [`BuildingSpec::texture_sets`] texture sets. The surfaces are cut into
+//! [`BuildingSpec::designs`] designs (size, door, textures: the same shell
+//! to the last vertex), dealt round the floor, and designs share
+//! [`BuildingSpec::texture_sets`] texture sets. Each room is furnished on
+//! its own from one furniture atlas, so rooms of a design differ only in
+//! where their furniture stands; [`BuildingSpec::identical_rooms`] gives
+//! every room its design's furniture, and then only the view through the
+//! door tells two rooms of a design apart. The surfaces are cut into
 //! cells of [`BuildingSpec::cell_m`] (3.7 cm by default: about 5.9 M map
 //! triangles for the 22 rooms), denser than the one room's 12.5 cm, to
 //! make a map of the size a scanned building gives.
@@ -29,7 +33,7 @@ use std::sync::Arc;
 
 use serde::Serialize;
 
-pub use layout::{FloorPlan, PlacedRoom, RoomDesign};
+pub use layout::{FloorPlan, Furnishing, PlacedRoom, RoomDesign};
 
 use super::{Scene, FREE_MARGIN_M};
 
@@ -55,10 +59,15 @@ pub struct BuildingSpec {
     pub designs: usize,
     /// Distinct floor/ceiling/wall texture sets the designs share.
     pub texture_sets: usize,
-    /// Furniture boxes tried per design (fewer when they do not fit).
+    /// Furniture boxes tried per room (fewer when they do not fit).
     pub furniture_per_room: usize,
-    /// Occluders (truth only) per design, in every other design.
+    /// Occluders (truth only) per room, in the rooms of every other design.
     pub occluders_per_room: usize,
+    /// Every room of a design gets the design's furniture: rooms of one
+    /// design are then the same to the last vertex (twins that only a
+    /// motion prior or the view through the door tells apart). Off, each
+    /// room is furnished on its own (look-alikes).
+    pub identical_rooms: bool,
     /// Edge of the surface cells, m.
     pub cell_m: f64,
     /// Texture resolution, texels per meter.
@@ -78,6 +87,7 @@ impl Default for BuildingSpec {
             texture_sets: 4,
             furniture_per_room: 6,
             occluders_per_room: 1,
+            identical_rooms: false,
             cell_m: 0.037,
             texture_px_per_m: 128.0,
         }
@@ -161,11 +171,9 @@ pub fn build_building(spec: &BuildingSpec, seed: u64) -> Scene {
     let (map, truth) = mesh::build_meshes(&plan, seed);
     let mut furniture = Vec::new();
     let mut occluders = Vec::new();
-    for room in &plan.rooms {
-        if let Some(d) = plan.designs.get(room.design) {
-            furniture.extend(d.furniture.iter().map(|b| room.world_box(b)));
-            occluders.extend(d.occluders.iter().map(|b| room.world_box(b)));
-        }
+    for (room, f) in plan.rooms.iter().zip(&plan.furnishings) {
+        furniture.extend(f.furniture.iter().map(|b| room.world_box(b)));
+        occluders.extend(f.occluders.iter().map(|b| room.world_box(b)));
     }
     let size = plan.size_m;
     Scene {

@@ -47,12 +47,13 @@ fn same_seed_same_building_and_rooms_repeat_designs() {
 }
 
 #[test]
-fn look_alike_rooms_are_the_same_from_inside() {
+fn identical_rooms_are_the_same_from_inside() {
     // Ten rooms of two designs: rooms of one design on either side of the
-    // corridor have the same surfaces in their own frames.
+    // corridor have the same surfaces and furniture in their own frames.
     let spec = BuildingSpec {
         rooms: 10,
         designs: 2,
+        identical_rooms: true,
         ..small()
     };
     let plan = FloorPlan::generate(&spec, 5);
@@ -62,7 +63,7 @@ fn look_alike_rooms_are_the_same_from_inside() {
     let design = &plan.designs[0];
     let scene = build_building(&spec, 5);
     // Each furniture box of the design appears once per room of it.
-    for b in &design.furniture {
+    for b in &design.furnishing.furniture {
         let copies = scene
             .furniture
             .iter()
@@ -70,6 +71,51 @@ fn look_alike_rooms_are_the_same_from_inside() {
             .count();
         assert!(copies >= same.len(), "{copies} copies of a box");
     }
+}
+
+#[test]
+fn look_alike_rooms_share_the_shell_and_differ_in_furniture() {
+    let spec = BuildingSpec {
+        rooms: 10,
+        designs: 2,
+        ..small()
+    };
+    let plan = FloorPlan::generate(&spec, 5);
+    assert_eq!(plan.furnishings.len(), plan.rooms.len());
+    let same: Vec<usize> = (0..plan.rooms.len())
+        .filter(|&i| plan.rooms[i].design == 0)
+        .collect();
+    assert!(same.len() >= 4);
+    for (k, &i) in same.iter().enumerate() {
+        assert_eq!(plan.rooms[i].size_m, plan.designs[0].size_m);
+        assert!(!plan.furnishings[i].furniture.is_empty(), "room {i} empty");
+        for &j in &same[k + 1..] {
+            assert_ne!(
+                plan.furnishings[i], plan.furnishings[j],
+                "rooms {i} and {j} furnished alike"
+            );
+        }
+    }
+    // Every room's boxes keep off its tour: the scene's free-space test
+    // (which includes the furniture) passes along each room's route.
+    let scene = build_building(&spec, 5);
+    let n_boxes: usize = plan.furnishings.iter().map(|f| f.furniture.len()).sum();
+    assert_eq!(scene.furniture.len(), n_boxes);
+    for route in plan.routes() {
+        for p in std::iter::once(route.inside_m).chain(route.loop_m) {
+            assert!(scene.is_free([p[0], p[1], 1.4], 0.3), "{p:?}");
+        }
+    }
+    // The shells are still the same: the map differs from the identical
+    // rooms' only in furniture.
+    let twins = build_building(
+        &BuildingSpec {
+            identical_rooms: true,
+            ..spec
+        },
+        5,
+    );
+    assert_ne!(scene.map.positions, twins.map.positions);
 }
 
 #[test]
