@@ -198,7 +198,8 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     );
     if let Some((rooms, area_m2, [x_m, y_m])) = summary.building {
         println!(
-            "building: {rooms} rooms and a corridor, {area_m2:.0} m² of floor on a {x_m:.1} m x {y_m:.1} m footprint"
+            "building: {rooms} room{} and a corridor, {area_m2:.0} m² of floor on a {x_m:.1} m x {y_m:.1} m footprint",
+            if rooms == 1 { "" } else { "s" }
         );
     }
     if let Some(scanned) = &summary.scanned {
