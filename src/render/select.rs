@@ -421,6 +421,29 @@ mod tests {
     }
 
     #[test]
+    fn gpu_budget_defaults_to_none_and_is_validated() {
+        let c = RenderConfig::default();
+        assert_eq!((c.gpu_budget_mb, c.gpu_budget_bytes()), (0.0, 0));
+        let set = RenderConfig {
+            gpu_budget_mb: 64.5,
+            ..RenderConfig::default()
+        };
+        set.validate().expect("a budget");
+        assert_eq!(set.gpu_budget_bytes(), 64_500_000);
+        for bad in [-1.0, f64::NAN, f64::INFINITY, 1e8] {
+            let err = RenderConfig {
+                gpu_budget_mb: bad,
+                ..RenderConfig::default()
+            }
+            .validate()
+            .expect_err("out of range");
+            assert!(err.to_string().contains("gpu_budget_mb"), "{err}");
+        }
+        let parsed: RenderConfig = toml::from_str("gpu_budget_mb = 256").expect("an integer");
+        assert_eq!(parsed.gpu_budget_bytes(), 256_000_000);
+    }
+
+    #[test]
     fn chains_end_with_the_cpu_rasterizer() {
         assert_eq!(chain(RendererKind::Auto), &[HARDWARE, Stage::Cpu]);
         assert_eq!(chain(RendererKind::Gpu), &[HARDWARE, Stage::Cpu]);
