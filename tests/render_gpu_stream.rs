@@ -139,12 +139,21 @@ fn streamed_chunks_render_the_same_image_as_the_resident_mesh() {
     for (k, pose) in poses.iter().enumerate() {
         resident.render(pose, &camera, &mut a).unwrap();
         let hits = a.depth_m.data().iter().filter(|&&d| d > 0.0).count();
-        assert!(hits > a.depth_m.data().len() / 2, "pose {k} sees mostly nothing");
+        assert!(
+            hits > a.depth_m.data().len() / 2,
+            "pose {k} sees mostly nothing"
+        );
         streamed.render(pose, &camera, &mut b).unwrap();
-        assert!(same(&a, &b), "pose {k} ({pose:?}): streaming changed the image");
+        assert!(
+            same(&a, &b),
+            "pose {k} ({pose:?}): streaming changed the image"
+        );
         if k % 3 == 0 {
             narrow.render(pose, &camera, &mut b).unwrap();
-            assert!(same(&a, &b), "pose {k} ({pose:?}): multi-pass changed the image");
+            assert!(
+                same(&a, &b),
+                "pose {k} ({pose:?}): multi-pass changed the image"
+            );
         }
     }
     let s = streamed.stream_stats();
@@ -157,16 +166,25 @@ fn streamed_chunks_render_the_same_image_as_the_resident_mesh() {
         pool.slot_bytes as f64 / 1e3,
     );
     assert_eq!(s.renders, POSES as u64);
-    assert!(s.evictions > 0, "the budget never forced an eviction: {s:?}");
+    assert!(
+        s.evictions > 0,
+        "the budget never forced an eviction: {s:?}"
+    );
     assert!(s.uploads >= s.evictions + s.slots as u64 / 2, "{s:?}");
-    assert!(n.passes > n.renders, "8 slots never needed a second pass: {n:?}");
+    assert!(
+        n.passes > n.renders,
+        "8 slots never needed a second pass: {n:?}"
+    );
 
     // A budget below one chunk: refused with the key and the minimum.
     let err = GpuRenderer::new_with_budget(Arc::clone(&mesh), which, 1000).unwrap_err();
     let GpuError::BudgetTooSmall { min_mb, .. } = err else {
         panic!("expected BudgetTooSmall, got {err}");
     };
-    assert!((min_mb * 1e6 - pool.slot_bytes as f64).abs() < 1000.0, "{min_mb}");
+    assert!(
+        (min_mb * 1e6 - pool.slot_bytes as f64).abs() < 1000.0,
+        "{min_mb}"
+    );
     let text = err_text(&mesh, which);
     assert!(
         text.contains("render.gpu_budget_mb") && text.contains("minimum"),

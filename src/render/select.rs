@@ -185,8 +185,11 @@ impl Active {
     fn start(stage: Stage, mesh: &Arc<Mesh>, settings: Settings) -> Result<Self, RenderError> {
         match stage {
             Stage::Gpu(which) => {
-                let mut r =
-                    GpuRenderer::new_with_budget(Arc::clone(mesh), which, settings.gpu_budget_bytes)?;
+                let mut r = GpuRenderer::new_with_budget(
+                    Arc::clone(mesh),
+                    which,
+                    settings.gpu_budget_bytes,
+                )?;
                 r.set_far_m(settings.far_m);
                 Ok(Active::Gpu(Box::new(r)))
             }

@@ -263,9 +263,9 @@ pub fn upload(
         .collect();
     let (vertex_bytes, index_bytes) = resident_bytes(&chunked);
     let geometry = match plan {
-        Some(plan) => Geometry::Streamed(Box::new(StreamPool::new(
-            device, plan, vertices, &chunked,
-        ))),
+        Some(plan) => {
+            Geometry::Streamed(Box::new(StreamPool::new(device, plan, vertices, &chunked)))
+        }
         None => {
             // wgpu buffers may not be empty: pad an empty mesh with one dummy element.
             let dummy_vertex = [GpuVertex::zeroed()];
