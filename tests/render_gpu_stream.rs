@@ -159,8 +159,9 @@ fn streamed_chunks_render_the_same_image_as_the_resident_mesh() {
     let s = streamed.stream_stats();
     let n = narrow.stream_stats();
     eprintln!(
-        "whole mesh {:.1} MB; budget {:.1} MB: {} slots of {:.0} kB, {s:?}; 8 slots: {n:?}",
+        "whole mesh {:.1} MB in {} chunks; budget {:.1} MB: {} slots of {:.0} kB, {s:?}; 8 slots: {n:?}",
         whole_bytes as f64 / 1e6,
+        streamed.cull_stats().chunks,
         budget_bytes as f64 / 1e6,
         pool.slots,
         pool.slot_bytes as f64 / 1e3,

@@ -28,6 +28,7 @@
 pub mod adapter;
 mod draws;
 mod frame;
+mod pass;
 mod pipeline;
 pub mod projection;
 mod renderer;

@@ -23,6 +23,7 @@ use std::time::Duration;
 use super::adapter::{self, AdapterClass, AdapterPreference};
 use super::draws::{self, Draw};
 use super::frame::{FrameTargets, MapStatus};
+use super::pass::{record_pass, PassInputs};
 use super::pipeline;
 use super::projection::{ViewUniform, NEAR_M, VIEW_UNIFORM_BYTES};
 use super::stream::StreamStats;
@@ -583,80 +584,6 @@ impl GpuRenderer {
         } else {
             Err(GpuError::MapFailed { adapter: adapter() })
         }
-    }
-}
-
-/// What one render pass draws with.
-struct PassInputs<'a> {
-    pipeline: &'a wgpu::RenderPipeline,
-    view_group: &'a wgpu::BindGroup,
-    texture_groups: &'a [wgpu::BindGroup],
-    vertices: &'a wgpu::Buffer,
-    indices: &'a wgpu::Buffer,
-}
-
-/// Records one render pass of `draws` into `frame`'s targets. The `first`
-/// pass of a render clears gray, depth and the z-buffer, later ones load
-/// them; every pass but the `last` keeps the z-buffer for the next.
-fn record_pass(
-    encoder: &mut wgpu::CommandEncoder,
-    frame: &FrameTargets,
-    inputs: &PassInputs,
-    draws: &[Draw],
-    first: bool,
-    last: bool,
-) {
-    let color = |view| {
-        Some(wgpu::RenderPassColorAttachment {
-            view,
-            depth_slice: None,
-            resolve_target: None,
-            ops: wgpu::Operations {
-                load: if first {
-                    wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT)
-                } else {
-                    wgpu::LoadOp::Load
-                },
-                store: wgpu::StoreOp::Store,
-            },
-        })
-    };
-    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-        label: Some("star keyframe"),
-        color_attachments: &[color(&frame.gray_view), color(&frame.depth_view)],
-        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-            view: &frame.zbuffer_view,
-            depth_ops: Some(wgpu::Operations {
-                // Reversed depth: 0 is infinitely far.
-                load: if first {
-                    wgpu::LoadOp::Clear(0.0)
-                } else {
-                    wgpu::LoadOp::Load
-                },
-                store: if last {
-                    wgpu::StoreOp::Discard
-                } else {
-                    wgpu::StoreOp::Store
-                },
-            }),
-            stencil_ops: None,
-        }),
-        ..Default::default()
-    });
-    pass.set_pipeline(inputs.pipeline);
-    pass.set_bind_group(0, inputs.view_group, &[]);
-    pass.set_vertex_buffer(0, inputs.vertices.slice(..));
-    pass.set_index_buffer(inputs.indices.slice(..), wgpu::IndexFormat::Uint32);
-    let mut bound = None;
-    for draw in draws {
-        let Some(group) = inputs.texture_groups.get(draw.texture) else {
-            continue;
-        };
-        if bound != Some(draw.texture) {
-            pass.set_bind_group(1, group, &[]);
-            bound = Some(draw.texture);
-        }
-        pass.draw_indexed(draw.indices.clone(), draw.base_vertex, 0..1);
     }
 }
 
