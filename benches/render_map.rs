@@ -17,11 +17,19 @@
 //! the default, 30 m), as `star track` would; `STAR_BENCH_FAR_M=X`
 //! overrides it (0: none).
 //!
+//! `STAR_BENCH_GPU_BUDGET_MB=X` (MB, 10^6 bytes) also times the wgpu
+//! renderer (cull on) with `[render] gpu_budget_mb = X`: a map larger than
+//! that streams its chunks through a slot pool; printed with the pool's
+//! size and the chunk uploads, evictions and render passes per render
+//! (over the timed renders and one untimed round before them, after a
+//! first round that fills the pool).
+//!
 //! Also printed: the map's load time, the process's resident memory
 //! (VmRSS) after loading and with each renderer built, and the wgpu
 //! renderer's device memory (mesh buffers, textures, targets).
 //!
 //! `--cpu-default` times only the CPU rasterizer with its default cull;
+//! `--gpu-only` only the wgpu renderer with its cull on (and the budget);
 //! `--interleaved` times only that, on all the datasets in alternating
 //! blocks (so that a changing machine load falls on each alike), and prints
 //! each median's ratio to the first dataset's.
@@ -137,6 +145,9 @@ fn time_renders(
 struct Only {
     /// `--cpu-default`: only the CPU rasterizer with its default cull.
     cpu_default: bool,
+    /// `--gpu-only`: only the wgpu renderer, cull on (and with
+    /// `STAR_BENCH_GPU_BUDGET_MB`, with that budget).
+    gpu_only: bool,
 }
 
 fn bench_dataset(dir: &Path, only: Only) {
@@ -165,64 +176,66 @@ fn bench_dataset(dir: &Path, only: Only) {
     );
     let mesh = Arc::new(mesh);
 
-    let t = Instant::now();
-    let mut cpu = CpuRenderer::new(Arc::clone(&mesh)).expect("valid mesh");
-    cpu.set_far_m(far_m);
-    let built_s = t.elapsed().as_secs_f64();
-    println!(
-        "  cpu renderer: {:.0} MB for the chunked mesh and textures; resident memory {:.0} MB",
-        cpu.mesh_bytes() as f64 / 1e6,
-        status_mb("VmRSS:"),
-    );
-    let split_vertices = ChunkedMesh::build(&mesh).expect("chunks").positions.len();
-    let mut out = RenderedView::for_camera(&camera);
-    let (mut binned, mut seen_triangles) = (0, 0);
-    let fractions: Vec<f64> = poses
-        .iter()
-        .map(|p| {
-            cpu.render(p, &camera, &mut out).expect("render");
-            binned += cpu.binned_triangles();
-            seen_triangles += cpu.seen(&out).2;
-            cpu.cull_stats().visible_fraction()
-        })
-        .collect();
-    let stats = cpu.cull_stats();
-    println!(
-        "  {} chunks, {split_vertices} vertices with copies at chunk borders \
-         (renderer built in {built_s:.2} s); visible triangles: mean {:.1} %, min {:.1} %, max {:.1} %",
-        stats.chunks,
-        100.0 * fractions.iter().sum::<f64>() / fractions.len().max(1) as f64,
-        100.0 * fractions.iter().copied().fold(f64::INFINITY, f64::min),
-        100.0 * fractions.iter().copied().fold(0.0, f64::max),
-    );
-    println!(
-        "  per view: {:.0} screen triangles binned, {:.0} mesh triangles seen (owning a pixel)",
-        binned as f64 / poses.len().max(1) as f64,
-        seen_triangles as f64 / poses.len().max(1) as f64,
-    );
-    // Frustum and occlusion cull (the default), frustum only, none.
-    let modes = [
-        (true, true, "frustum + occlusion"),
-        (true, false, "frustum only"),
-        (false, false, "off"),
-    ];
-    let modes = if only.cpu_default {
-        &modes[..1]
-    } else {
-        &modes[..]
-    };
-    for &(cull, occlusion, what) in modes {
-        cpu.set_frustum_cull(cull);
-        cpu.set_occlusion_cull(occlusion);
-        let (median, p95, n) = time_renders(&mut cpu, &camera, &poses);
+    if !only.gpu_only {
+        let t = Instant::now();
+        let mut cpu = CpuRenderer::new(Arc::clone(&mesh)).expect("valid mesh");
+        cpu.set_far_m(far_m);
+        let built_s = t.elapsed().as_secs_f64();
         println!(
-            "  cpu ({} threads, cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
-            cpu.threads(),
+            "  cpu renderer: {:.0} MB for the chunked mesh and textures; resident memory {:.0} MB",
+            cpu.mesh_bytes() as f64 / 1e6,
+            status_mb("VmRSS:"),
         );
-    }
-    drop(cpu);
-    if only.cpu_default {
-        return;
+        let split_vertices = ChunkedMesh::build(&mesh).expect("chunks").positions.len();
+        let mut out = RenderedView::for_camera(&camera);
+        let (mut binned, mut seen_triangles) = (0, 0);
+        let fractions: Vec<f64> = poses
+            .iter()
+            .map(|p| {
+                cpu.render(p, &camera, &mut out).expect("render");
+                binned += cpu.binned_triangles();
+                seen_triangles += cpu.seen(&out).2;
+                cpu.cull_stats().visible_fraction()
+            })
+            .collect();
+        let stats = cpu.cull_stats();
+        println!(
+            "  {} chunks, {split_vertices} vertices with copies at chunk borders \
+             (renderer built in {built_s:.2} s); visible triangles: mean {:.1} %, min {:.1} %, max {:.1} %",
+            stats.chunks,
+            100.0 * fractions.iter().sum::<f64>() / fractions.len().max(1) as f64,
+            100.0 * fractions.iter().copied().fold(f64::INFINITY, f64::min),
+            100.0 * fractions.iter().copied().fold(0.0, f64::max),
+        );
+        println!(
+            "  per view: {:.0} screen triangles binned, {:.0} mesh triangles seen (owning a pixel)",
+            binned as f64 / poses.len().max(1) as f64,
+            seen_triangles as f64 / poses.len().max(1) as f64,
+        );
+        // Frustum and occlusion cull (the default), frustum only, none.
+        let modes = [
+            (true, true, "frustum + occlusion"),
+            (true, false, "frustum only"),
+            (false, false, "off"),
+        ];
+        let modes = if only.cpu_default {
+            &modes[..1]
+        } else {
+            &modes[..]
+        };
+        for &(cull, occlusion, what) in modes {
+            cpu.set_frustum_cull(cull);
+            cpu.set_occlusion_cull(occlusion);
+            let (median, p95, n) = time_renders(&mut cpu, &camera, &poses);
+            println!(
+                "  cpu ({} threads, cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
+                cpu.threads(),
+            );
+        }
+        drop(cpu);
+        if only.cpu_default {
+            return;
+        }
     }
 
     let t = Instant::now();
@@ -244,7 +257,12 @@ fn bench_dataset(dir: &Path, only: Only) {
                 memory.target_bytes as f64 / 1e6,
                 status_mb("VmRSS:"),
             );
-            for cull in [true, false] {
+            let culls: &[bool] = if only.gpu_only {
+                &[true]
+            } else {
+                &[true, false]
+            };
+            for &cull in culls {
                 gpu.set_frustum_cull(cull);
                 let (median, p95, n) = time_renders(&mut gpu, &camera, &poses);
                 println!(
@@ -252,9 +270,71 @@ fn bench_dataset(dir: &Path, only: Only) {
                     if cull { "on" } else { "off" },
                 );
             }
+            drop(gpu);
+            if let Some(budget_mb) = gpu_budget_mb() {
+                bench_gpu_budget(&mesh, &camera, &poses, far_m, budget_mb);
+            }
         }
         Err(e) => println!("  wgpu software: no adapter, skipped ({e})"),
     }
+}
+
+/// `STAR_BENCH_GPU_BUDGET_MB`, when set.
+fn gpu_budget_mb() -> Option<f64> {
+    let v = std::env::var("STAR_BENCH_GPU_BUDGET_MB").ok()?;
+    let mb: f64 = v.parse().expect("STAR_BENCH_GPU_BUDGET_MB: MB");
+    assert!(
+        mb.is_finite() && mb > 0.0,
+        "STAR_BENCH_GPU_BUDGET_MB: positive MB"
+    );
+    Some(mb)
+}
+
+/// The wgpu software renderer (cull on) with a GPU budget of `budget_mb`.
+fn bench_gpu_budget(
+    mesh: &Arc<Mesh>,
+    camera: &PinholeCamera,
+    poses: &[Pose],
+    far_m: Option<f64>,
+    budget_mb: f64,
+) {
+    let budget_bytes = (budget_mb * 1e6) as u64;
+    let mut gpu = match GpuRenderer::new_with_budget(
+        Arc::clone(mesh),
+        AdapterPreference::Software,
+        budget_bytes,
+    ) {
+        Ok(gpu) => gpu,
+        Err(e) => {
+            println!("  wgpu software, budget {budget_mb} MB: skipped ({e})");
+            return;
+        }
+    };
+    gpu.set_far_m(far_m);
+    let mut out = RenderedView::for_camera(camera);
+    for p in poses {
+        gpu.render(p, camera, &mut out).expect("render");
+    }
+    let before = gpu.stream_stats();
+    let (median, p95, n) = time_renders(&mut gpu, camera, poses);
+    let after = gpu.stream_stats();
+    let renders = (after.renders - before.renders).max(1) as f64;
+    let per = |a: u64, b: u64| (a - b) as f64 / renders;
+    let memory = gpu.memory();
+    println!(
+        "  wgpu software (cull on, gpu_budget_mb {budget_mb}: {}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders; \
+         per render {:.1} chunk uploads, {:.1} evictions, {:.2} passes; device memory {:.0} MB (mesh buffers {:.1} MB)",
+        if after.slots == 0 {
+            "the mesh fits, resident".to_string()
+        } else {
+            format!("{} slots of {:.0} kB", after.slots, after.slot_bytes as f64 / 1e3)
+        },
+        per(after.uploads, before.uploads),
+        per(after.evictions, before.evictions),
+        per(after.passes, before.passes),
+        memory.total_bytes() as f64 / 1e6,
+        memory.mesh_buffer_bytes as f64 / 1e6,
+    );
 }
 
 /// Blocks of each dataset's renders in turn.
@@ -338,6 +418,7 @@ fn main() {
     }
     let only = Only {
         cpu_default: std::env::args().any(|a| a == "--cpu-default"),
+        gpu_only: std::env::args().any(|a| a == "--gpu-only"),
     };
     for dir in &dirs {
         bench_dataset(dir, only);

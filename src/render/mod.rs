@@ -51,6 +51,11 @@ pub enum RenderError {
     /// The pose or intrinsics contain NaN or infinity.
     #[error("render request is not finite: {0}")]
     NotFinite(&'static str),
+    /// A render setting cannot be used with this map (e.g.
+    /// `render.gpu_budget_mb` below the map's largest chunk); the message
+    /// names the key and what it needs.
+    #[error("{0}")]
+    Setting(String),
     /// The rendering backend failed (device lost, out of memory, ...).
     #[error("renderer backend failed: {0}")]
     Backend(String),

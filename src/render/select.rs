@@ -57,6 +57,12 @@ pub const DEFAULT_FAR_M: f64 = 30.0;
 /// Accepted `render.far_m`, meters (0 turns the limit off).
 pub const FAR_M_RANGE: std::ops::RangeInclusive<f64> = 1.0..=10_000.0;
 
+/// Largest accepted `render.gpu_budget_mb`, MB (10 TB: beyond any device).
+pub const MAX_GPU_BUDGET_MB: f64 = 1e7;
+
+/// Bytes in the MB of `render.gpu_budget_mb` (as in every MB `star` logs).
+pub const BYTES_PER_MB: f64 = 1e6;
+
 /// `[render]`
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -68,6 +74,13 @@ pub struct RenderConfig {
     /// points) and mesh chunks wholly beyond it are not drawn at all. 0
     /// turns it off.
     pub far_m: f64,
+    /// Device memory the wgpu renderer may use for the mesh's vertex and
+    /// index data, MB (10^6 bytes). 0, the default: no budget, the whole
+    /// mesh is uploaded at start. A mesh larger than a nonzero budget is
+    /// streamed: a fixed pool of chunk slots of this size, filled with the
+    /// visible chunks as renders need them (least recently used evicted).
+    /// Textures, targets and the CPU rasterizer are not bounded by it.
+    pub gpu_budget_mb: f64,
 }
 
 impl Default for RenderConfig {
@@ -75,23 +88,44 @@ impl Default for RenderConfig {
         Self {
             renderer: RendererKind::default(),
             far_m: DEFAULT_FAR_M,
+            gpu_budget_mb: 0.0,
         }
     }
 }
 
 impl RenderConfig {
-    /// Checks `far_m`: 0 (off) or within [`FAR_M_RANGE`].
+    /// Checks `far_m`: 0 (off) or within [`FAR_M_RANGE`]; `gpu_budget_mb`:
+    /// 0 (none) or positive up to [`MAX_GPU_BUDGET_MB`]. Whether a budget
+    /// holds the map's largest chunk is checked when the wgpu renderer
+    /// starts on that map.
     pub fn validate(&self) -> Result<(), crate::settings::SettingError> {
-        crate::settings::first_failure([(
-            "far_m",
-            self.far_m == 0.0 || FAR_M_RANGE.contains(&self.far_m),
-            format!(
-                "expected 0 (no limit) or {}..={} m, found {}",
-                FAR_M_RANGE.start(),
-                FAR_M_RANGE.end(),
-                self.far_m
+        crate::settings::first_failure([
+            (
+                "far_m",
+                self.far_m == 0.0 || FAR_M_RANGE.contains(&self.far_m),
+                format!(
+                    "expected 0 (no limit) or {}..={} m, found {}",
+                    FAR_M_RANGE.start(),
+                    FAR_M_RANGE.end(),
+                    self.far_m
+                ),
             ),
-        )])
+            (
+                "gpu_budget_mb",
+                (0.0..=MAX_GPU_BUDGET_MB).contains(&self.gpu_budget_mb),
+                format!(
+                    "expected 0 (no budget: the whole mesh on the device) or a size \
+                     in MB (10^6 bytes) up to {MAX_GPU_BUDGET_MB}, found {}",
+                    self.gpu_budget_mb
+                ),
+            ),
+        ])
+    }
+
+    /// The GPU budget as the wgpu renderer takes it, bytes: 0 when off.
+    pub fn gpu_budget_bytes(&self) -> u64 {
+        // Validated: finite, 0..=1e13 bytes.
+        (self.gpu_budget_mb.max(0.0) * BYTES_PER_MB) as u64
     }
 
     /// The far limit as the renderers take it: `None` when off.
@@ -138,17 +172,30 @@ enum Active {
     Cpu(Box<CpuRenderer>),
 }
 
+/// What every renderer of a chain is started with.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Settings {
+    /// Far limit, meters; `None`: none.
+    far_m: Option<f64>,
+    /// wgpu mesh budget, bytes; 0: none.
+    gpu_budget_bytes: u64,
+}
+
 impl Active {
-    fn start(stage: Stage, mesh: &Arc<Mesh>, far_m: Option<f64>) -> Result<Self, RenderError> {
+    fn start(stage: Stage, mesh: &Arc<Mesh>, settings: Settings) -> Result<Self, RenderError> {
         match stage {
             Stage::Gpu(which) => {
-                let mut r = GpuRenderer::new(Arc::clone(mesh), which)?;
-                r.set_far_m(far_m);
+                let mut r = GpuRenderer::new_with_budget(
+                    Arc::clone(mesh),
+                    which,
+                    settings.gpu_budget_bytes,
+                )?;
+                r.set_far_m(settings.far_m);
                 Ok(Active::Gpu(Box::new(r)))
             }
             Stage::Cpu => {
                 let mut r = CpuRenderer::new(Arc::clone(mesh))?;
-                r.set_far_m(far_m);
+                r.set_far_m(settings.far_m);
                 Ok(Active::Cpu(Box::new(r)))
             }
         }
@@ -167,7 +214,7 @@ impl Active {
 #[derive(Debug)]
 pub struct FallbackRenderer {
     mesh: Arc<Mesh>,
-    far_m: Option<f64>,
+    settings: Settings,
     chain: &'static [Stage],
     index: usize,
     active: Active,
@@ -182,16 +229,13 @@ pub fn make_renderer(
     Ok(Box::new(FallbackRenderer::new(kind, mesh)?))
 }
 
-/// Builds the renderer `[render]` asks for (kind and far limit), boxed.
+/// Builds the renderer `[render]` asks for (kind, far limit and GPU
+/// budget), boxed.
 pub fn make_configured_renderer(
     config: &RenderConfig,
     mesh: Arc<Mesh>,
 ) -> Result<Box<dyn Renderer>, RenderError> {
-    Ok(Box::new(FallbackRenderer::with_far(
-        config.renderer,
-        mesh,
-        config.far_limit_m(),
-    )?))
+    Ok(Box::new(FallbackRenderer::configured(config, mesh)?))
 }
 
 impl FallbackRenderer {
@@ -209,22 +253,51 @@ impl FallbackRenderer {
         mesh: Arc<Mesh>,
         far_m: Option<f64>,
     ) -> Result<Self, RenderError> {
+        let settings = Settings {
+            far_m,
+            gpu_budget_bytes: 0,
+        };
+        Self::start(kind, mesh, settings)
+    }
+
+    /// As [`FallbackRenderer::new`], with everything `[render]` sets: the
+    /// kind, the far limit and the wgpu mesh budget
+    /// ([`RenderConfig::gpu_budget_mb`]). A budget below the map's largest
+    /// chunk is an error, not a reason to fall back.
+    pub fn configured(config: &RenderConfig, mesh: Arc<Mesh>) -> Result<Self, RenderError> {
+        let settings = Settings {
+            far_m: config.far_limit_m(),
+            gpu_budget_bytes: config.gpu_budget_bytes(),
+        };
+        Self::start(config.renderer, mesh, settings)
+    }
+
+    fn start(kind: RendererKind, mesh: Arc<Mesh>, settings: Settings) -> Result<Self, RenderError> {
         let chain = chain(kind);
         let strict = matches!(kind, RendererKind::Gpu | RendererKind::Software);
         let mut errors = Vec::new();
         for (index, &stage) in chain.iter().enumerate() {
-            match Active::start(stage, &mesh, far_m) {
+            match Active::start(stage, &mesh, settings) {
                 Ok(active) => {
                     let mut renderer = Self {
                         mesh,
-                        far_m,
+                        settings,
                         chain,
                         index,
                         active,
                     };
-                    tracing::info!(renderer = %renderer.active.renderer().name(), ?kind, far_m = ?far_m, "keyframe renderer chosen");
+                    tracing::info!(
+                        renderer = %renderer.active.renderer().name(),
+                        ?kind,
+                        far_m = ?settings.far_m,
+                        gpu_budget_mb = settings.gpu_budget_bytes as f64 / BYTES_PER_MB,
+                        "keyframe renderer chosen"
+                    );
                     return Ok(renderer);
                 }
+                // A setting the map cannot be rendered with is the
+                // operator's to fix, whatever the chain.
+                Err(e @ RenderError::Setting(_)) => return Err(e),
                 Err(e) => {
                     tracing::info!(stage = stage.describe(), error = %e, "renderer unavailable");
                     if strict && index == 0 {
@@ -265,7 +338,7 @@ impl FallbackRenderer {
             let Some(&stage) = self.chain.get(index) else {
                 break;
             };
-            match Active::start(stage, &self.mesh, self.far_m) {
+            match Active::start(stage, &self.mesh, self.settings) {
                 Ok(active) => {
                     self.active = active;
                     self.index = index;
@@ -348,6 +421,29 @@ mod tests {
             .expect_err("out of range");
             assert!(err.to_string().contains("far_m"), "{err}");
         }
+    }
+
+    #[test]
+    fn gpu_budget_defaults_to_none_and_is_validated() {
+        let c = RenderConfig::default();
+        assert_eq!((c.gpu_budget_mb, c.gpu_budget_bytes()), (0.0, 0));
+        let set = RenderConfig {
+            gpu_budget_mb: 64.5,
+            ..RenderConfig::default()
+        };
+        set.validate().expect("a budget");
+        assert_eq!(set.gpu_budget_bytes(), 64_500_000);
+        for bad in [-1.0, f64::NAN, f64::INFINITY, 1e8] {
+            let err = RenderConfig {
+                gpu_budget_mb: bad,
+                ..RenderConfig::default()
+            }
+            .validate()
+            .expect_err("out of range");
+            assert!(err.to_string().contains("gpu_budget_mb"), "{err}");
+        }
+        let parsed: RenderConfig = toml::from_str("gpu_budget_mb = 256").expect("an integer");
+        assert_eq!(parsed.gpu_budget_bytes(), 256_000_000);
     }
 
     #[test]

@@ -5,7 +5,8 @@
 //! gives out the draw calls: the index ranges of the chunks that pass the
 //! frustum test, runs of adjacent chunks of one bind group merged into one
 //! `draw_indexed`, in index-buffer order (mesh group order, as before
-//! chunking).
+//! chunking); or, for a streamed mesh, the visible chunks themselves, in
+//! the same order, for `super::stream` to place in slots.
 
 use std::ops::Range;
 
@@ -17,6 +18,8 @@ use crate::render::frustum::Frustum;
 pub struct Draw {
     /// Indices into the index buffer.
     pub indices: Range<u32>,
+    /// Added to every index (a streamed chunk's slot; 0 when resident).
+    pub base_vertex: i32,
     /// Index of the bind group in [`super::upload::GpuMesh::texture_groups`].
     pub texture: usize,
 }
@@ -42,7 +45,32 @@ pub fn select(
             Some(last) if last.texture == texture && last.indices.end == indices.start => {
                 last.indices.end = indices.end;
             }
-            _ => draws.push(Draw { indices, texture }),
+            _ => draws.push(Draw {
+                indices,
+                base_vertex: 0,
+                texture,
+            }),
+        }
+    }
+    stats
+}
+
+/// Fills `wanted` (cleared first) with the numbers of the chunks that pass
+/// `frustum` (all of them when `None`) and have a bind group in
+/// `chunk_texture`, in index-buffer order; `visible` is scratch. Neither
+/// buffer allocates once it has held every chunk.
+pub fn visible_chunks(
+    chunks: &[MeshChunk],
+    chunk_texture: &[Option<usize>],
+    frustum: Option<&Frustum>,
+    visible: &mut Vec<bool>,
+    wanted: &mut Vec<u32>,
+) -> CullStats {
+    let stats = chunks::mark_visible(chunks, frustum, visible);
+    wanted.clear();
+    for (c, (texture, &visible)) in chunk_texture.iter().zip(visible.iter()).enumerate() {
+        if texture.is_some() && visible {
+            wanted.push(c as u32);
         }
     }
     stats
@@ -88,7 +116,11 @@ mod tests {
         let stats = select(&chunks, &texture, Some(&frustum), &mut visible, &mut draws);
         assert_eq!(stats.visible_chunks, 6);
         assert_eq!(stats.visible_triangles, 35);
-        let d = |indices: Range<u32>, texture: usize| Draw { indices, texture };
+        let d = |indices: Range<u32>, texture: usize| Draw {
+            indices,
+            base_vertex: 0,
+            texture,
+        };
         assert_eq!(
             draws,
             vec![d(0..45, 0), d(60..75, 1), d(75..90, 0), d(105..120, 0)]
@@ -99,5 +131,10 @@ mod tests {
             draws,
             vec![d(0..60, 0), d(60..75, 1), d(75..90, 0), d(105..120, 0)]
         );
+        // For streaming: the chunks themselves, without the undrawn one.
+        let mut wanted = Vec::new();
+        let stats = visible_chunks(&chunks, &texture, Some(&frustum), &mut visible, &mut wanted);
+        assert_eq!(stats.visible_chunks, 6);
+        assert_eq!(wanted, vec![0, 1, 3, 4, 6]);
     }
 }

@@ -4,7 +4,9 @@
 //! lavapipe/llvmpipe), the mesh split into spatial chunks and uploaded once
 //! (vertex and index buffers, gray textures sampled bilinearly with repeat
 //! addressing; each render draws only the chunks that meet the view
-//! frustum, adjacent ones merged into one draw call), the pipeline
+//! frustum, adjacent ones merged into one draw call) or, when its vertex
+//! and index data exceed `[render] gpu_budget_mb`, streamed through a
+//! fixed pool of chunk slots (`stream`), the pipeline
 //! built from `shaders/mesh.wgsl`, and the
 //! offscreen targets: gray and linear metric depth (both `R32Float`, written
 //! by the shader) plus a `Depth32Float` z-buffer for occlusion. Takes a pose
@@ -26,15 +28,18 @@
 pub mod adapter;
 mod draws;
 mod frame;
+mod pass;
 mod pipeline;
 pub mod projection;
 mod renderer;
+mod stream;
 mod upload;
 
 pub use adapter::{
     auto_choice, lavapipe_installed, list_adapters, AdapterClass, AdapterPreference, AdapterSummary,
 };
 pub use renderer::{GpuMemory, GpuRenderer, PendingRender};
+pub use stream::StreamStats;
 pub use upload::TextureFormat;
 
 #[cfg(doc)]
@@ -72,6 +77,25 @@ pub enum GpuError {
         height: u32,
         /// The adapter's `max_texture_dimension_2d`.
         max_dimension: u32,
+    },
+    /// `render.gpu_budget_mb` is nonzero, below the mesh's vertex and
+    /// index data, and too small for even one chunk slot.
+    #[error(
+        "render.gpu_budget_mb = {budget_mb} MB cannot hold one chunk of this mesh \
+         ({triangles} triangles, {chunks} chunks): the minimum is {min_mb} MB (one \
+         slot of the largest chunk); the whole mesh takes {mesh_mb} MB; 0 turns the budget off"
+    )]
+    BudgetTooSmall {
+        /// The budget, MB (10^6 bytes).
+        budget_mb: f64,
+        /// The smallest budget that streams this mesh, MB, rounded up.
+        min_mb: f64,
+        /// The mesh's vertex and index data when wholly resident, MB.
+        mesh_mb: f64,
+        /// Chunks in the mesh.
+        chunks: usize,
+        /// Triangles in the mesh.
+        triangles: usize,
     },
     /// A vertex or index buffer exceeds the adapter's buffer size limit.
     #[error("mesh buffer of {bytes} bytes exceeds the adapter limit of {max_bytes} bytes")]
@@ -127,6 +151,9 @@ pub enum GpuError {
 
 impl From<GpuError> for crate::render::RenderError {
     fn from(e: GpuError) -> Self {
-        crate::render::RenderError::Backend(e.to_string())
+        match e {
+            GpuError::BudgetTooSmall { .. } => crate::render::RenderError::Setting(e.to_string()),
+            e => crate::render::RenderError::Backend(e.to_string()),
+        }
     }
 }

@@ -8,6 +8,14 @@
 //! one staging buffer; every buffer and texture is allocated at
 //! construction or when the image size changes, the draw list keeps its
 //! capacity.
+//!
+//! A mesh streamed under a GPU budget (`super::stream`) draws one call per
+//! visible chunk from its slot, after uploading the chunks not resident.
+//! When a view needs more chunks than the pool has slots, it is drawn in
+//! several passes of at most that many chunks, in index-buffer order, each
+//! submitted before the next one's uploads; later passes load the color
+//! targets and the z-buffer instead of clearing them, so the image is the
+//! one a single pass would give (same triangles, same order).
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -15,9 +23,11 @@ use std::time::Duration;
 use super::adapter::{self, AdapterClass, AdapterPreference};
 use super::draws::{self, Draw};
 use super::frame::{FrameTargets, MapStatus};
+use super::pass::{record_pass, PassInputs};
 use super::pipeline;
 use super::projection::{ViewUniform, NEAR_M, VIEW_UNIFORM_BYTES};
-use super::upload::{self, GpuMesh, TextureFormat};
+use super::stream::StreamStats;
+use super::upload::{self, Geometry, GpuMesh, TextureFormat};
 use super::GpuError;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
@@ -51,7 +61,8 @@ pub struct PendingRender {
 /// own overhead and alignment are not counted).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct GpuMemory {
-    /// Vertex and index buffers of the mesh.
+    /// Vertex and index buffers of the mesh: the whole mesh, or the chunk
+    /// slot pool when it streams under a budget.
     pub mesh_buffer_bytes: u64,
     /// Mesh textures (and the 1x1 white texel).
     pub texture_bytes: u64,
@@ -80,8 +91,14 @@ pub struct GpuRenderer {
     mesh: GpuMesh,
     /// Whether each chunk passed the frustum test in the current render.
     visible: Vec<bool>,
-    /// The current render's draw calls.
+    /// The current render's draw calls (of one pass, when streaming).
     draws: Vec<Draw>,
+    /// The current render's visible chunks, when streaming.
+    wanted: Vec<u32>,
+    /// Render passes recorded since start.
+    passes: u64,
+    /// Whether the warning about views drawn in several passes was given.
+    warned_multi_pass: bool,
     /// Whether chunks outside the frustum are skipped (on by default).
     cull: bool,
     /// Counts of the last render's frustum test.
@@ -102,6 +119,20 @@ impl GpuRenderer {
         Self::new_on(mesh, which, adapter::BACKENDS)
     }
 
+    /// As [`GpuRenderer::new`], with the mesh's vertex and index data
+    /// bounded by `gpu_budget_bytes` (0: no budget; see
+    /// [`crate::render::RenderConfig::gpu_budget_mb`]): a mesh larger than
+    /// that streams its chunks through a pool of slots of that size.
+    /// Fails with [`GpuError::BudgetTooSmall`] when the budget cannot hold
+    /// the largest chunk.
+    pub fn new_with_budget(
+        mesh: Arc<Mesh>,
+        which: AdapterPreference,
+        gpu_budget_bytes: u64,
+    ) -> Result<Self, GpuError> {
+        Self::build(mesh, which, adapter::BACKENDS, false, gpu_budget_bytes)
+    }
+
     /// As [`GpuRenderer::new`], restricted to `backends` (e.g. to compare
     /// lavapipe through Vulkan with llvmpipe through GL).
     pub fn new_on(
@@ -109,7 +140,7 @@ impl GpuRenderer {
         which: AdapterPreference,
         backends: wgpu::Backends,
     ) -> Result<Self, GpuError> {
-        Self::build(mesh, which, backends, false)
+        Self::build(mesh, which, backends, false, 0)
     }
 
     /// Test hook: as [`GpuRenderer::new`], but stores textures as `R8Unorm`
@@ -119,7 +150,7 @@ impl GpuRenderer {
         mesh: Arc<Mesh>,
         which: AdapterPreference,
     ) -> Result<Self, GpuError> {
-        Self::build(mesh, which, adapter::BACKENDS, true)
+        Self::build(mesh, which, adapter::BACKENDS, true, 0)
     }
 
     fn build(
@@ -127,6 +158,7 @@ impl GpuRenderer {
         which: AdapterPreference,
         backends: wgpu::Backends,
         force_unorm8: bool,
+        gpu_budget_bytes: u64,
     ) -> Result<Self, GpuError> {
         let mut seen = Vec::new();
         // One backend at a time: GL (and its EGL probing) only when no
@@ -142,7 +174,7 @@ impl GpuRenderer {
                     seen.push(format!("{} ({:?}): {class:?}", info.name, info.backend));
                     continue;
                 }
-                match Self::on_adapter(&candidate, &mesh, force_unorm8) {
+                match Self::on_adapter(&candidate, &mesh, force_unorm8, gpu_budget_bytes) {
                     Ok(renderer) => {
                         tracing::info!(
                             adapter = %info.name,
@@ -154,8 +186,11 @@ impl GpuRenderer {
                         );
                         return Ok(renderer);
                     }
-                    // Invalid meshes fail on every adapter: report at once.
-                    Err(e @ GpuError::Mesh(_)) => return Err(e),
+                    // Invalid meshes and budgets fail on every adapter:
+                    // report at once.
+                    Err(e @ (GpuError::Mesh(_) | GpuError::BudgetTooSmall { .. })) => {
+                        return Err(e)
+                    }
                     Err(e) => {
                         tracing::warn!(adapter = %info.name, error = %e, "wgpu adapter unusable");
                         seen.push(format!("{} ({:?}): {e}", info.name, info.backend));
@@ -177,6 +212,7 @@ impl GpuRenderer {
         adapter: &wgpu::Adapter,
         mesh: &Mesh,
         force_unorm8: bool,
+        gpu_budget_bytes: u64,
     ) -> Result<Self, GpuError> {
         let info = adapter.get_info();
         let limits = adapter.limits();
@@ -189,7 +225,7 @@ impl GpuRenderer {
             TextureFormat::Float32 => wgpu::Features::FLOAT32_FILTERABLE,
             TextureFormat::Unorm8 => wgpu::Features::empty(),
         };
-        let chunked = upload::validate(mesh, &limits)?;
+        let (chunked, plan) = upload::validate(mesh, &limits, gpu_budget_bytes)?;
         let device_error = |message: String| GpuError::Device {
             adapter: info.name.clone(),
             message,
@@ -236,6 +272,7 @@ impl GpuRenderer {
             texture_format,
             mesh,
             chunked,
+            plan,
         );
         if let Some(message) = fault.lock().unwrap_or_else(|p| p.into_inner()).take() {
             return Err(device_error(message));
@@ -246,6 +283,11 @@ impl GpuRenderer {
             buffer_mb = gpu_mesh.buffer_bytes as f64 / 1e6,
             texture_mb = gpu_mesh.texture_bytes as f64 / 1e6,
             chunks = gpu_mesh.chunks.len(),
+            streams = plan.is_some(),
+            budget_mb = gpu_budget_bytes as f64 / 1e6,
+            slots = plan.map_or(0, |p| p.slots),
+            slot_kb = plan.map_or(0.0, |p| p.slot_bytes() as f64 / 1e3),
+            whole_mesh_mb = gpu_mesh.resident_bytes as f64 / 1e6,
             "mesh uploaded to the device"
         );
         Ok(Self {
@@ -260,6 +302,9 @@ impl GpuRenderer {
             view_group,
             visible: Vec::with_capacity(gpu_mesh.chunks.len()),
             draws: Vec::with_capacity(gpu_mesh.chunks.len()),
+            wanted: Vec::with_capacity(gpu_mesh.chunks.len()),
+            passes: 0,
+            warned_multi_pass: false,
             mesh: gpu_mesh,
             cull: true,
             stats: CullStats::default(),
@@ -314,6 +359,23 @@ impl GpuRenderer {
         }
     }
 
+    /// Streaming counts since start: the slot pool's size (0 slots when the
+    /// whole mesh is resident), renders, passes, chunk uploads and
+    /// evictions.
+    pub fn stream_stats(&self) -> StreamStats {
+        let mut stats = StreamStats {
+            renders: self.renders,
+            passes: self.passes,
+            ..StreamStats::default()
+        };
+        if let Geometry::Streamed(pool) = &self.mesh.geometry {
+            let plan = pool.plan();
+            (stats.slots, stats.slot_bytes) = (plan.slots, plan.slot_bytes());
+            (stats.uploads, stats.evictions) = pool.counts();
+        }
+        stats
+    }
+
     /// Test hook: the next `n` renders succeed, every later one fails with
     /// [`GpuError::Injected`], as a lost device would.
     #[doc(hidden)]
@@ -362,13 +424,7 @@ impl GpuRenderer {
         }
         let frustum =
             Frustum::new(world_from_camera, camera, NEAR_M).with_far(world_from_camera, self.far_m);
-        self.stats = draws::select(
-            &self.mesh.chunks,
-            &self.mesh.chunk_texture,
-            self.cull.then_some(&frustum),
-            &mut self.visible,
-            &mut self.draws,
-        );
+        let frustum = self.cull.then_some(&frustum);
         let frame = match self.frame.take() {
             Some(f) if f.size() == (w, h) => f,
             Some(f) if f.any_busy() => {
@@ -383,50 +439,91 @@ impl GpuRenderer {
         let view = ViewUniform::new(world_from_camera, camera, NEAR_M, self.far_m);
         self.queue
             .write_buffer(&self.view_uniform, 0, bytemuck::bytes_of(&view));
-        let mut encoder = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("star keyframe"),
-            });
-        {
-            let clear = |view| {
-                Some(wgpu::RenderPassColorAttachment {
-                    view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
+        let new_encoder = || {
+            self.device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("star keyframe"),
                 })
-            };
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("star keyframe"),
-                color_attachments: &[clear(&frame.gray_view), clear(&frame.depth_view)],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &frame.zbuffer_view,
-                    // Reversed depth: 0 is infinitely far.
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(0.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
-                    stencil_ops: None,
-                }),
-                ..Default::default()
-            });
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &self.view_group, &[]);
-            pass.set_vertex_buffer(0, self.mesh.vertices.slice(..));
-            pass.set_index_buffer(self.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
-            for draw in &self.draws {
-                if let Some(group) = self.mesh.texture_groups.get(draw.texture) {
-                    pass.set_bind_group(1, group, &[]);
-                    pass.draw_indexed(draw.indices.clone(), 0, 0..1);
+        };
+        let submission = match &mut self.mesh.geometry {
+            Geometry::Resident { vertices, indices } => {
+                self.stats = draws::select(
+                    &self.mesh.chunks,
+                    &self.mesh.chunk_texture,
+                    frustum,
+                    &mut self.visible,
+                    &mut self.draws,
+                );
+                let inputs = PassInputs {
+                    pipeline: &self.pipeline,
+                    view_group: &self.view_group,
+                    texture_groups: &self.mesh.texture_groups,
+                    vertices,
+                    indices,
+                };
+                let mut encoder = new_encoder();
+                record_pass(&mut encoder, frame, &inputs, &self.draws, true, true);
+                frame.record_copies(&mut encoder, slot);
+                self.passes += 1;
+                self.queue.submit([encoder.finish()])
+            }
+            Geometry::Streamed(pool) => {
+                self.stats = draws::visible_chunks(
+                    &self.mesh.chunks,
+                    &self.mesh.chunk_texture,
+                    frustum,
+                    &mut self.visible,
+                    &mut self.wanted,
+                );
+                let per_pass = pool.plan().slots.max(1);
+                let passes = self.wanted.len().div_ceil(per_pass).max(1);
+                if passes > 1 && !self.warned_multi_pass {
+                    self.warned_multi_pass = true;
+                    tracing::warn!(
+                        visible_chunks = self.wanted.len(),
+                        slots = per_pass,
+                        passes,
+                        "a view needs more mesh chunks than render.gpu_budget_mb holds: \
+                         drawn in several passes, uploading chunks again each render \
+                         (same image, slower; a larger budget avoids it)"
+                    );
+                }
+                let mut pass = 0;
+                loop {
+                    let start = pass * per_pass;
+                    let end = (start + per_pass).min(self.wanted.len());
+                    let batch = self.wanted.get(start..end).unwrap_or(&[]);
+                    // Uploads land before the next submit, after the
+                    // previous pass's.
+                    pool.load(
+                        &self.queue,
+                        &self.mesh.chunks,
+                        &self.mesh.chunk_texture,
+                        batch,
+                        &mut self.draws,
+                    );
+                    let inputs = PassInputs {
+                        pipeline: &self.pipeline,
+                        view_group: &self.view_group,
+                        texture_groups: &self.mesh.texture_groups,
+                        vertices: &pool.vertices,
+                        indices: &pool.indices,
+                    };
+                    let last = pass + 1 == passes;
+                    let mut encoder = new_encoder();
+                    record_pass(&mut encoder, frame, &inputs, &self.draws, pass == 0, last);
+                    if last {
+                        frame.record_copies(&mut encoder, slot);
+                    }
+                    self.passes += 1;
+                    let submission = self.queue.submit([encoder.finish()]);
+                    pass += 1;
+                    if last {
+                        break submission;
+                    }
                 }
             }
-        }
-        frame.record_copies(&mut encoder, slot);
-        let submission = self.queue.submit([encoder.finish()]);
+        };
         frame.request_map(slot);
         self.renders += 1;
         Ok(PendingRender { slot, submission })

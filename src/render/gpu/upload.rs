@@ -3,7 +3,8 @@
 //! Takes a [`Mesh`], its [`ChunkedMesh`] and a device; checks that the mesh
 //! is safe to draw ([`Mesh::validate`], and sizes within the adapter's
 //! limits) and gives out [`GpuMesh`]: the chunked mesh as an interleaved
-//! vertex buffer and a `u32` index buffer, one texture (see
+//! vertex buffer and a `u32` index buffer (or, when they exceed the GPU
+//! budget, a [`StreamPool`] of chunk slots), one texture (see
 //! [`TextureFormat`]) and bind group per mesh texture, a bilinear repeat
 //! sampler, and the chunks to draw (box, index range and bind group each),
 //! from which each render picks those in the view frustum.
@@ -11,6 +12,7 @@
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
+use super::stream::{self, StreamPlan, StreamPool};
 use super::GpuError;
 use crate::map::Mesh;
 use crate::render::chunks::{ChunkedMesh, MeshChunk, NO_GROUP};
@@ -34,13 +36,25 @@ pub const VERTEX_LAYOUT: wgpu::VertexBufferLayout<'static> = wgpu::VertexBufferL
     attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32, 2 => Float32x2],
 };
 
+/// The mesh's vertex and index data on the device.
+#[derive(Debug)]
+pub enum Geometry {
+    /// All of it, uploaded once.
+    Resident {
+        /// Interleaved [`GpuVertex`] data.
+        vertices: wgpu::Buffer,
+        /// Triangle indices, `u32`.
+        indices: wgpu::Buffer,
+    },
+    /// A pool of chunk slots filled per render.
+    Streamed(Box<StreamPool>),
+}
+
 /// The mesh as it lives on the device.
 #[derive(Debug)]
 pub struct GpuMesh {
-    /// Interleaved [`GpuVertex`] data.
-    pub vertices: wgpu::Buffer,
-    /// Triangle indices, `u32`.
-    pub indices: wgpu::Buffer,
+    /// Vertices and indices.
+    pub geometry: Geometry,
     /// Bind groups (group 1): one per mesh texture, then a 1x1 white texel
     /// used by untextured groups.
     pub texture_groups: Vec<wgpu::BindGroup>,
@@ -49,8 +63,10 @@ pub struct GpuMesh {
     /// Per chunk, its bind group in `texture_groups`, or `None` when it is
     /// not drawn (triangles outside every group of a mesh with groups).
     pub chunk_texture: Vec<Option<usize>>,
-    /// Bytes of the vertex and index buffers.
+    /// Bytes of the vertex and index buffers (the slot pool when streamed).
     pub buffer_bytes: u64,
+    /// Bytes the vertex and index buffers take when wholly resident.
+    pub resident_bytes: u64,
     /// Bytes of the textures.
     pub texture_bytes: u64,
     /// Kept alive for the bind groups.
@@ -82,10 +98,24 @@ pub fn texture_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     })
 }
 
+/// Bytes of the vertex and index buffers of `chunked` when wholly
+/// resident (an empty buffer is padded to one element).
+fn resident_bytes(chunked: &ChunkedMesh) -> (u64, u64) {
+    let vertex_bytes = (chunked.positions.len().max(1) * std::mem::size_of::<GpuVertex>()) as u64;
+    let index_bytes = (chunked.indices.len().max(3) * 4) as u64;
+    (vertex_bytes, index_bytes)
+}
+
 /// Checks `mesh` with [`Mesh::validate`] (indices in range, attributes,
-/// groups, textures) and splits it into chunks; fails when the chunked
-/// buffers exceed the adapter's `limits`.
-pub fn validate(mesh: &Mesh, limits: &wgpu::Limits) -> Result<ChunkedMesh, GpuError> {
+/// groups, textures) and splits it into chunks; decides whether its
+/// vertex and index data fit `budget_bytes` (0: no budget) or must stream
+/// (see [`stream::plan`]); fails when the buffers to allocate exceed the
+/// adapter's `limits`, or the budget cannot hold one chunk.
+pub fn validate(
+    mesh: &Mesh,
+    limits: &wgpu::Limits,
+    budget_bytes: u64,
+) -> Result<(ChunkedMesh, Option<StreamPlan>), GpuError> {
     mesh.validate()?;
     let chunked = ChunkedMesh::build(mesh).map_err(|e| GpuError::Chunks(e.to_string()))?;
     let max = limits.max_texture_dimension_2d;
@@ -99,17 +129,24 @@ pub fn validate(mesh: &Mesh, limits: &wgpu::Limits) -> Result<ChunkedMesh, GpuEr
             });
         }
     }
-    let vertex_bytes = (chunked.positions.len() * std::mem::size_of::<GpuVertex>()) as u64;
-    let index_bytes = (chunked.indices.len() * 4) as u64;
-    for bytes in [vertex_bytes, index_bytes] {
-        if bytes > limits.max_buffer_size {
-            return Err(GpuError::MeshTooLarge {
-                bytes,
-                max_bytes: limits.max_buffer_size,
-            });
+    let (vertex_bytes, index_bytes) = resident_bytes(&chunked);
+    let plan = stream::plan(
+        &chunked.chunks,
+        vertex_bytes + index_bytes,
+        budget_bytes,
+        limits.max_buffer_size,
+    )?;
+    if plan.is_none() {
+        for bytes in [vertex_bytes, index_bytes] {
+            if bytes > limits.max_buffer_size {
+                return Err(GpuError::MeshTooLarge {
+                    bytes,
+                    max_bytes: limits.max_buffer_size,
+                });
+            }
         }
     }
-    Ok(chunked)
+    Ok((chunked, plan))
 }
 
 /// How mesh textures are stored. Both are sampled by the hardware sampler
@@ -201,7 +238,9 @@ fn upload_texture(
     texture
 }
 
-/// Uploads `mesh` as `chunked`, the chunks [`validate`] gave out.
+/// Uploads `mesh` as `chunked`, the chunks [`validate`] gave out: its
+/// vertices and indices whole when `plan` is `None`, else a slot pool of
+/// that shape, empty, and the host data to fill it from.
 pub fn upload(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
@@ -209,6 +248,7 @@ pub fn upload(
     format: TextureFormat,
     mesh: &Mesh,
     chunked: ChunkedMesh,
+    plan: Option<StreamPlan>,
 ) -> GpuMesh {
     let vertices: Vec<GpuVertex> = chunked
         .positions
@@ -221,28 +261,38 @@ pub fn upload(
             uv: chunked.uvs.get(i).copied().unwrap_or([0.0; 2]),
         })
         .collect();
-    // wgpu buffers may not be empty: pad an empty mesh with one dummy element.
-    let dummy_vertex = [GpuVertex::zeroed()];
-    let vertex_data: &[GpuVertex] = if vertices.is_empty() {
-        &dummy_vertex
-    } else {
-        &vertices
+    let (vertex_bytes, index_bytes) = resident_bytes(&chunked);
+    let geometry = match plan {
+        Some(plan) => {
+            Geometry::Streamed(Box::new(StreamPool::new(device, plan, vertices, &chunked)))
+        }
+        None => {
+            // wgpu buffers may not be empty: pad an empty mesh with one dummy element.
+            let dummy_vertex = [GpuVertex::zeroed()];
+            let vertex_data: &[GpuVertex] = if vertices.is_empty() {
+                &dummy_vertex
+            } else {
+                &vertices
+            };
+            let index_data: &[u32] = if chunked.indices.is_empty() {
+                &[0, 0, 0]
+            } else {
+                &chunked.indices
+            };
+            Geometry::Resident {
+                vertices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("star mesh vertices"),
+                    contents: bytemuck::cast_slice(vertex_data),
+                    usage: wgpu::BufferUsages::VERTEX,
+                }),
+                indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("star mesh indices"),
+                    contents: bytemuck::cast_slice(index_data),
+                    usage: wgpu::BufferUsages::INDEX,
+                }),
+            }
+        }
     };
-    let index_data: &[u32] = if chunked.indices.is_empty() {
-        &[0, 0, 0]
-    } else {
-        &chunked.indices
-    };
-    let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("star mesh vertices"),
-        contents: bytemuck::cast_slice(vertex_data),
-        usage: wgpu::BufferUsages::VERTEX,
-    });
-    let index_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("star mesh indices"),
-        contents: bytemuck::cast_slice(index_data),
-        usage: wgpu::BufferUsages::INDEX,
-    });
 
     let mut textures: Vec<wgpu::Texture> = mesh
         .textures
@@ -303,11 +353,15 @@ pub fn upload(
             u64::from(t.width()) * u64::from(t.height()) * per_texel
         })
         .sum();
+    let buffer_bytes = match &geometry {
+        Geometry::Resident { vertices, indices } => vertices.size() + indices.size(),
+        Geometry::Streamed(pool) => pool.bytes(),
+    };
     GpuMesh {
-        buffer_bytes: vertex_buffer.size() + index_buffer.size(),
+        buffer_bytes,
+        resident_bytes: vertex_bytes + index_bytes,
         texture_bytes,
-        vertices: vertex_buffer,
-        indices: index_buffer,
+        geometry,
         texture_groups,
         chunks: chunked.chunks,
         chunk_texture,
@@ -359,10 +413,10 @@ mod tests {
     #[test]
     fn rejects_bad_meshes_without_panicking() {
         let limits = wgpu::Limits::default();
-        assert!(validate(&triangle(), &limits).is_ok());
+        assert!(validate(&triangle(), &limits, 0).is_ok());
         let mut bad = triangle();
         bad.indices[2] = 7;
-        let err = validate(&bad, &limits).expect_err("index out of range");
+        let err = validate(&bad, &limits, 0).expect_err("index out of range");
         assert!(err.to_string().contains('7'), "{err}");
         let mut big = triangle();
         big.textures = vec![GrayTexture {
@@ -372,7 +426,7 @@ mod tests {
         }];
         big.groups[0].texture = Some(0);
         assert!(matches!(
-            validate(&big, &limits),
+            validate(&big, &limits, 0),
             Err(GpuError::TextureTooLarge { .. })
         ));
         let tiny = wgpu::Limits {
@@ -380,7 +434,7 @@ mod tests {
             ..wgpu::Limits::default()
         };
         assert!(matches!(
-            validate(&triangle(), &tiny),
+            validate(&triangle(), &tiny, 0),
             Err(GpuError::MeshTooLarge { .. })
         ));
     }
