@@ -263,7 +263,13 @@ impl Localizer {
         // candidate passes the same gate.
         let (regions, n_regions) = landmark_regions(prior.as_ref());
         let landmark = reloc
-            .landmark_candidate(pixels, w, h, stride, regions.get(..n_regions).unwrap_or(&[]))
+            .landmark_candidate(
+                pixels,
+                w,
+                h,
+                stride,
+                regions.get(..n_regions).unwrap_or(&[]),
+            )
             .map(|(c, found)| {
                 tracing::debug!(
                     capture_ns,

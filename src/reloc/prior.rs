@@ -39,7 +39,11 @@ impl MotionPrior {
     /// `search_yaw_deg + max_yaw_rate_deg_s x lost_s` of the last one (a
     /// negative or non-finite time counts as 0).
     pub fn new(world_from_camera: &Pose, lost_s: f64, config: &RelocConfig) -> Self {
-        let lost_s = if lost_s.is_finite() { lost_s.max(0.0) } else { 0.0 };
+        let lost_s = if lost_s.is_finite() {
+            lost_s.max(0.0)
+        } else {
+            0.0
+        };
         let turn_deg = config.search_yaw_deg + config.max_yaw_rate_deg_s * lost_s;
         Self {
             center_m: world_from_camera.translation.vector,

@@ -257,16 +257,16 @@ mod tests {
     fn rivals_are_far_untried_and_score_near_the_best_near_the_pose() {
         let accepted = pose(0.0, 0.0);
         let candidates = [
-            at(1, 0.2, 0.9),                // near
-            at(2, 5.2, 0.88),               // a twin room: a rival
-            at(3, 0.5, 0.95),               // near, the best: the bar is 0.65
-            at(4, 12.0, 0.55),              // far but scored too low
-            at(5, -20.0, f32::INFINITY),    // a landmark pose elsewhere: a rival
-            at(6, 30.0, 0.7),               // tried already
-            at(2, 5.2, 0.88),               // entry 2 again (another search)
-            at(7, 31.0, 0.8),               // a rival
-            at(8, 32.0, 0.8),               // a rival
-            at(9, 33.0, 0.8),               // beyond MAX_RIVALS
+            at(1, 0.2, 0.9),             // near
+            at(2, 5.2, 0.88),            // a twin room: a rival
+            at(3, 0.5, 0.95),            // near, the best: the bar is 0.65
+            at(4, 12.0, 0.55),           // far but scored too low
+            at(5, -20.0, f32::INFINITY), // a landmark pose elsewhere: a rival
+            at(6, 30.0, 0.7),            // tried already
+            at(2, 5.2, 0.88),            // entry 2 again (another search)
+            at(7, 31.0, 0.8),            // a rival
+            at(8, 32.0, 0.8),            // a rival
+            at(9, 33.0, 0.8),            // beyond MAX_RIVALS
         ];
         let mut out = [usize::MAX; MAX_RIVALS];
         let cold = RivalRule::new(None);

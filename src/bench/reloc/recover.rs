@@ -152,8 +152,12 @@ impl Bench {
                 // when the landmark pose was accepted; it counts in the
                 // recovery time only when it was needed.
                 let t_rank = Instant::now();
-                let rank_ms =
-                    self.gather(Source::Views(region), landmark, &descriptor, &mut candidates);
+                let rank_ms = self.gather(
+                    Source::Views(region),
+                    landmark,
+                    &descriptor,
+                    &mut candidates,
+                );
                 tally.rank_ms.push(rank_ms);
                 untimed_ms += t_rank.elapsed().as_secs_f64() * 1e3;
             }
