@@ -12,15 +12,23 @@
 //! their stored coarse points, and the top-k by that alignment follow,
 //! placed where it moved them. Candidates are rendered on the render thread
 //! (the lost frame waits for them; tracking never does) and aligned with the
-//! tracker's aligner; the first that passes the strict gate becomes the
-//! keyframe and the prediction. Its pose is not output yet: the next `verify_frames` frames
-//! must track through the same gate, and only then is a pose output and
-//! `reset_counter` incremented. A wrong but confident pose would need to
-//! fool the gate on consecutive frames.
+//! tracker's aligner (the order and the prior: [`crate::reloc::prior`]).
+//! The first that passes the strict gate within the motion prior's reach
+//! (the radius above, and `search_yaw_deg + max_yaw_rate_deg_s x (time
+//! lost)` of the last heading) becomes the keyframe and the prediction; one
+//! the prior cannot vouch for (a cold start, a kidnap, a pose turned half
+//! round in a symmetric room) is held while its rivals at other places are
+//! verified ([`crate::reloc::rivals::RivalRule`], the rule `star bench
+//! reloc` measures) and at the map's remembered symmetries, and refused
+//! when one passes. An accepted pose is not output yet: the next
+//! `verify_frames` frames must track through the same gate, and only then
+//! is a pose output and `reset_counter` incremented. A wrong but confident
+//! pose would need to fool the gate on consecutive frames. An attempt
+//! allocates nothing (its candidates are held on the stack).
 
 use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
-use crate::reloc::rivals::{elsewhere, rival_config, RivalRule, MAX_RIVALS};
+use crate::reloc::rivals::{Judgment, RivalRule, MAX_RIVALS};
 use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
@@ -44,8 +52,6 @@ impl Localizer {
             "relocalization enabled"
         );
         self.attempt_budget_s = relocalizer.config().attempt_budget_s;
-        // Rivals are rendered once each (`reloc::rivals::rival_config`).
-        self.rival_config = Some(Box::new(rival_config(relocalizer.config())));
         self.reloc = Some(Box::new(relocalizer));
         Ok(())
     }
@@ -320,8 +326,7 @@ impl Localizer {
                 };
                 *slot = c;
                 n_tried += 1;
-                let (found, refused) =
-                    self.try_and_record(reloc.config(), false, &candidate, capture_ns);
+                let (found, refused) = self.try_and_record(reloc.config(), &candidate, capture_ns);
                 let Some((v, kf)) = found else {
                     if refused {
                         break 'steps;
@@ -375,28 +380,48 @@ impl Localizer {
             let Some(rival) = candidates.get(i).copied() else {
                 continue;
             };
-            let (found, refused) = self.try_and_record(reloc.config(), true, &rival, capture_ns);
-            if let Some((r, r_kf)) = found {
-                self.worker.recycle(r_kf);
-                if elsewhere(&v.world_from_camera, &r.world_from_camera) {
-                    self.remember_symmetry(&v.world_from_camera, &r.world_from_camera);
+            let (found, refused) = self.try_and_record(reloc.config(), &rival, capture_ns);
+            let Some((r, r_kf)) = found else {
+                if refused {
+                    // A rival that could not be rendered was not ruled out.
+                    tracing::debug!(capture_ns, "render thread busy during the rival check");
+                    self.worker.recycle(kf);
+                    self.reloc = Some(reloc);
+                    return;
+                }
+                continue;
+            };
+            let judgment = rule.judge(&v.world_from_camera, &r.world_from_camera);
+            if judgment != Judgment::SamePlace {
+                self.remember_symmetry(&v.world_from_camera, &r.world_from_camera);
+            }
+            match judgment {
+                Judgment::SamePlace => self.worker.recycle(r_kf),
+                Judgment::PriorChooses => {
+                    tracing::info!(
+                        capture_ns,
+                        held = ?v.world_from_camera.translation.vector,
+                        taken = ?r.world_from_camera.translation.vector,
+                        "two places pass the gate; the one within the motion prior's reach is taken"
+                    );
+                    self.worker.recycle(kf);
+                    self.accept_relocalization(r, r_kf, capture_ns, reloc.config().verify_frames);
+                    self.reloc = Some(reloc);
+                    return;
+                }
+                Judgment::Ambiguous => {
                     tracing::info!(
                         capture_ns,
                         first = ?v.world_from_camera.translation.vector,
                         second = ?r.world_from_camera.translation.vector,
                         "relocalization refused: two places pass the gate"
                     );
+                    self.worker.recycle(r_kf);
                     self.worker.recycle(kf);
                     self.stats.reloc_ambiguous += 1;
                     self.reloc = Some(reloc);
                     return;
                 }
-            } else if refused {
-                // A rival that could not be rendered was not ruled out.
-                tracing::debug!(capture_ns, "render thread busy during the rival check");
-                self.worker.recycle(kf);
-                self.reloc = Some(reloc);
-                return;
             }
         }
         match self.twin_passes(&reloc, &v.world_from_camera, capture_ns) {
@@ -421,26 +446,21 @@ impl Localizer {
         self.reloc = Some(reloc);
     }
 
-    /// [`Self::try_reloc_candidate`] for `candidate` with `config` (or, for
-    /// a rival, [`rival_config`] of it), recorded in the last attempt.
+    /// [`Self::try_reloc_candidate`] for `candidate` (a rival is verified
+    /// as any candidate, refining renders included), recorded in the last
+    /// attempt.
     fn try_and_record(
         &mut self,
         config: &RelocConfig,
-        rival: bool,
         candidate: &Candidate,
         capture_ns: u64,
     ) -> (Option<(Verified, Box<Keyframe>)>, bool) {
-        let rival_config = self.rival_config.take();
         let (found, refused) = self.try_reloc_candidate(
-            match (rival, rival_config.as_deref()) {
-                (true, Some(rivals)) => rivals,
-                _ => config,
-            },
+            config,
             &candidate.world_from_camera,
             candidate.yaw_rad,
             capture_ns,
         );
-        self.rival_config = rival_config;
         let attempt = &mut self.last_attempt;
         if let Some(slot) = attempt.candidates.get_mut(attempt.tried) {
             *slot = super::RelocCandidate {
@@ -534,23 +554,7 @@ impl Localizer {
         world_from_camera: &Pose,
         capture_ns: u64,
     ) -> Option<Pose> {
-        let rival_config = self.rival_config.take();
-        let found = self.twin_passes_with(
-            rival_config.as_deref().unwrap_or(reloc.config()),
-            world_from_camera,
-            capture_ns,
-        );
-        self.rival_config = rival_config;
-        found
-    }
-
-    /// [`Self::twin_passes`] with the rivals' `[reloc]` settings.
-    fn twin_passes_with(
-        &mut self,
-        config: &RelocConfig,
-        world_from_camera: &Pose,
-        capture_ns: u64,
-    ) -> Option<Pose> {
+        let config = reloc.config();
         for i in 0..self.map_symmetries.len() {
             let symmetry = self.map_symmetries[i];
             for twin in [

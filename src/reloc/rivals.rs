@@ -29,14 +29,17 @@
 //!   candidate near the pose (a landmark pose elsewhere always
 //!   qualifies), in the candidates' order, best first.
 //!
-//! The caller renders and verifies them through the same gate, once each
-//! ([`rival_config`]: no refining renders); if one passes at another place
-//! ([`elsewhere`]: a rival may align back onto the accepted pose), the
-//! frame is ambiguous. Nothing here allocates.
+//! The caller renders and verifies them as any candidate (the same gate,
+//! refining renders included: a twin seen from a database view may need
+//! them as the accepted pose did; rendered once, 10 of 100 cold starts on
+//! the `building` got through), and [`RivalRule::judge`] says what a rival
+//! that passes means: the same place (it aligned back onto the pose), the
+//! prior's choice (the held pose was beyond the prior's reach, the rival
+//! is within it: the order the candidates came in must not decide), or an
+//! ambiguous frame. Nothing here allocates.
 
 use crate::geometry::Pose;
 
-use super::config::RelocConfig;
 use super::prior::MotionPrior;
 use super::search::Candidate;
 
@@ -63,14 +66,17 @@ pub fn elsewhere(accepted: &Pose, rival: &Pose) -> bool {
     (rival.translation.vector - accepted.translation.vector).norm() > RIVAL_MIN_M
 }
 
-/// The `[reloc]` settings rivals are verified with: `config` without
-/// refining renders (a twin passes at the first render as the accepted
-/// pose did, and refining a place that fails it only costs time).
-pub fn rival_config(config: &RelocConfig) -> RelocConfig {
-    RelocConfig {
-        refine_renders: 0,
-        ..config.clone()
-    }
+/// What a rival that passed the gate means for the pose held.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Judgment {
+    /// It aligned back onto the held pose: no other place.
+    SamePlace,
+    /// It stands at another place within the prior's reach, while the held
+    /// pose is beyond it: the prior chooses the rival.
+    PriorChooses,
+    /// Another place passes as well and the prior cannot choose: the frame
+    /// is refused.
+    Ambiguous,
 }
 
 /// How many rivals to verify, and how near the best score near the
@@ -130,6 +136,18 @@ impl RivalRule {
             && !tried.contains(&candidate.ranked.index)
     }
 
+    /// What `rival`, which passed the gate, means for the held pose
+    /// `accepted` (one that [`Self::accepts_alone`] refused).
+    pub fn judge(&self, accepted: &Pose, rival: &Pose) -> Judgment {
+        if !elsewhere(accepted, rival) {
+            Judgment::SamePlace
+        } else if self.accepts_alone(rival) && !self.accepts_alone(accepted) {
+            Judgment::PriorChooses
+        } else {
+            Judgment::Ambiguous
+        }
+    }
+
     /// Writes to `out` the indices into `candidates` of the rivals of
     /// `accepted` (in the candidates' order, best first; the first of a
     /// repeated entry only) under [`Self::budget`], and returns how many.
@@ -174,7 +192,7 @@ impl RivalRule {
 mod tests {
     use super::*;
     use crate::geometry::look::camera_rotation;
-    use crate::reloc::Ranked;
+    use crate::reloc::{Ranked, RelocConfig};
     use nalgebra::Translation3;
 
     /// A camera at `x` on the x axis looking along `yaw_deg`.
@@ -298,10 +316,16 @@ mod tests {
     }
 
     #[test]
-    fn rivals_are_verified_without_refining_renders() {
-        let config = RelocConfig::default();
-        let rivals = rival_config(&config);
-        assert_eq!(rivals.refine_renders, 0);
-        assert_eq!(rivals.min_inlier_ratio, config.min_inlier_ratio);
+    fn a_passing_rival_is_the_same_place_the_prior_s_choice_or_ambiguous() {
+        let rule = near_origin();
+        // Held: the twin room 5.2 m away, beyond the 2 m reach.
+        let twin = pose(5.2, 0.0);
+        assert_eq!(rule.judge(&twin, &pose(5.5, 0.0)), Judgment::SamePlace);
+        assert_eq!(rule.judge(&twin, &pose(0.1, 10.0)), Judgment::PriorChooses);
+        // A rival within the radius but facing back is no choice of the prior.
+        assert_eq!(rule.judge(&twin, &pose(0.1, 180.0)), Judgment::Ambiguous);
+        // Without a prior two places are always ambiguous.
+        let cold = RivalRule::new(None);
+        assert_eq!(cold.judge(&twin, &pose(0.1, 10.0)), Judgment::Ambiguous);
     }
 }

@@ -3,8 +3,11 @@
 //!
 //! Stages: [`setup`] builds the scene, the database and the renderers;
 //! [`query`] draws and renders a random query; [`recover`] runs it through
-//! the service's recovery order (landmark pose, then the descriptor's
-//! candidates); [`diagnose`] explains a whole-map query
+//! the service's recovery order and rival rule (landmark pose, then the
+//! descriptor's candidates, then the rivals of a pose the prior cannot
+//! vouch for), cold (no prior) and near the last position (the prior of a
+//! service lost for as long as gives a 2 m reach, facing the truth's
+//! heading); [`diagnose`] explains a whole-map query
 //! (`STAR_BENCH_VERBOSE`); [`tally`] keeps and prints the figures and times
 //! the search.
 //!

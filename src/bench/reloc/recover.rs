@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use crate::geometry::{PinholeCamera, Pose};
 use crate::reloc::prior::{landmark_regions, sources, Source};
-use crate::reloc::rivals::{elsewhere, rival_config, RivalRule, MAX_RIVALS};
+use crate::reloc::rivals::{Judgment, RivalRule, MAX_RIVALS};
 use crate::reloc::{
     try_candidate, Candidate, MotionPrior, Query, RelocConfig, SearchRegion, Verified,
     LANDMARK_CANDIDATE,
@@ -114,10 +114,9 @@ impl Bench {
                     continue;
                 }
                 tried.push(c.ranked.index);
-                verdict = self.try_one(&c, false, tally);
+                verdict = self.try_one(&c, tally);
                 if verdict.is_some() {
                     verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
-                    tally.from_landmarks += usize::from(verdict_from_landmarks);
                     break 'steps;
                 }
             }
@@ -138,12 +137,22 @@ impl Bench {
                 for &i in &rivals[..n] {
                     let c = candidates[i];
                     tally.rivals_tried += 1;
-                    let passed = self.try_one(&c, true, tally);
-                    if passed.is_some_and(|r| elsewhere(&v.world_from_camera, &r.world_from_camera))
-                    {
-                        tally.ambiguous += 1;
-                        verdict = None;
-                        break;
+                    let Some(r) = self.try_one(&c, tally) else {
+                        continue;
+                    };
+                    match rule.judge(&v.world_from_camera, &r.world_from_camera) {
+                        Judgment::SamePlace => {}
+                        Judgment::PriorChooses => {
+                            tally.prior_chose += 1;
+                            verdict = Some(r);
+                            verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
+                            break;
+                        }
+                        Judgment::Ambiguous => {
+                            tally.ambiguous += 1;
+                            verdict = None;
+                            break;
+                        }
                     }
                 }
             }
@@ -162,6 +171,9 @@ impl Bench {
                 untimed_ms += t_rank.elapsed().as_secs_f64() * 1e3;
             }
             _ => {}
+        }
+        if verdict.is_some() {
+            tally.from_landmarks += usize::from(verdict_from_landmarks);
         }
         let ms = t_query.elapsed().as_secs_f64() * 1e3 - untimed_ms;
         tally.recovery_ms.push(ms);
@@ -222,17 +234,9 @@ impl Bench {
         }
     }
 
-    /// Renders and verifies one candidate through the gate (a rival with
-    /// [`rival_config`], as the service does).
-    fn try_one(&mut self, c: &Candidate, rival: bool, tally: &mut Tally) -> Option<Verified> {
+    /// Renders and verifies one candidate (or rival) through the gate.
+    fn try_one(&mut self, c: &Candidate, tally: &mut Tally) -> Option<Verified> {
         let index = c.ranked.index;
-        let rivals;
-        let rc = if rival {
-            rivals = rival_config(&self.config.reloc);
-            &rivals
-        } else {
-            &self.config.reloc
-        };
         let (candidate_r, pinhole, kview, tracker) = (
             &mut self.candidate_r,
             &self.pinhole,
@@ -255,7 +259,7 @@ impl Bench {
             &mut self.aligner,
             &self.pyramid,
             &self.camera,
-            rc,
+            &self.config.reloc,
             (&c.world_from_camera, c.yaw_rad),
             (&mut self.spare, &mut self.returned),
             &mut render,
