@@ -91,8 +91,9 @@ pub fn run(
     let mut window = Tally::new(rank_candidates);
     let scales = scale::scales_from_env();
     let near_lost_s = MotionPrior::lost_s_for_radius(WINDOW_RADIUS_M, &bench.config.reloc);
-    let near_turn_deg =
-        bench.config.reloc.search_yaw_deg + bench.config.reloc.max_yaw_rate_deg_s * near_lost_s;
+    let near_turn_deg = (bench.config.reloc.search_yaw_deg
+        + bench.config.reloc.max_yaw_rate_deg_s * near_lost_s)
+        .min(180.0);
     let mut frames: Vec<Vec<crate::reloc::Descriptor>> = Vec::new();
     while done < queries && tries < queries * 100 {
         tries += 1;
