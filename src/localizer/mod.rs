@@ -242,8 +242,6 @@ pub struct Localizer {
     /// Rigid motions under which the map looked the same to a
     /// relocalization (look-alike rooms): `second = symmetry * first`.
     map_symmetries: heapless::Vec<Pose, { relocalize::MAX_SYMMETRIES }>,
-    /// The `[reloc]` settings for verifying rivals (no refining renders).
-    rival_config: Option<Box<crate::reloc::RelocConfig>>,
 }
 
 impl Localizer {
@@ -313,7 +311,6 @@ impl Localizer {
             last_attempt: RelocAttempt::default(),
             correlation_samples: Vec::with_capacity(build.max_points_per_level(0)),
             map_symmetries: heapless::Vec::new(),
-            rival_config: None,
         })
     }
 

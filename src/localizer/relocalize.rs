@@ -12,20 +12,30 @@
 //! their stored coarse points, and the top-k by that alignment follow,
 //! placed where it moved them. Candidates are rendered on the render thread
 //! (the lost frame waits for them; tracking never does) and aligned with the
-//! tracker's aligner; the first that passes the strict gate becomes the
-//! keyframe and the prediction. Its pose is not output yet: the next `verify_frames` frames
-//! must track through the same gate, and only then is a pose output and
-//! `reset_counter` incremented. A wrong but confident pose would need to
-//! fool the gate on consecutive frames.
+//! tracker's aligner (the order and the prior: [`crate::reloc::prior`]).
+//! The first that passes the strict gate within the motion prior's reach
+//! (the radius above, and `search_yaw_deg + max_yaw_rate_deg_s x (time
+//! lost)` of the last heading) becomes the keyframe and the prediction; one
+//! the prior cannot vouch for (a cold start, a kidnap, a pose turned half
+//! round in a symmetric room) is held while its rivals at other places are
+//! verified ([`crate::reloc::rivals::RivalRule`], the rule `star bench
+//! reloc` measures) and at the map's remembered symmetries, and refused
+//! when one passes. An accepted pose is not output yet: the next
+//! `verify_frames` frames must track through the same gate, and only then
+//! is a pose output and `reset_counter` incremented. A wrong but confident
+//! pose would need to fool the gate on consecutive frames. An attempt
+//! allocates nothing (its candidates are held on the stack).
 
 use crate::geometry::Pose;
-use crate::reloc::RelocConfig;
+use crate::reloc::prior::{landmark_regions, sources, Source};
+use crate::reloc::rivals::{Judgment, RivalRule, MAX_RIVALS};
 use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
-    try_candidate, verify_candidate, RelocDbError, Relocalizer, SearchRegion, Verdict, Verified,
+    try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
+    Verdict, Verified, LANDMARK_CANDIDATE,
 };
 use crate::track::correlation::plain_and_local;
-use crate::track::Keyframe;
+use crate::track::{Aligner, Keyframe, Pyramid};
 
 use super::worker::RenderRequest;
 use super::{Localizer, TrackState};
@@ -42,12 +52,6 @@ impl Localizer {
             "relocalization enabled"
         );
         self.attempt_budget_s = relocalizer.config().attempt_budget_s;
-        // Rivals are rendered once each: a twin passes at the first render
-        // as the accepted pose did, and refining a place that fails it only
-        // costs time.
-        let mut rivals = relocalizer.config().clone();
-        rivals.refine_renders = 0;
-        self.rival_config = Some(Box::new(rivals));
         self.reloc = Some(Box::new(relocalizer));
         Ok(())
     }
@@ -250,95 +254,65 @@ impl Localizer {
             }
             self.pending = false;
         }
-        let near = self.last.map(|(_, pose)| SearchRegion::Near {
-            center_m: pose.translation.vector,
-            radius_m: reloc.radius_m(self.lost_s(capture_ns)),
-        });
+        let prior = self
+            .last
+            .map(|(_, pose)| MotionPrior::new(&pose, self.lost_s(capture_ns), reloc.config()));
+        let rule = RivalRule::new(prior);
         // The landmark pose (features matched to the map's landmarks, then
         // PnP) is tried first, wherever it is (one candidate, a few renders;
         // on a scanned map it is the candidate that passes, and trying the
         // nearby views first cost seconds of renders per attempt): matched
-        // to the landmarks near the last position when there is one, else
-        // (or when they give no pose) over the whole map through the
-        // vocabulary. Then the database views ranked by the whole-image
-        // descriptor, nearby first. Every candidate passes the same gate.
-        let regions = [
-            near.unwrap_or(SearchRegion::Everywhere),
-            SearchRegion::Everywhere,
-        ];
-        let n_regions = if near.is_some() { 2 } else { 1 };
-        let landmark = reloc.landmark_candidate(pixels, w, h, stride, &regions[..n_regions]);
-        match &landmark {
-            Some((_, found)) => tracing::debug!(
-                capture_ns,
-                inliers = found.inliers,
-                matches = found.matches,
-                "landmark pose found"
-            ),
-            None => tracing::debug!(capture_ns, "no landmark pose"),
+        // to the landmarks within reach of the last position when there is
+        // one, else (or when they give no pose) over the whole map through
+        // the vocabulary. Then the database views ranked by the whole-image
+        // descriptor, nearby first (`reloc::prior::sources`). Every
+        // candidate passes the same gate.
+        let (regions, n_regions) = landmark_regions(prior.as_ref());
+        let landmark = reloc
+            .landmark_candidate(
+                pixels,
+                w,
+                h,
+                stride,
+                regions.get(..n_regions).unwrap_or(&[]),
+            )
+            .map(|(c, found)| {
+                tracing::debug!(
+                    capture_ns,
+                    inliers = found.inliers,
+                    matches = found.matches,
+                    "landmark pose found"
+                );
+                c
+            });
+        if landmark.is_none() {
+            tracing::debug!(capture_ns, "no landmark pose");
         }
-        let mut tried = [u32::MAX; 2 * (MAX_TOP_K + 1)];
+        // Every candidate of the attempt in the order the steps give them
+        // (the rivals are chosen among all of them), and the entries tried.
+        let mut candidates = [Candidate::default(); MAX_ATTEMPT_CANDIDATES];
+        let mut n = 0usize;
+        let mut tried = [u32::MAX; MAX_ATTEMPT_CANDIDATES];
         let mut n_tried = 0usize;
-        // A candidate that passed, held while candidates elsewhere are
-        // checked (see `AMBIGUITY_RADIUS_M`), and how many were.
-        let mut accepted: Option<(Verified, Box<Keyframe>)> = None;
-        let mut checks = 0usize;
-        let needs_check = |v: &Verified| match near {
-            Some(SearchRegion::Near { center_m, radius_m }) => {
-                (v.world_from_camera.translation.vector - center_m).norm() > radius_m
-            }
-            _ => true,
-        };
-        /// Where the candidates of one step come from.
-        enum Source {
-            Landmark,
-            Views(SearchRegion),
-        }
-        let steps = [
-            Some(Source::Landmark),
-            near.map(Source::Views),
-            Some(Source::Views(SearchRegion::Everywhere)),
-        ];
-        for source in steps.into_iter().flatten() {
-            let mut candidates = [Candidate::default(); MAX_TOP_K];
-            let n = match source {
-                Source::Landmark => match landmark {
-                    Some((c, _)) => {
-                        candidates[0] = c;
-                        1
-                    }
-                    None => 0,
-                },
-                Source::Views(region) => {
-                    let found =
-                        reloc.search_ranked(&query, region, &mut self.reloc_aligner, &self.pyramid);
-                    let n = found.len().min(MAX_TOP_K);
-                    candidates[..n].copy_from_slice(&found[..n]);
-                    n
-                }
-            };
-            for candidate in &candidates[..n] {
-                if let Some((a, _)) = &accepted {
-                    if checks >= AMBIGUITY_CHECKS {
-                        break;
-                    }
-                    if tried[..n_tried].contains(&candidate.ranked.index) {
-                        continue;
-                    }
-                    let apart_m = (candidate.world_from_camera.translation.vector
-                        - a.world_from_camera.translation.vector)
-                        .norm();
-                    if apart_m <= AMBIGUITY_RADIUS_M {
-                        continue;
-                    }
-                    checks += 1;
+        let mut steps = sources(prior.as_ref()).into_iter().flatten();
+        let mut passed: Option<(Verified, Box<Keyframe>)> = None;
+        'steps: for source in steps.by_ref() {
+            let first = n;
+            n += gather(
+                &mut reloc,
+                (&mut self.reloc_aligner, &self.pyramid),
+                source,
+                landmark,
+                &query,
+                candidates.get_mut(n..).unwrap_or(&mut []),
+            );
+            for &candidate in candidates.get(first..n).unwrap_or(&[]) {
+                let c = candidate.ranked.index;
+                if tried[..n_tried].contains(&c) {
+                    continue;
                 }
                 let spent_s = started.elapsed().as_secs_f64();
-                if accepted.is_none()
-                    && n_tried > 0
-                    && self.attempt_budget_s > 0.0
-                    && spent_s > self.attempt_budget_s
-                {
+                if n_tried > 0 && self.attempt_budget_s > 0.0 && spent_s > self.attempt_budget_s {
                     tracing::debug!(
                         candidates = n_tried,
                         spent_s,
@@ -347,64 +321,18 @@ impl Localizer {
                     self.reloc = Some(reloc);
                     return;
                 }
-                let c = candidate.ranked.index;
-                if tried[..n_tried].contains(&c) || n_tried >= tried.len() {
-                    continue;
-                }
-                tried[n_tried] = c;
+                let Some(slot) = tried.get_mut(n_tried) else {
+                    break 'steps;
+                };
+                *slot = c;
                 n_tried += 1;
-                let rival_config = self.rival_config.take();
-                let (found, refused) = self.try_reloc_candidate(
-                    match (&accepted, rival_config.as_deref()) {
-                        (Some(_), Some(rivals)) => rivals,
-                        _ => reloc.config(),
-                    },
-                    &candidate.world_from_camera,
-                    candidate.yaw_rad,
-                    capture_ns,
-                );
-                self.rival_config = rival_config;
-                let attempt = &mut self.last_attempt;
-                if let Some(slot) = attempt.candidates.get_mut(attempt.tried) {
-                    *slot = super::RelocCandidate {
-                        world_from_camera: found
-                            .as_ref()
-                            .map_or(candidate.world_from_camera, |(v, _)| v.world_from_camera),
-                        from_landmarks: matches!(source, Source::Landmark),
-                        accepted: found.is_some(),
-                    };
-                }
-                attempt.tried += 1;
+                let (found, refused) = self.try_and_record(reloc.config(), &candidate, capture_ns);
                 let Some((v, kf)) = found else {
                     if refused {
-                        break;
+                        break 'steps;
                     }
                     continue;
                 };
-                if let Some((a, a_kf)) = accepted.take() {
-                    let apart_m = (v.world_from_camera.translation.vector
-                        - a.world_from_camera.translation.vector)
-                        .norm();
-                    if apart_m > AMBIGUITY_RADIUS_M {
-                        self.remember_symmetry(&a.world_from_camera, &v.world_from_camera);
-                        tracing::info!(
-                            capture_ns,
-                            apart_m,
-                            first = ?a.world_from_camera.translation.vector,
-                            second = ?v.world_from_camera.translation.vector,
-                            "relocalization refused: two places pass the gate"
-                        );
-                        self.worker.recycle(kf);
-                        self.worker.recycle(a_kf);
-                        self.stats.reloc_ambiguous += 1;
-                        self.reloc = Some(reloc);
-                        return;
-                    }
-                    // The same place again.
-                    self.worker.recycle(kf);
-                    accepted = Some((a, a_kf));
-                    continue;
-                }
                 tracing::info!(
                     candidate = c,
                     coarse_score = candidate.score,
@@ -413,34 +341,138 @@ impl Localizer {
                     residual = v.alignment.quality.residual_rms,
                     "relocalization candidate passed the gate"
                 );
-                if !needs_check(&v) {
+                if rule.accepts_alone(&v.world_from_camera) {
                     self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
                     self.reloc = Some(reloc);
                     return;
                 }
-                accepted = Some((v, kf));
+                passed = Some((v, kf));
+                break 'steps;
             }
         }
-        match accepted {
-            Some((v, kf)) => match self.twin_passes(&reloc, &v.world_from_camera, capture_ns) {
-                Some(twin) => {
+        let Some((v, kf)) = passed else {
+            tracing::debug!(candidates = n_tried, "relocalization failed for this frame");
+            self.reloc = Some(reloc);
+            return;
+        };
+        // Away from where the prior can vouch for it (no prior, outside the
+        // reach of the last position, or turned beyond the heading bound):
+        // held while its rivals among the candidates of every step are
+        // verified (`reloc::rivals`).
+        for source in steps {
+            n += gather(
+                &mut reloc,
+                (&mut self.reloc_aligner, &self.pyramid),
+                source,
+                landmark,
+                &query,
+                candidates.get_mut(n..).unwrap_or(&mut []),
+            );
+        }
+        let mut rivals = [0usize; MAX_RIVALS];
+        let n_rivals = rule.rivals(
+            candidates.get(..n).unwrap_or(&[]),
+            &v.world_from_camera,
+            tried.get(..n_tried).unwrap_or(&[]),
+            &mut rivals,
+        );
+        for &i in &rivals[..n_rivals] {
+            let Some(rival) = candidates.get(i).copied() else {
+                continue;
+            };
+            let (found, refused) = self.try_and_record(reloc.config(), &rival, capture_ns);
+            let Some((r, r_kf)) = found else {
+                if refused {
+                    // A rival that could not be rendered was not ruled out.
+                    tracing::debug!(capture_ns, "render thread busy during the rival check");
+                    self.worker.recycle(kf);
+                    self.reloc = Some(reloc);
+                    return;
+                }
+                continue;
+            };
+            let judgment = rule.judge(&v.world_from_camera, &r.world_from_camera);
+            if judgment != Judgment::SamePlace {
+                self.remember_symmetry(&v.world_from_camera, &r.world_from_camera);
+            }
+            match judgment {
+                Judgment::SamePlace => self.worker.recycle(r_kf),
+                Judgment::PriorChooses => {
+                    tracing::info!(
+                        capture_ns,
+                        held = ?v.world_from_camera.translation.vector,
+                        taken = ?r.world_from_camera.translation.vector,
+                        "two places pass the gate; the one within the motion prior's reach is taken"
+                    );
+                    self.worker.recycle(kf);
+                    self.accept_relocalization(r, r_kf, capture_ns, reloc.config().verify_frames);
+                    self.reloc = Some(reloc);
+                    return;
+                }
+                Judgment::Ambiguous => {
                     tracing::info!(
                         capture_ns,
                         first = ?v.world_from_camera.translation.vector,
-                        second = ?twin.translation.vector,
-                        "relocalization refused: a known look-alike place passes the gate too"
+                        second = ?r.world_from_camera.translation.vector,
+                        "relocalization refused: two places pass the gate"
                     );
+                    self.worker.recycle(r_kf);
                     self.worker.recycle(kf);
                     self.stats.reloc_ambiguous += 1;
+                    self.reloc = Some(reloc);
+                    return;
                 }
-                None => {
-                    tracing::debug!(checks, "no other place passes the gate; verifying");
-                    self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
-                }
-            },
-            None => tracing::debug!(candidates = n_tried, "relocalization failed for this frame"),
+            }
+        }
+        match self.twin_passes(&reloc, &v.world_from_camera, capture_ns) {
+            Some(twin) => {
+                tracing::info!(
+                    capture_ns,
+                    first = ?v.world_from_camera.translation.vector,
+                    second = ?twin.translation.vector,
+                    "relocalization refused: a known look-alike place passes the gate too"
+                );
+                self.worker.recycle(kf);
+                self.stats.reloc_ambiguous += 1;
+            }
+            None => {
+                tracing::debug!(
+                    rivals = n_rivals,
+                    "no other place passes the gate; verifying"
+                );
+                self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
+            }
         }
         self.reloc = Some(reloc);
+    }
+
+    /// [`Self::try_reloc_candidate`] for `candidate` (a rival is verified
+    /// as any candidate, refining renders included), recorded in the last
+    /// attempt.
+    fn try_and_record(
+        &mut self,
+        config: &RelocConfig,
+        candidate: &Candidate,
+        capture_ns: u64,
+    ) -> (Option<(Verified, Box<Keyframe>)>, bool) {
+        let (found, refused) = self.try_reloc_candidate(
+            config,
+            &candidate.world_from_camera,
+            candidate.yaw_rad,
+            capture_ns,
+        );
+        let attempt = &mut self.last_attempt;
+        if let Some(slot) = attempt.candidates.get_mut(attempt.tried) {
+            *slot = super::RelocCandidate {
+                world_from_camera: found
+                    .as_ref()
+                    .map_or(candidate.world_from_camera, |(v, _)| v.world_from_camera),
+                from_landmarks: candidate.ranked.index == LANDMARK_CANDIDATE,
+                accepted: found.is_some(),
+            };
+        }
+        attempt.tried += 1;
+        (found, refused)
     }
 
     /// Renders and aligns one relocalization candidate through the gate
@@ -522,23 +554,7 @@ impl Localizer {
         world_from_camera: &Pose,
         capture_ns: u64,
     ) -> Option<Pose> {
-        let rival_config = self.rival_config.take();
-        let found = self.twin_passes_with(
-            rival_config.as_deref().unwrap_or(reloc.config()),
-            world_from_camera,
-            capture_ns,
-        );
-        self.rival_config = rival_config;
-        found
-    }
-
-    /// [`Self::twin_passes`] with the rivals' `[reloc]` settings.
-    fn twin_passes_with(
-        &mut self,
-        config: &RelocConfig,
-        world_from_camera: &Pose,
-        capture_ns: u64,
-    ) -> Option<Pose> {
+        let config = reloc.config();
         for i in 0..self.map_symmetries.len() {
             let symmetry = self.map_symmetries[i];
             for twin in [
@@ -586,22 +602,43 @@ impl Localizer {
     }
 }
 
-/// A relocalization that passes the gate away from where the vehicle can
-/// be (no last position, or outside the reach of the last one: a cold
-/// start, a kidnap) is held while up to this many candidates farther than
-/// [`AMBIGUITY_RADIUS_M`] from it are tried; if one of them passes too,
-/// the frame is refused. Look-alike places, such as the twin rooms of a
-/// building whose rooms share a design, pass the gate equally: only the
-/// motion prior or a view that tells them apart (the corridor through the
-/// door) may choose. Inside the reach of the last position the prior has
-/// already chosen, and nothing more is tried.
-const AMBIGUITY_CHECKS: usize = 2;
-/// How far apart two passing candidates must be to be two places, m: the
-/// relocalization benchmark's rule for rivals (`reloc::rivals`).
+/// Candidates one attempt can hold: the landmark pose and the views of
+/// the two view steps (near the last position, the whole map).
+const MAX_ATTEMPT_CANDIDATES: usize = 2 * MAX_TOP_K + 1;
+/// How far apart two passing poses must be to be two places, m (the
+/// remembered symmetries; `reloc::rivals::RIVAL_MIN_M`).
 const AMBIGUITY_RADIUS_M: f64 = crate::reloc::rivals::RIVAL_MIN_M;
 /// Look-alike pairs of places the localizer remembers (the map's
 /// symmetries, see [`Localizer::remember_symmetry`]).
 pub(super) const MAX_SYMMETRIES: usize = 8;
+
+/// Writes the candidates of one attempt step from `source` to `out` (the
+/// landmark pose, or the views `reloc` finds and ranks in a region) and
+/// returns how many.
+fn gather(
+    reloc: &mut Relocalizer,
+    (aligner, pyramid): (&mut Aligner, &Pyramid),
+    source: Source,
+    landmark: Option<Candidate>,
+    query: &Query,
+    out: &mut [Candidate],
+) -> usize {
+    match source {
+        Source::Landmark => match (landmark, out.first_mut()) {
+            (Some(c), Some(slot)) => {
+                *slot = c;
+                1
+            }
+            _ => 0,
+        },
+        Source::Views(region) => {
+            let found = reloc.search_ranked(query, region, aligner, pyramid);
+            let n = found.len().min(out.len());
+            out[..n].copy_from_slice(&found[..n]);
+            n
+        }
+    }
+}
 
 /// The gate settings: the database's, else those given to
 /// [`Localizer::verify_start`]; `None` when neither was set.

@@ -49,6 +49,15 @@ pub struct RelocConfig {
     pub search_radius_m: f64,
     /// Fastest plausible motion while lost, m/s (search radius growth).
     pub max_speed_m_s: f64,
+    /// Heading change allowed around the last tracked heading right after
+    /// the failure, degrees; it grows by `max_yaw_rate_deg_s` per second
+    /// lost. A relocalized pose within the search radius but turned more
+    /// than this is not taken on the motion prior alone: it must beat its
+    /// rivals as a cold start does ([`super::rivals`]).
+    pub search_yaw_deg: f64,
+    /// Fastest plausible turn while lost, degrees per second (a small
+    /// indoor multirotor turns at up to about 120).
+    pub max_yaw_rate_deg_s: f64,
     /// Frames whose thumbnail standard deviation is below this (gray levels)
     /// are not searched (black, saturated or covered frames).
     #[serde(alias = "min_contrast")]
@@ -165,6 +174,8 @@ impl Default for RelocConfig {
             rank_candidates: 32,
             search_radius_m: 0.5,
             max_speed_m_s: 2.0,
+            search_yaw_deg: 30.0,
+            max_yaw_rate_deg_s: 120.0,
             min_contrast_gray: 4.0,
             min_inlier_ratio: 0.6,
             min_visible_ratio: 0.5,
@@ -237,7 +248,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 28] = [
+        let checks: [(&'static str, bool, String); 30] = [
             (
                 "yaw_steps",
                 (1..=360).contains(&self.yaw_steps),
@@ -366,6 +377,19 @@ impl RelocConfig {
                 format!("expected >= 0, found {}", self.max_speed_m_s),
             ),
             (
+                "search_yaw_deg",
+                (0.0..=180.0).contains(&self.search_yaw_deg),
+                format!("expected 0..=180 degrees, found {}", self.search_yaw_deg),
+            ),
+            (
+                "max_yaw_rate_deg_s",
+                self.max_yaw_rate_deg_s.is_finite() && self.max_yaw_rate_deg_s >= 0.0,
+                format!(
+                    "expected >= 0 degrees per second, found {}",
+                    self.max_yaw_rate_deg_s
+                ),
+            ),
+            (
                 "min_contrast_gray",
                 self.min_contrast_gray.is_finite() && self.min_contrast_gray >= 0.0,
                 format!("expected >= 0, found {}", self.min_contrast_gray),
@@ -469,5 +493,38 @@ mod tests {
         assert!((with(vec![1.0, 1.2, 1.8]).height_spacing_m() - 0.6).abs() < 1e-12);
         assert_eq!(with(vec![1.2]).height_spacing_m(), 0.0);
         assert_eq!(with(vec![1.2, 1.2]).height_spacing_m(), 0.0);
+    }
+
+    #[test]
+    fn a_bad_heading_bound_names_its_key() {
+        for (config, key) in [
+            (
+                RelocConfig {
+                    search_yaw_deg: -1.0,
+                    ..RelocConfig::default()
+                },
+                "search_yaw_deg",
+            ),
+            (
+                RelocConfig {
+                    search_yaw_deg: f64::NAN,
+                    ..RelocConfig::default()
+                },
+                "search_yaw_deg",
+            ),
+            (
+                RelocConfig {
+                    max_yaw_rate_deg_s: f64::INFINITY,
+                    ..RelocConfig::default()
+                },
+                "max_yaw_rate_deg_s",
+            ),
+        ] {
+            let Err(e) = config.validate() else {
+                panic!("{key} accepted");
+            };
+            assert_eq!(e.key, key);
+        }
+        assert!(RelocConfig::default().validate().is_ok());
     }
 }

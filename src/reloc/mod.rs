@@ -24,10 +24,13 @@
 //! - The online side; the STAR loop ([`crate::localizer`]) renders and
 //!   aligns the candidates:
 //!   - [`region`]: where to search (near the last position, or everywhere).
+//!   - [`prior`]: the motion prior while lost (reach in position and
+//!     heading) and the order an attempt draws its candidates in.
 //!   - [`search`]: radius-bounded Hamming search and the ranking of the
 //!     candidates by coarse alignment.
-//!   - [`rivals`]: the candidates at another place that must fail the
-//!     gate before a pose is accepted (look-alike rooms).
+//!   - [`rivals`]: when a pose may be taken on the prior alone, and the
+//!     candidates at another place that must otherwise fail the gate
+//!     before it is accepted (look-alike rooms).
 //!   - [`verify`]: the strict acceptance gate a rendered candidate passes
 //!     (its correlation test is [`crate::track::correlation`]).
 //! - [`config`]: the `[reloc]` section.
@@ -45,6 +48,7 @@ pub mod grid;
 pub mod landmark_index;
 pub mod landmarks;
 pub mod pnp;
+pub mod prior;
 pub mod region;
 pub mod rivals;
 pub mod search;
@@ -65,6 +69,7 @@ pub use database::{
 };
 pub use descriptor::{Descriptor, Thumbnailer, THUMB_H, THUMB_W};
 pub use grid::{above_floor, AlongTrajectory, BuildError};
+pub use prior::MotionPrior;
 pub use region::SearchRegion;
 pub use search::{
     Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K,

@@ -1,40 +1,62 @@
-//! Look-alike places: before a relocalization is accepted, the candidates
-//! that stand somewhere else and look as good are verified too, and a pose
-//! that another place also passes is refused as ambiguous.
+//! Look-alike places: when a relocalized pose may be taken on the motion
+//! prior alone, and otherwise which candidates at other places must fail
+//! the gate before it is accepted. One rule, for the service
+//! ([`crate::localizer`]) and `star bench reloc` alike ([`RivalRule`]).
 //!
 //! A map can repeat itself (the `building` preset has 6 room designs, each
 //! built 3-4 times to the last vertex): from inside a room, its twin
 //! renders the same image, so the gate passes there as well, and the
-//! first candidate to pass would win whichever twin it stands in. Takes
-//! the candidates of one attempt (the landmark pose and the descriptor's,
-//! with their coarse-alignment scores) and the pose that passed; gives the
-//! rivals to verify: at most [`MAX_RIVALS`] over the whole map (fewer
-//! near the last position), each more than [`RIVAL_MIN_M`] from that
-//! pose, scored by the coarse alignment within [`RIVAL_SCORE_MARGIN`]
-//! (less near the last position) of the best candidate near it (a landmark pose
-//! elsewhere always qualifies). The caller renders and verifies them
-//! through the same gate; if one passes at another place ([`elsewhere`]:
-//! a rival may align back onto the accepted pose), the frame is ambiguous.
-//! Nothing here allocates.
+//! first candidate to pass would win whichever twin it stands in; a room
+//! symmetric enough under a half turn passes at its mirror pose, a step
+//! away and facing back. Takes the motion prior of the attempt (none on a
+//! cold start, [`MotionPrior`]), the candidates of one attempt (the
+//! landmark pose and the descriptor's, with their coarse-alignment
+//! scores), the ones already tried, and the pose that passed; gives:
+//!
+//! - whether that pose may be accepted without rivals
+//!   ([`RivalRule::accepts_alone`]): only within the prior's reach in
+//!   position and heading;
+//! - how many rivals to verify and how near the best score they must be
+//!   ([`RivalRule::budget`]): [`MAX_RIVALS`] within
+//!   [`RIVAL_SCORE_MARGIN`] without a prior or outside its radius (look-
+//!   alikes anywhere), [`NEAR_MAX_RIVALS`] within
+//!   [`NEAR_RIVAL_SCORE_MARGIN`] inside the radius but turned beyond the
+//!   heading bound (the twins are out of reach: only the place's own
+//!   symmetry can fool the gate);
+//! - which candidates are rivals ([`RivalRule::rivals`], built on
+//!   [`RivalRule::is_rival`]): more than [`RIVAL_MIN_M`] from the pose,
+//!   not tried yet in this attempt, scored within the margin of the best
+//!   candidate near the pose (a landmark pose elsewhere always
+//!   qualifies), in the candidates' order, best first.
+//!
+//! The caller renders and verifies them as any candidate (the same gate,
+//! refining renders included: a twin seen from a database view may need
+//! them as the accepted pose did; rendered once, 10 of 100 cold starts on
+//! the `building` got through), and [`RivalRule::judge`] says what a rival
+//! that passes means: the same place (it aligned back onto the pose), the
+//! prior's choice (the held pose was beyond the prior's reach, the rival
+//! is within it: the order the candidates came in must not decide), or an
+//! ambiguous frame. Nothing here allocates.
 
 use crate::geometry::Pose;
 
-use super::region::SearchRegion;
+use super::prior::MotionPrior;
 use super::search::Candidate;
 
 /// A candidate farther than this from the accepted pose stands at another
 /// place, meters.
 pub const RIVAL_MIN_M: f64 = 1.0;
 /// A candidate at another place is a rival when its coarse-alignment score
-/// is at least the best near the accepted pose less this: over the whole
-/// map (look-alikes anywhere) ...
+/// is at least the best near the accepted pose less this: without a prior,
+/// or outside its radius (look-alikes anywhere) ...
 pub const RIVAL_SCORE_MARGIN: f32 = 0.3;
-/// ... and near the last position (where only the place's own symmetry
+/// ... and inside the prior's radius (where only the place's own symmetry
 /// can fool the gate: the twins are out of reach).
 pub const NEAR_RIVAL_SCORE_MARGIN: f32 = 0.15;
-/// Most rivals verified per accepted pose, over the whole map ...
+/// Most rivals verified per accepted pose without a prior or outside its
+/// radius ...
 pub const MAX_RIVALS: usize = 4;
-/// ... and near the last position.
+/// ... and inside its radius.
 pub const NEAR_MAX_RIVALS: usize = 2;
 
 /// Whether a rival verified at `rival` stands at another place than
@@ -44,99 +66,266 @@ pub fn elsewhere(accepted: &Pose, rival: &Pose) -> bool {
     (rival.translation.vector - accepted.translation.vector).norm() > RIVAL_MIN_M
 }
 
-/// Writes to `out` the indices into `candidates` of the rivals of
-/// `accepted`, found in `region` (in the candidates' order, best first),
-/// and returns how many.
-pub fn rivals(
-    candidates: &[Candidate],
-    accepted: &Pose,
-    region: SearchRegion,
-    out: &mut [usize; MAX_RIVALS],
-) -> usize {
-    let (max, margin) = match region {
-        SearchRegion::Everywhere => (MAX_RIVALS, RIVAL_SCORE_MARGIN),
-        SearchRegion::Near { .. } => (NEAR_MAX_RIVALS, NEAR_RIVAL_SCORE_MARGIN),
-    };
-    let far = |c: &Candidate| elsewhere(accepted, &c.world_from_camera);
-    let near_best = candidates
-        .iter()
-        .filter(|c| !far(c) && c.score.is_finite())
-        .map(|c| c.score)
-        .fold(f32::NEG_INFINITY, f32::max);
-    let bar = near_best - margin;
-    let mut n = 0;
-    for (i, c) in candidates.iter().enumerate() {
-        if n == max {
-            break;
-        }
-        // -inf scores (not aligned) pass only when nothing near was scored.
-        if far(c) && (c.score >= bar || c.score == f32::INFINITY) {
-            if let Some(slot) = out.get_mut(n) {
-                *slot = i;
-                n += 1;
-            }
+/// What a rival that passed the gate means for the pose held.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Judgment {
+    /// It aligned back onto the held pose: no other place.
+    SamePlace,
+    /// It stands at another place within the prior's reach, while the held
+    /// pose is beyond it: the prior chooses the rival.
+    PriorChooses,
+    /// Another place passes as well and the prior cannot choose: the frame
+    /// is refused.
+    Ambiguous,
+}
+
+/// How many rivals to verify, and how near the best score near the
+/// accepted pose they must have scored.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Budget {
+    /// Most rivals verified (0: accepted on the prior alone).
+    pub max: usize,
+    /// Score margin below the best candidate near the accepted pose.
+    pub margin: f32,
+}
+
+/// The rival rule of one attempt.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RivalRule {
+    /// Where the vehicle can be; `None` on a cold start.
+    pub prior: Option<MotionPrior>,
+}
+
+impl RivalRule {
+    /// The rule under `prior` (none: a cold start).
+    pub fn new(prior: Option<MotionPrior>) -> Self {
+        Self { prior }
+    }
+
+    /// Whether a pose that passed the gate may be accepted without any
+    /// rival check: it lies within the prior's reach, in position and in
+    /// heading ([`MotionPrior::reaches`]).
+    pub fn accepts_alone(&self, accepted: &Pose) -> bool {
+        self.prior.is_some_and(|p| p.reaches(accepted))
+    }
+
+    /// How many rivals `accepted` must beat, and within what score margin.
+    pub fn budget(&self, accepted: &Pose) -> Budget {
+        match self.prior {
+            Some(p) if p.reaches(accepted) => Budget {
+                max: 0,
+                margin: 0.0,
+            },
+            Some(p) if p.region().contains(&accepted.translation.vector) => Budget {
+                max: NEAR_MAX_RIVALS,
+                margin: NEAR_RIVAL_SCORE_MARGIN,
+            },
+            _ => Budget {
+                max: MAX_RIVALS,
+                margin: RIVAL_SCORE_MARGIN,
+            },
         }
     }
-    n
+
+    /// Whether `candidate` may be a rival of `accepted`: at another place
+    /// ([`elsewhere`]) and not tried yet in this attempt (`tried`: the
+    /// `ranked.index` of each candidate tried; one that failed the gate
+    /// fails it again).
+    pub fn is_rival(accepted: &Pose, candidate: &Candidate, tried: &[u32]) -> bool {
+        elsewhere(accepted, &candidate.world_from_camera)
+            && !tried.contains(&candidate.ranked.index)
+    }
+
+    /// What `rival`, which passed the gate, means for the held pose
+    /// `accepted` (one that [`Self::accepts_alone`] refused).
+    pub fn judge(&self, accepted: &Pose, rival: &Pose) -> Judgment {
+        if !elsewhere(accepted, rival) {
+            Judgment::SamePlace
+        } else if self.accepts_alone(rival) && !self.accepts_alone(accepted) {
+            Judgment::PriorChooses
+        } else {
+            Judgment::Ambiguous
+        }
+    }
+
+    /// Writes to `out` the indices into `candidates` of the rivals of
+    /// `accepted` (in the candidates' order, best first; the first of a
+    /// repeated entry only) under [`Self::budget`], and returns how many.
+    pub fn rivals(
+        &self,
+        candidates: &[Candidate],
+        accepted: &Pose,
+        tried: &[u32],
+        out: &mut [usize; MAX_RIVALS],
+    ) -> usize {
+        let budget = self.budget(accepted);
+        let near_best = candidates
+            .iter()
+            .filter(|c| !elsewhere(accepted, &c.world_from_camera) && c.score.is_finite())
+            .map(|c| c.score)
+            .fold(f32::NEG_INFINITY, f32::max);
+        let bar = near_best - budget.margin;
+        let mut n = 0;
+        for (i, c) in candidates.iter().enumerate() {
+            if n >= budget.max.min(MAX_RIVALS) {
+                break;
+            }
+            let repeated = candidates
+                .get(..i)
+                .is_some_and(|before| before.iter().any(|b| b.ranked.index == c.ranked.index));
+            // -inf scores (not aligned) pass only when nothing near was scored.
+            if Self::is_rival(accepted, c, tried)
+                && !repeated
+                && (c.score >= bar || c.score == f32::INFINITY)
+            {
+                if let Some(slot) = out.get_mut(n) {
+                    *slot = i;
+                    n += 1;
+                }
+            }
+        }
+        n
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Translation3, UnitQuaternion};
+    use crate::geometry::look::camera_rotation;
+    use crate::reloc::{Ranked, RelocConfig};
+    use nalgebra::Translation3;
 
-    fn at(x: f64, score: f32) -> Candidate {
+    /// A camera at `x` on the x axis looking along `yaw_deg`.
+    fn pose(x: f64, yaw_deg: f64) -> Pose {
+        Pose::from_parts(
+            Translation3::new(x, 0.0, 1.4),
+            camera_rotation(yaw_deg.to_radians(), -5f64.to_radians(), 0.0),
+        )
+    }
+
+    /// Database entry `index` at `x` with the coarse `score`.
+    fn at(index: u32, x: f64, score: f32) -> Candidate {
         Candidate {
-            world_from_camera: Pose::from_parts(
-                Translation3::new(x, 0.0, 1.4),
-                UnitQuaternion::identity(),
-            ),
+            ranked: Ranked {
+                index,
+                ..Ranked::default()
+            },
+            world_from_camera: pose(x, 0.0),
             score,
             ..Candidate::default()
         }
     }
 
+    /// Lost for 0.75 s at the origin facing +x: 2 m and 120 degrees of
+    /// reach under the default `[reloc]`.
+    fn near_origin() -> RivalRule {
+        let config = RelocConfig::default();
+        RivalRule::new(Some(MotionPrior::new(&pose(0.0, 0.0), 0.75, &config)))
+    }
+
     #[test]
-    fn rivals_are_far_and_score_near_the_best_near_the_pose() {
-        let accepted = at(0.0, 0.0).world_from_camera;
+    fn inside_the_radius_and_the_heading_is_accepted_directly() {
+        let rule = near_origin();
+        let accepted = pose(1.5, 100.0);
+        assert!(rule.accepts_alone(&accepted));
+        assert_eq!(rule.budget(&accepted).max, 0);
+        let candidates = [at(1, 0.2, 0.9), at(2, -1.0, 0.95)];
+        let mut out = [usize::MAX; MAX_RIVALS];
+        assert_eq!(rule.rivals(&candidates, &accepted, &[], &mut out), 0);
+    }
+
+    #[test]
+    fn inside_the_radius_but_turned_half_round_needs_the_near_checks() {
+        let rule = near_origin();
+        // The half-turn look-alike of the building: 1.44 m off, facing back.
+        let accepted = pose(1.44, 180.0);
+        assert!(!rule.accepts_alone(&accepted));
+        assert_eq!(
+            rule.budget(&accepted),
+            Budget {
+                max: NEAR_MAX_RIVALS,
+                margin: NEAR_RIVAL_SCORE_MARGIN
+            }
+        );
+        // The truth (the origin) scored near the best: it is the rival.
+        let candidates = [at(1, 1.4, 0.9), at(2, 0.0, 0.8), at(3, 0.3, 0.6)];
+        let mut out = [usize::MAX; MAX_RIVALS];
+        let n = rule.rivals(&candidates, &accepted, &[], &mut out);
+        assert_eq!(&out[..n], &[1]);
+    }
+
+    #[test]
+    fn outside_the_radius_needs_the_whole_map_checks() {
+        let rule = near_origin();
+        let accepted = pose(5.2, 0.0);
+        assert!(!rule.accepts_alone(&accepted));
+        assert_eq!(rule.budget(&accepted).max, MAX_RIVALS);
+        let cold = RivalRule::new(None);
+        assert!(!cold.accepts_alone(&pose(0.0, 0.0)));
+        assert_eq!(
+            cold.budget(&pose(0.0, 0.0)),
+            Budget {
+                max: MAX_RIVALS,
+                margin: RIVAL_SCORE_MARGIN
+            }
+        );
+    }
+
+    #[test]
+    fn rivals_are_far_untried_and_score_near_the_best_near_the_pose() {
+        let accepted = pose(0.0, 0.0);
         let candidates = [
-            at(0.2, 0.9),             // near
-            at(5.2, 0.88),            // a twin room: a rival
-            at(0.5, 0.95),            // near, the best: the bar is 0.65 (0.8 near)
-            at(12.0, 0.55),           // far but scored too low
-            at(-20.0, f32::INFINITY), // a landmark pose elsewhere: a rival
-            at(30.0, 0.7),            // a rival over the whole map only
-            at(31.0, 0.8),            // a rival
-            at(32.0, 0.8),            // beyond MAX_RIVALS
+            at(1, 0.2, 0.9),             // near
+            at(2, 5.2, 0.88),            // a twin room: a rival
+            at(3, 0.5, 0.95),            // near, the best: the bar is 0.65
+            at(4, 12.0, 0.55),           // far but scored too low
+            at(5, -20.0, f32::INFINITY), // a landmark pose elsewhere: a rival
+            at(6, 30.0, 0.7),            // tried already
+            at(2, 5.2, 0.88),            // entry 2 again (another search)
+            at(7, 31.0, 0.8),            // a rival
+            at(8, 32.0, 0.8),            // a rival
+            at(9, 33.0, 0.8),            // beyond MAX_RIVALS
         ];
         let mut out = [usize::MAX; MAX_RIVALS];
-        let n = rivals(&candidates, &accepted, SearchRegion::Everywhere, &mut out);
-        assert_eq!(&out[..n], &[1, 4, 5, 6]);
-        let near = SearchRegion::Near {
-            center_m: accepted.translation.vector,
-            radius_m: 2.0,
-        };
-        let n = rivals(&candidates, &accepted, near, &mut out);
-        assert_eq!(&out[..n], &[1, 4]);
+        let cold = RivalRule::new(None);
+        let n = cold.rivals(&candidates, &accepted, &[6], &mut out);
+        assert_eq!(&out[..n], &[1, 4, 7, 8]);
+        assert!(RivalRule::is_rival(&accepted, &candidates[5], &[]));
+        assert!(!RivalRule::is_rival(&accepted, &candidates[5], &[6]));
+        assert!(!RivalRule::is_rival(&accepted, &candidates[0], &[]));
     }
 
     #[test]
     fn without_a_scored_candidate_near_every_far_one_is_a_rival() {
-        let accepted = at(0.0, 0.0).world_from_camera;
-        let candidates = [at(0.1, f32::NEG_INFINITY), at(3.0, f32::NEG_INFINITY)];
+        let accepted = pose(0.0, 0.0);
+        let candidates = [at(1, 0.1, f32::NEG_INFINITY), at(2, 3.0, f32::NEG_INFINITY)];
         let mut out = [usize::MAX; MAX_RIVALS];
-        let n = rivals(&candidates, &accepted, SearchRegion::Everywhere, &mut out);
+        let n = RivalRule::new(None).rivals(&candidates, &accepted, &[], &mut out);
         assert_eq!(&out[..n], &[1]);
     }
 
     #[test]
     fn nothing_far_is_no_rival() {
-        let accepted = at(0.0, 0.0).world_from_camera;
-        let candidates = [at(0.3, 0.9), at(-0.8, 0.99)];
+        let accepted = pose(0.0, 0.0);
+        let candidates = [at(1, 0.3, 0.9), at(2, -0.8, 0.99)];
         let mut out = [usize::MAX; MAX_RIVALS];
         assert_eq!(
-            rivals(&candidates, &accepted, SearchRegion::Everywhere, &mut out),
+            RivalRule::new(None).rivals(&candidates, &accepted, &[], &mut out),
             0
         );
+    }
+
+    #[test]
+    fn a_passing_rival_is_the_same_place_the_prior_s_choice_or_ambiguous() {
+        let rule = near_origin();
+        // Held: the twin room 5.2 m away, beyond the 2 m reach.
+        let twin = pose(5.2, 0.0);
+        assert_eq!(rule.judge(&twin, &pose(5.5, 0.0)), Judgment::SamePlace);
+        assert_eq!(rule.judge(&twin, &pose(0.1, 10.0)), Judgment::PriorChooses);
+        // A rival within the radius but facing back is no choice of the prior.
+        assert_eq!(rule.judge(&twin, &pose(0.1, 180.0)), Judgment::Ambiguous);
+        // Without a prior two places are always ambiguous.
+        let cold = RivalRule::new(None);
+        assert_eq!(cold.judge(&twin, &pose(0.1, 10.0)), Judgment::Ambiguous);
     }
 }

@@ -152,11 +152,6 @@ impl Relocalizer {
         &self.config
     }
 
-    /// The search radius after `lost_s` seconds lost.
-    pub fn radius_m(&self, lost_s: f64) -> f64 {
-        self.config.search_radius_m + self.config.max_speed_m_s * lost_s.max(0.0)
-    }
-
     /// Descriptors of a camera frame at every query shift; `None` when it
     /// has too little contrast.
     pub fn describe(

@@ -3,8 +3,11 @@
 //!
 //! Stages: [`setup`] builds the scene, the database and the renderers;
 //! [`query`] draws and renders a random query; [`recover`] runs it through
-//! the service's recovery order (landmark pose, then the descriptor's
-//! candidates); [`diagnose`] explains a whole-map query
+//! the service's recovery order and rival rule (landmark pose, then the
+//! descriptor's candidates, then the rivals of a pose the prior cannot
+//! vouch for), cold (no prior) and near the last position (the prior of a
+//! service lost for as long as gives a 2 m reach, facing the truth's
+//! heading); [`diagnose`] explains a whole-map query
 //! (`STAR_BENCH_VERBOSE`); [`tally`] keeps and prints the figures and times
 //! the search.
 //!
@@ -42,11 +45,17 @@ mod tally;
 
 use anyhow::Result;
 
-use crate::reloc::SearchRegion;
+use crate::geometry::Pose;
+use crate::reloc::MotionPrior;
 use crate::rng::SplitMix64;
 
 use setup::Bench;
 use tally::Tally;
+
+/// The radius of the window around the last position, meters (the
+/// paper's protocol); the near queries' prior is the service's after as
+/// long a loss as gives it this reach ([`MotionPrior::lost_s_for_radius`]).
+const WINDOW_RADIUS_M: f64 = 2.0;
 
 /// Where `star bench reloc` draws its queries.
 #[derive(Debug, Clone, Default)]
@@ -81,6 +90,10 @@ pub fn run(
     let mut global = Tally::new(rank_candidates);
     let mut window = Tally::new(rank_candidates);
     let scales = scale::scales_from_env();
+    let near_lost_s = MotionPrior::lost_s_for_radius(WINDOW_RADIUS_M, &bench.config.reloc);
+    let near_turn_deg = (bench.config.reloc.search_yaw_deg
+        + bench.config.reloc.max_yaw_rate_deg_s * near_lost_s)
+        .min(180.0);
     let mut frames: Vec<Vec<crate::reloc::Descriptor>> = Vec::new();
     while done < queries && tries < queries * 100 {
         tries += 1;
@@ -89,25 +102,19 @@ pub fn run(
         };
         done += 1;
         // The paper's protocol: a 2 m window around where the vehicle was
-        // last known (here the truth displaced by up to 0.5 m).
+        // last known (here the truth displaced by up to 0.5 m), facing the
+        // truth's way, lost for as long as gives the window its radius.
         let center_m = query.position_m
             + nalgebra::Vector3::new(rng.range(-0.5, 0.5), rng.range(-0.5, 0.5), 0.0);
-        let regions = [
-            (SearchRegion::Everywhere, &mut global),
-            (
-                SearchRegion::Near {
-                    center_m,
-                    radius_m: 2.0,
-                },
-                &mut window,
-            ),
-        ];
-        for (region, tally) in regions {
-            let Some(outcome) = bench.recover(&query, region, tally) else {
+        let last = Pose::from_parts(nalgebra::Translation3::from(center_m), query.truth.rotation);
+        let near = MotionPrior::new(&last, near_lost_s, &bench.config.reloc);
+        let priors = [(None, &mut global), (Some(near), &mut window)];
+        for (prior, tally) in priors {
+            let Some(outcome) = bench.recover(&query, prior, tally) else {
                 tally.rejected += 1;
                 continue;
             };
-            if matches!(region, SearchRegion::Everywhere) {
+            if prior.is_none() {
                 if !scales.is_empty() {
                     frames.push(bench.reloc.landmarks_mut().last_query().to_vec());
                 }
@@ -122,7 +129,10 @@ pub fn run(
     bench.print_queries(done);
     global.print("whole map", done);
     window.print(
-        "2 m window (paper protocol; centre = truth + up to 0.5 m)",
+        &format!(
+            "2 m window (paper protocol; centre = truth + up to 0.5 m, heading = truth's; \
+             as the service lost {near_lost_s:.2} s: reach {WINDOW_RADIUS_M} m, {near_turn_deg:.0} deg)"
+        ),
         done,
     );
     tally::search_timing(&bench.db, bench.config.reloc.top_k as usize, seed);

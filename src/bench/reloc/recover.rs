@@ -1,14 +1,21 @@
-//! One query through the service's recovery order in one search region:
-//! the landmark pose first, then (when it is missing or refused) the
-//! database views by descriptor, each rendered and verified through the
-//! gate, timed as the service would spend it.
+//! One query through the service's recovery order under one motion prior
+//! (none: a cold start): the landmark pose first, then the database views
+//! by descriptor (near the last position, then over the whole map), each
+//! rendered and verified through the gate, then the rivals of a pose the
+//! prior cannot vouch for, all as the service does it
+//! ([`crate::reloc::prior`], [`crate::reloc::rivals`]) and timed as the
+//! service would spend it. Unlike the service, an attempt here has no time
+//! budget, and no look-alike places are remembered from one query to the
+//! next.
 
 use std::time::Instant;
 
 use crate::geometry::{PinholeCamera, Pose};
-use crate::reloc::rivals::MAX_RIVALS;
+use crate::reloc::prior::{landmark_regions, sources, Source};
+use crate::reloc::rivals::{Judgment, RivalRule, MAX_RIVALS};
 use crate::reloc::{
-    try_candidate, Candidate, Query, RelocConfig, SearchRegion, Verified, LANDMARK_CANDIDATE,
+    try_candidate, Candidate, MotionPrior, Query, RelocConfig, SearchRegion, Verified,
+    LANDMARK_CANDIDATE,
 };
 use crate::track::{Aligner, Keyframe, Pyramid};
 
@@ -33,14 +40,18 @@ pub(super) struct Outcome {
 }
 
 impl Bench {
-    /// Runs the query in the frame buffers through `region`; `None` when the
-    /// frame has too little contrast to describe.
+    /// Runs the query in the frame buffers under `prior` (none: over the
+    /// whole map); `None` when the frame has too little contrast to
+    /// describe.
     pub(super) fn recover(
         &mut self,
         query: &QueryFrame,
-        region: SearchRegion,
+        prior: Option<MotionPrior>,
         tally: &mut Tally,
     ) -> Option<Outcome> {
+        let rule = RivalRule::new(prior);
+        // The region of the retrieval figures: the first views step's.
+        let region = prior.map_or(SearchRegion::Everywhere, |p| p.region());
         let t_query = Instant::now();
         let descriptor = self.reloc.describe(
             self.frame.data(),
@@ -48,15 +59,14 @@ impl Bench {
             self.frame.height(),
             self.frame.width(),
         )?;
-        // As the service: the landmark pose first, then (when it is
-        // missing or refused) the database views by descriptor.
         let t_landmarks = Instant::now();
+        let (regions, n_regions) = landmark_regions(prior.as_ref());
         let landmark = self.reloc.landmark_candidate(
             self.frame.data(),
             self.frame.width(),
             self.frame.height(),
             self.frame.width(),
-            &[region],
+            regions.get(..n_regions).unwrap_or(&[]),
         );
         tally
             .landmark_ms
@@ -74,8 +84,7 @@ impl Bench {
             .brute_force
             .push(locator.brute_force_comparisons() as f64);
         let mut untimed_ms = t_untimed.elapsed().as_secs_f64() * 1e3;
-        let mut candidates: Vec<Candidate> = Vec::new();
-        if let Some((c, found)) = landmark {
+        let landmark = landmark.map(|(c, found)| {
             let e = query.truth.inverse() * c.world_from_camera;
             let right =
                 e.translation.vector.norm() <= 0.1 && e.rotation.angle().to_degrees() <= 3.0;
@@ -84,66 +93,87 @@ impl Bench {
             tally
                 .located_inliers
                 .push((found.inliers, found.matches, right));
-            candidates.push(c);
-        }
+            c
+        });
+        let mut candidates: Vec<Candidate> = Vec::new();
+        let mut tried: Vec<u32> = Vec::new();
         let mut verdict = None;
         let mut verdict_from_landmarks = false;
-        let mut tried = 0;
-        let mut rank_untimed_ms = 0.0;
-        for pass in 0..2 {
-            if pass == 1 {
-                // The descriptor search runs for the retrieval figures
-                // even when the landmark pose was accepted; it counts in
-                // the recovery time only when it was needed (for the
-                // candidates, or for the rivals of the landmark pose).
-                let t_rank = Instant::now();
-                let ranked =
-                    self.reloc
-                        .search_ranked(&descriptor, region, &mut self.aligner, &self.pyramid);
-                candidates.extend_from_slice(ranked);
-                let rank_ms = t_rank.elapsed().as_secs_f64() * 1e3;
+        let mut region_searched = false;
+        let mut steps = sources(prior.as_ref()).into_iter().flatten();
+        'steps: for source in steps.by_ref() {
+            let first = candidates.len();
+            let rank_ms = self.gather(source, landmark, &descriptor, &mut candidates);
+            if !region_searched && matches!(source, Source::Views(_)) {
                 tally.rank_ms.push(rank_ms);
-                if verdict.is_some() {
-                    rank_untimed_ms = rank_ms;
-                    break;
-                }
+                region_searched = true;
             }
-            while tried < candidates.len() {
-                let c = candidates[tried];
-                tried += 1;
+            for i in first..candidates.len() {
+                let c = candidates[i];
+                if tried.contains(&c.ranked.index) {
+                    continue;
+                }
+                tried.push(c.ranked.index);
                 verdict = self.try_one(&c, tally);
                 if verdict.is_some() {
                     verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
-                    tally.from_landmarks += usize::from(verdict_from_landmarks);
-                    break;
+                    break 'steps;
                 }
             }
         }
-        // Another place that passes the gate as well: the frame is
-        // ambiguous (a look-alike room), and no pose is given.
-        match (verdict, self.check_rivals) {
-            (Some(v), true) => {
+        // A pose the prior cannot vouch for: another place that passes the
+        // gate as well makes the frame ambiguous, and no pose is given.
+        match verdict {
+            Some(v) if self.check_rivals && !rule.accepts_alone(&v.world_from_camera) => {
+                for source in steps {
+                    let rank_ms = self.gather(source, landmark, &descriptor, &mut candidates);
+                    if !region_searched && matches!(source, Source::Views(_)) {
+                        tally.rank_ms.push(rank_ms);
+                        region_searched = true;
+                    }
+                }
                 let mut rivals = [0usize; MAX_RIVALS];
-                let n = crate::reloc::rivals::rivals(
-                    &candidates,
-                    &v.world_from_camera,
-                    region,
-                    &mut rivals,
-                );
+                let n = rule.rivals(&candidates, &v.world_from_camera, &tried, &mut rivals);
                 for &i in &rivals[..n] {
                     let c = candidates[i];
                     tally.rivals_tried += 1;
-                    let passed = self.try_one(&c, tally);
-                    if passed.is_some_and(|r| {
-                        crate::reloc::rivals::elsewhere(&v.world_from_camera, &r.world_from_camera)
-                    }) {
-                        tally.ambiguous += 1;
-                        verdict = None;
-                        break;
+                    let Some(r) = self.try_one(&c, tally) else {
+                        continue;
+                    };
+                    match rule.judge(&v.world_from_camera, &r.world_from_camera) {
+                        Judgment::SamePlace => {}
+                        Judgment::PriorChooses => {
+                            tally.prior_chose += 1;
+                            verdict = Some(r);
+                            verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
+                            break;
+                        }
+                        Judgment::Ambiguous => {
+                            tally.ambiguous += 1;
+                            verdict = None;
+                            break;
+                        }
                     }
                 }
             }
-            _ => untimed_ms += rank_untimed_ms,
+            _ if !region_searched => {
+                // The descriptor search runs for the retrieval figures even
+                // when the landmark pose was accepted; it counts in the
+                // recovery time only when it was needed.
+                let t_rank = Instant::now();
+                let rank_ms = self.gather(
+                    Source::Views(region),
+                    landmark,
+                    &descriptor,
+                    &mut candidates,
+                );
+                tally.rank_ms.push(rank_ms);
+                untimed_ms += t_rank.elapsed().as_secs_f64() * 1e3;
+            }
+            _ => {}
+        }
+        if verdict.is_some() {
+            tally.from_landmarks += usize::from(verdict_from_landmarks);
         }
         let ms = t_query.elapsed().as_secs_f64() * 1e3 - untimed_ms;
         tally.recovery_ms.push(ms);
@@ -178,7 +208,33 @@ impl Bench {
         })
     }
 
-    /// Renders and verifies one candidate through the gate.
+    /// Appends the candidates of one attempt step to `candidates`: the
+    /// landmark pose, or the views ranked in a region; returns the time the
+    /// views' search took, ms (0 for the landmark pose).
+    fn gather(
+        &mut self,
+        source: Source,
+        landmark: Option<Candidate>,
+        descriptor: &Query,
+        candidates: &mut Vec<Candidate>,
+    ) -> f64 {
+        match source {
+            Source::Landmark => {
+                candidates.extend(landmark);
+                0.0
+            }
+            Source::Views(region) => {
+                let t_rank = Instant::now();
+                let ranked =
+                    self.reloc
+                        .search_ranked(descriptor, region, &mut self.aligner, &self.pyramid);
+                candidates.extend_from_slice(ranked);
+                t_rank.elapsed().as_secs_f64() * 1e3
+            }
+        }
+    }
+
+    /// Renders and verifies one candidate (or rival) through the gate.
     fn try_one(&mut self, c: &Candidate, tally: &mut Tally) -> Option<Verified> {
         let index = c.ranked.index;
         let (candidate_r, pinhole, kview, tracker) = (

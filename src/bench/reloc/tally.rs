@@ -110,9 +110,11 @@ pub(super) struct Tally {
     /// Corners x landmarks of brute-force matching, per query.
     pub(super) brute_force: Vec<f64>,
     /// Rivals (candidates at another place, [`crate::reloc::rivals`])
-    /// verified, and the accepted poses they refused as ambiguous.
+    /// verified, the accepted poses they refused as ambiguous, and the
+    /// rivals within the prior's reach taken instead of a pose beyond it.
     pub(super) rivals_tried: usize,
     pub(super) ambiguous: usize,
+    pub(super) prior_chose: usize,
 }
 
 impl Tally {
@@ -203,8 +205,8 @@ impl Tally {
             100.0 * self.success_given_near as f64 / self.retrieved_near.max(1) as f64
         );
         println!(
-            "    look-alike places: {} rivals at another place verified, {} poses refused because one passed too (counted in no pose)",
-            self.rivals_tried, self.ambiguous
+            "    look-alike places: {} rivals at another place verified, {} poses refused because one passed too (counted in no pose), {} beyond the prior's reach replaced by a rival within it",
+            self.rivals_tried, self.ambiguous, self.prior_chose
         );
         let elsewhere = self.wrong.iter().filter(|w| w.0 > 1.0).count();
         if !self.wrong.is_empty() {
