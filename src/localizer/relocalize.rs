@@ -350,7 +350,7 @@ impl Localizer {
                 break 'steps;
             }
         }
-        let Some((v, kf)) = passed else {
+        let Some((mut v, mut kf)) = passed else {
             tracing::debug!(candidates = n_tried, "relocalization failed for this frame");
             self.reloc = Some(reloc);
             return;
@@ -376,6 +376,11 @@ impl Localizer {
             tried.get(..n_tried).unwrap_or(&[]),
             &mut rivals,
         );
+        let all_checked = rule.count_rivals(
+            candidates.get(..n).unwrap_or(&[]),
+            &v.world_from_camera,
+            tried.get(..n_tried).unwrap_or(&[]),
+        ) <= n_rivals;
         for &i in &rivals[..n_rivals] {
             let Some(rival) = candidates.get(i).copied() else {
                 continue;
@@ -391,12 +396,34 @@ impl Localizer {
                 }
                 continue;
             };
-            let judgment = rule.judge(&v.world_from_camera, &r.world_from_camera);
+            let judgment = rule.judge(
+                (&v.world_from_camera, v.correlation),
+                (&r.world_from_camera, r.correlation),
+                all_checked,
+            );
             if judgment != Judgment::SamePlace {
                 self.remember_symmetry(&v.world_from_camera, &r.world_from_camera);
             }
             match judgment {
                 Judgment::SamePlace => self.worker.recycle(r_kf),
+                Judgment::HeldIsBetter | Judgment::RivalIsBetter => {
+                    let rival_better = judgment == Judgment::RivalIsBetter;
+                    tracing::info!(
+                        capture_ns,
+                        held = ?v.world_from_camera.translation.vector,
+                        held_correlation = v.correlation,
+                        rival = ?r.world_from_camera.translation.vector,
+                        rival_correlation = r.correlation,
+                        rival_better,
+                        "two places pass the gate; one correlates decisively better"
+                    );
+                    if rival_better {
+                        self.worker.recycle(std::mem::replace(&mut kf, r_kf));
+                        v = r;
+                    } else {
+                        self.worker.recycle(r_kf);
+                    }
+                }
                 Judgment::PriorChooses => {
                     tracing::info!(
                         capture_ns,
@@ -424,7 +451,7 @@ impl Localizer {
                 }
             }
         }
-        match self.twin_passes(&reloc, &v.world_from_camera, capture_ns) {
+        match self.twin_passes(&reloc, &v, capture_ns) {
             Some(twin) => {
                 tracing::info!(
                     capture_ns,
@@ -546,15 +573,18 @@ impl Localizer {
     }
 
     /// A pose where the frame also passes the gate through one of the map's
-    /// known symmetries of `world_from_camera` (each way), more than
-    /// [`AMBIGUITY_RADIUS_M`] away; `None` when none does.
+    /// known symmetries of the held pose (each way), more than
+    /// [`AMBIGUITY_RADIUS_M`] away, and that the held pose does not beat by
+    /// a decisive correlation ([`Judgment::HeldIsBetter`]); `None` when
+    /// none does.
     fn twin_passes(
         &mut self,
         reloc: &Relocalizer,
-        world_from_camera: &Pose,
+        held: &Verified,
         capture_ns: u64,
     ) -> Option<Pose> {
         let config = reloc.config();
+        let world_from_camera = &held.world_from_camera;
         for i in 0..self.map_symmetries.len() {
             let symmetry = self.map_symmetries[i];
             for twin in [
@@ -569,7 +599,12 @@ impl Localizer {
                 let apart_m = (v.world_from_camera.translation.vector
                     - world_from_camera.translation.vector)
                     .norm();
-                if apart_m > AMBIGUITY_RADIUS_M {
+                let beaten = RivalRule::new(None).judge(
+                    (world_from_camera, held.correlation),
+                    (&v.world_from_camera, v.correlation),
+                    true,
+                ) == Judgment::HeldIsBetter;
+                if apart_m > AMBIGUITY_RADIUS_M && !beaten {
                     return Some(v.world_from_camera);
                 }
             }

@@ -134,14 +134,28 @@ impl Bench {
                 }
                 let mut rivals = [0usize; MAX_RIVALS];
                 let n = rule.rivals(&candidates, &v.world_from_camera, &tried, &mut rivals);
+                let all_checked = rule.count_rivals(&candidates, &v.world_from_camera, &tried) <= n;
+                let mut held = v;
                 for &i in &rivals[..n] {
                     let c = candidates[i];
                     tally.rivals_tried += 1;
                     let Some(r) = self.try_one(&c, tally) else {
                         continue;
                     };
-                    match rule.judge(&v.world_from_camera, &r.world_from_camera) {
+                    match rule.judge(
+                        (&held.world_from_camera, held.correlation),
+                        (&r.world_from_camera, r.correlation),
+                        all_checked,
+                    ) {
                         Judgment::SamePlace => {}
+                        Judgment::HeldIsBetter => tally.decisive += 1,
+                        Judgment::RivalIsBetter => {
+                            tally.decisive += 1;
+                            tally.decisive_rival += 1;
+                            held = r;
+                            verdict = Some(r);
+                            verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
+                        }
                         Judgment::PriorChooses => {
                             tally.prior_chose += 1;
                             verdict = Some(r);

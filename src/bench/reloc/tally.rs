@@ -115,6 +115,11 @@ pub(super) struct Tally {
     pub(super) rivals_tried: usize,
     pub(super) ambiguous: usize,
     pub(super) prior_chose: usize,
+    /// Rivals that passed at another place where one of the two correlated
+    /// decisively better ([`crate::reloc::rivals::DECISIVE_MARGIN`]), and
+    /// of those, the rival's place was the better.
+    pub(super) decisive: usize,
+    pub(super) decisive_rival: usize,
 }
 
 impl Tally {
@@ -205,8 +210,8 @@ impl Tally {
             100.0 * self.success_given_near as f64 / self.retrieved_near.max(1) as f64
         );
         println!(
-            "    look-alike places: {} rivals at another place verified, {} poses refused because one passed too (counted in no pose), {} beyond the prior's reach replaced by a rival within it",
-            self.rivals_tried, self.ambiguous, self.prior_chose
+            "    look-alike places: {} rivals at another place verified, {} poses refused because one passed too (counted in no pose), {} beyond the prior's reach replaced by a rival within it, {} passing rivals told apart by a decisive correlation ({} of them the better place)",
+            self.rivals_tried, self.ambiguous, self.prior_chose, self.decisive, self.decisive_rival
         );
         let elsewhere = self.wrong.iter().filter(|w| w.0 > 1.0).count();
         if !self.wrong.is_empty() {
