@@ -191,13 +191,6 @@ impl RivalRule {
         }
     }
 
-    /// How many candidates are rivals of `accepted` under
-    /// [`Self::budget`]'s margin, without its cap: more than the cap means
-    /// some go unchecked.
-    pub fn count_rivals(&self, candidates: &[Candidate], accepted: &Pose, tried: &[u32]) -> usize {
-        self.eligible(candidates, accepted, tried).count()
-    }
-
     /// Writes to `out` the indices into `candidates` of the rivals of
     /// `accepted` (in the candidates' order, best first; the first of a
     /// repeated entry only) under [`Self::budget`], and returns how many.
@@ -209,25 +202,29 @@ impl RivalRule {
         out: &mut [usize; MAX_RIVALS],
     ) -> usize {
         let max = self.budget(accepted).max.min(MAX_RIVALS);
-        let mut n = 0;
-        for i in self.eligible(candidates, accepted, tried).take(max) {
-            if let Some(slot) = out.get_mut(n) {
-                *slot = i;
-                n += 1;
-            }
-        }
-        n
+        let (written, _) = self.eligible(candidates, accepted, tried, &mut out[..max]);
+        written
     }
 
-    /// The indices into `candidates` of every rival of `accepted` within
-    /// [`Self::budget`]'s score margin, in order (the first of a repeated
-    /// entry only), without the budget's cap.
-    fn eligible<'a>(
+    /// How many places are rivals of `accepted` under [`Self::budget`]'s
+    /// margin, without its cap: more than the cap means some go unchecked.
+    pub fn count_rivals(&self, candidates: &[Candidate], accepted: &Pose, tried: &[u32]) -> usize {
+        self.eligible(candidates, accepted, tried, &mut []).1
+    }
+
+    /// Writes to `out` (as many as fit) the indices into `candidates` of the
+    /// rivals of `accepted` within [`Self::budget`]'s score margin, in
+    /// order, one per place: a candidate within [`RIVAL_MIN_M`] and
+    /// [`SAME_PLACE_DEG`] of an earlier rival stands at the same place, and
+    /// so does a repeated entry. Returns how many were written and how many
+    /// places there are in all.
+    fn eligible(
         &self,
-        candidates: &'a [Candidate],
-        accepted: &'a Pose,
-        tried: &'a [u32],
-    ) -> impl Iterator<Item = usize> + 'a {
+        candidates: &[Candidate],
+        accepted: &Pose,
+        tried: &[u32],
+        out: &mut [usize],
+    ) -> (usize, usize) {
         let budget = self.budget(accepted);
         let near_best = candidates
             .iter()
@@ -235,17 +232,43 @@ impl RivalRule {
             .map(|c| c.score)
             .fold(f32::NEG_INFINITY, f32::max);
         let bar = near_best - budget.margin;
-        candidates.iter().enumerate().filter_map(move |(i, c)| {
-            let repeated = candidates
-                .get(..i)
-                .is_some_and(|before| before.iter().any(|b| b.ranked.index == c.ranked.index));
+        // The places found so far (beyond the first 32, each counts).
+        let mut places = [0usize; 32];
+        let (mut n_places, mut written) = (0usize, 0usize);
+        for (i, c) in candidates.iter().enumerate() {
             // -inf scores (not aligned) pass only when nothing near was scored.
-            (Self::is_rival(accepted, c, tried)
-                && !repeated
-                && (c.score >= bar || c.score == f32::INFINITY))
-                .then_some(i)
-        })
+            let qualifies =
+                Self::is_rival(accepted, c, tried) && (c.score >= bar || c.score == f32::INFINITY);
+            let seen = places[..n_places.min(places.len())].iter().any(|&j| {
+                candidates.get(j).is_some_and(|b| {
+                    b.ranked.index == c.ranked.index
+                        || same_place(&b.world_from_camera, &c.world_from_camera)
+                })
+            });
+            if !qualifies || seen {
+                continue;
+            }
+            if let Some(slot) = places.get_mut(n_places) {
+                *slot = i;
+            }
+            n_places += 1;
+            if let Some(slot) = out.get_mut(written) {
+                *slot = i;
+                written += 1;
+            }
+        }
+        (written, n_places)
     }
+}
+
+/// Two candidates closer than this in heading (and [`RIVAL_MIN_M`] in
+/// position) stand at the same place, degrees.
+pub const SAME_PLACE_DEG: f64 = 30.0;
+
+/// Whether two candidate poses stand at the same place (one rival check
+/// covers both).
+fn same_place(a: &Pose, b: &Pose) -> bool {
+    !elsewhere(a, b) && (a.rotation.inverse() * b.rotation).angle().to_degrees() < SAME_PLACE_DEG
 }
 
 #[cfg(test)]
@@ -342,15 +365,17 @@ mod tests {
             at(5, -20.0, f32::INFINITY), // a landmark pose elsewhere: a rival
             at(6, 30.0, 0.7),            // tried already
             at(2, 5.2, 0.88),            // entry 2 again (another search)
+            at(10, 5.5, 0.9),            // the twin room of entry 2 again
             at(7, 31.0, 0.8),            // a rival
-            at(8, 32.0, 0.8),            // a rival
-            at(9, 33.0, 0.8),            // beyond MAX_RIVALS
+            at(8, 32.5, 0.8),            // a rival
+            at(9, 34.0, 0.8),            // beyond MAX_RIVALS
         ];
         let mut out = [usize::MAX; MAX_RIVALS];
         let cold = RivalRule::new(None);
         let n = cold.rivals(&candidates, &accepted, &[6], &mut out);
-        assert_eq!(&out[..n], &[1, 4, 7, 8]);
-        // Entry 9 is one more beyond the cap: not every rival is checked.
+        assert_eq!(&out[..n], &[1, 4, 8, 9]);
+        // Entry 9 is one more place beyond the cap: not every rival is
+        // checked.
         assert_eq!(cold.count_rivals(&candidates, &accepted, &[6]), 5);
         assert!(RivalRule::is_rival(&accepted, &candidates[5], &[]));
         assert!(!RivalRule::is_rival(&accepted, &candidates[5], &[6]));
