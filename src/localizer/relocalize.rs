@@ -28,7 +28,7 @@
 
 use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
-use crate::reloc::rivals::{Judgment, RivalRule, MAX_RIVALS};
+use crate::reloc::rivals::{Judgment, RivalRule, LISTED_RIVALS};
 use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
@@ -369,7 +369,7 @@ impl Localizer {
                 candidates.get_mut(n..).unwrap_or(&mut []),
             );
         }
-        let mut rivals = [0usize; MAX_RIVALS];
+        let mut rivals = [0usize; LISTED_RIVALS];
         let n_rivals = rule.rivals(
             candidates.get(..n).unwrap_or(&[]),
             &v.world_from_camera,
@@ -381,7 +381,14 @@ impl Localizer {
             &v.world_from_camera,
             tried.get(..n_tried).unwrap_or(&[]),
         ) <= n_rivals;
-        for &i in &rivals[..n_rivals] {
+        // The budget's rivals, and the rest of the list only once a
+        // decisive correlation has chosen between two places.
+        let first_rivals = rule.budget(&v.world_from_camera).max;
+        let mut decided = false;
+        for (k, &i) in rivals[..n_rivals].iter().enumerate() {
+            if k >= first_rivals && !decided {
+                break;
+            }
             let Some(rival) = candidates.get(i).copied() else {
                 continue;
             };
@@ -407,6 +414,7 @@ impl Localizer {
             match judgment {
                 Judgment::SamePlace => self.worker.recycle(r_kf),
                 Judgment::HeldIsBetter | Judgment::RivalIsBetter => {
+                    decided = true;
                     let rival_better = judgment == Judgment::RivalIsBetter;
                     tracing::info!(
                         capture_ns,

@@ -61,6 +61,11 @@ pub const NEAR_RIVAL_SCORE_MARGIN: f32 = 0.15;
 pub const MAX_RIVALS: usize = 4;
 /// ... and inside its radius.
 pub const NEAR_MAX_RIVALS: usize = 2;
+/// Most rivals listed: once a rival has passed and one of the two places
+/// correlated decisively better, up to twice the budget's places are
+/// verified, so that the choice is made only when every rival was (see
+/// [`RivalRule::judge`]).
+pub const LISTED_RIVALS: usize = 2 * MAX_RIVALS;
 
 /// Two places that both pass the gate are told apart when one's plain
 /// correlation with the frame (the smallest over pyramid levels 0-2,
@@ -110,10 +115,20 @@ pub enum Judgment {
 /// accepted pose they must have scored.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Budget {
-    /// Most rivals verified (0: accepted on the prior alone).
+    /// Most rivals verified (0: accepted on the prior alone) ...
     pub max: usize,
     /// Score margin below the best candidate near the accepted pose.
     pub margin: f32,
+}
+
+impl Budget {
+    /// ... and, once a decisive correlation has chosen between two places
+    /// ([`Judgment::HeldIsBetter`], [`Judgment::RivalIsBetter`]), twice
+    /// that, so that the choice stands only when every rival place was
+    /// verified.
+    pub fn deciding_max(&self) -> usize {
+        (2 * self.max).min(LISTED_RIVALS)
+    }
 }
 
 /// The rival rule of one attempt.
@@ -192,16 +207,18 @@ impl RivalRule {
     }
 
     /// Writes to `out` the indices into `candidates` of the rivals of
-    /// `accepted` (in the candidates' order, best first; the first of a
-    /// repeated entry only) under [`Self::budget`], and returns how many.
+    /// `accepted` (in the candidates' order, best first; one per place)
+    /// under [`Self::budget`], up to [`Budget::deciding_max`], and returns
+    /// how many. The caller verifies the first [`Budget::max`], and the
+    /// rest only once a decisive correlation has chosen.
     pub fn rivals(
         &self,
         candidates: &[Candidate],
         accepted: &Pose,
         tried: &[u32],
-        out: &mut [usize; MAX_RIVALS],
+        out: &mut [usize; LISTED_RIVALS],
     ) -> usize {
-        let max = self.budget(accepted).max.min(MAX_RIVALS);
+        let max = self.budget(accepted).deciding_max();
         let (written, _) = self.eligible(candidates, accepted, tried, &mut out[..max]);
         written
     }
@@ -313,7 +330,7 @@ mod tests {
         assert!(rule.accepts_alone(&accepted));
         assert_eq!(rule.budget(&accepted).max, 0);
         let candidates = [at(1, 0.2, 0.9), at(2, -1.0, 0.95)];
-        let mut out = [usize::MAX; MAX_RIVALS];
+        let mut out = [usize::MAX; LISTED_RIVALS];
         assert_eq!(rule.rivals(&candidates, &accepted, &[], &mut out), 0);
     }
 
@@ -332,7 +349,7 @@ mod tests {
         );
         // The truth (the origin) scored near the best: it is the rival.
         let candidates = [at(1, 1.4, 0.9), at(2, 0.0, 0.8), at(3, 0.3, 0.6)];
-        let mut out = [usize::MAX; MAX_RIVALS];
+        let mut out = [usize::MAX; LISTED_RIVALS];
         let n = rule.rivals(&candidates, &accepted, &[], &mut out);
         assert_eq!(&out[..n], &[1]);
     }
@@ -368,14 +385,15 @@ mod tests {
             at(10, 5.5, 0.9),            // the twin room of entry 2 again
             at(7, 31.0, 0.8),            // a rival
             at(8, 32.5, 0.8),            // a rival
-            at(9, 34.0, 0.8),            // beyond MAX_RIVALS
+            at(9, 34.0, 0.8),            // beyond the budget
         ];
-        let mut out = [usize::MAX; MAX_RIVALS];
+        let mut out = [usize::MAX; LISTED_RIVALS];
         let cold = RivalRule::new(None);
         let n = cold.rivals(&candidates, &accepted, &[6], &mut out);
-        assert_eq!(&out[..n], &[1, 4, 8, 9]);
-        // Entry 9 is one more place beyond the cap: not every rival is
-        // checked.
+        // The first 4 (the budget) are verified; entry 9, a fifth place,
+        // only once a decisive correlation has chosen.
+        assert_eq!(&out[..n], &[1, 4, 8, 9, 10]);
+        assert_eq!(cold.budget(&accepted).deciding_max(), 2 * MAX_RIVALS);
         assert_eq!(cold.count_rivals(&candidates, &accepted, &[6]), 5);
         assert!(RivalRule::is_rival(&accepted, &candidates[5], &[]));
         assert!(!RivalRule::is_rival(&accepted, &candidates[5], &[6]));
@@ -386,7 +404,7 @@ mod tests {
     fn without_a_scored_candidate_near_every_far_one_is_a_rival() {
         let accepted = pose(0.0, 0.0);
         let candidates = [at(1, 0.1, f32::NEG_INFINITY), at(2, 3.0, f32::NEG_INFINITY)];
-        let mut out = [usize::MAX; MAX_RIVALS];
+        let mut out = [usize::MAX; LISTED_RIVALS];
         let n = RivalRule::new(None).rivals(&candidates, &accepted, &[], &mut out);
         assert_eq!(&out[..n], &[1]);
     }
@@ -395,7 +413,7 @@ mod tests {
     fn nothing_far_is_no_rival() {
         let accepted = pose(0.0, 0.0);
         let candidates = [at(1, 0.3, 0.9), at(2, -0.8, 0.99)];
-        let mut out = [usize::MAX; MAX_RIVALS];
+        let mut out = [usize::MAX; LISTED_RIVALS];
         assert_eq!(
             RivalRule::new(None).rivals(&candidates, &accepted, &[], &mut out),
             0

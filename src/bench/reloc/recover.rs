@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use crate::geometry::{PinholeCamera, Pose};
 use crate::reloc::prior::{landmark_regions, sources, Source};
-use crate::reloc::rivals::{Judgment, RivalRule, MAX_RIVALS};
+use crate::reloc::rivals::{Judgment, RivalRule, LISTED_RIVALS};
 use crate::reloc::{
     try_candidate, Candidate, MotionPrior, Query, RelocConfig, SearchRegion, Verified,
     LANDMARK_CANDIDATE,
@@ -132,11 +132,16 @@ impl Bench {
                         region_searched = true;
                     }
                 }
-                let mut rivals = [0usize; MAX_RIVALS];
+                let mut rivals = [0usize; LISTED_RIVALS];
                 let n = rule.rivals(&candidates, &v.world_from_camera, &tried, &mut rivals);
                 let all_checked = rule.count_rivals(&candidates, &v.world_from_camera, &tried) <= n;
                 let mut held = v;
-                for &i in &rivals[..n] {
+                let first_rivals = rule.budget(&v.world_from_camera).max;
+                let mut decided = false;
+                for (k, &i) in rivals[..n].iter().enumerate() {
+                    if k >= first_rivals && !decided {
+                        break;
+                    }
                     let c = candidates[i];
                     tally.rivals_tried += 1;
                     let Some(r) = self.try_one(&c, tally) else {
@@ -148,9 +153,13 @@ impl Bench {
                         all_checked,
                     ) {
                         Judgment::SamePlace => {}
-                        Judgment::HeldIsBetter => tally.decisive += 1,
+                        Judgment::HeldIsBetter => {
+                            tally.decisive += 1;
+                            decided = true;
+                        }
                         Judgment::RivalIsBetter => {
                             tally.decisive += 1;
+                            decided = true;
                             tally.decisive_rival += 1;
                             held = r;
                             verdict = Some(r);
