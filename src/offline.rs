@@ -91,6 +91,8 @@ pub struct OfflineReport {
     pub relocalizations: u64,
     /// Relocalization attempts refused because two places passed the gate.
     pub reloc_ambiguous: u64,
+    /// Passing rivals told apart by a decisive correlation.
+    pub reloc_decided: u64,
     /// Relocalization attempts (lost frames searched).
     pub reloc_attempts: u64,
     /// Keyframes rendered.
@@ -288,6 +290,7 @@ pub fn localize_dataset_recorded(
         tracked: Vec::with_capacity(n),
         relocalizations: 0,
         reloc_ambiguous: 0,
+        reloc_decided: 0,
         reloc_attempts: 0,
         keyframes: 0,
         stale_frames: 0,
@@ -389,6 +392,7 @@ pub fn localize_dataset_recorded(
     report.keyframes = stats.keyframes;
     report.relocalizations = stats.relocalizations;
     report.reloc_ambiguous = stats.reloc_ambiguous;
+    report.reloc_decided = stats.reloc_decided;
     report.reloc_attempts = stats.reloc_attempts;
     report.stale_frames = stats.stale_frames;
     report.max_keyframe_age_s = stats.max_keyframe_age_s;

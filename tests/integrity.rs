@@ -228,7 +228,14 @@ fn a_view_that_jumps_is_not_sent() {
 /// The fixture's map with a copy of itself `offset_x_m` along x: two rooms
 /// that are the same to the last vertex, as the rooms of one design in a
 /// building.
-fn twin_map(mesh: &star::map::Mesh, offset_x_m: f32) -> star::map::Mesh {
+/// `mesh` and a copy of it `offset_x_m` along x; `shade` gives the copy's
+/// vertex gray from the original's position and gray (a look-alike copy:
+/// the same shell, something painted otherwise).
+fn twin_map(
+    mesh: &star::map::Mesh,
+    offset_x_m: f32,
+    shade: impl Fn([f32; 3], f32) -> f32,
+) -> star::map::Mesh {
     let mut twin = mesh.clone();
     let n_vertices = mesh.positions.len() as u32;
     let n_indices = mesh.indices.len() as u32;
@@ -237,7 +244,12 @@ fn twin_map(mesh: &star::map::Mesh, offset_x_m: f32) -> star::map::Mesh {
             .iter()
             .map(|p| [p[0] + offset_x_m, p[1], p[2]]),
     );
-    twin.gray.extend_from_slice(&mesh.gray);
+    twin.gray.extend(
+        mesh.positions
+            .iter()
+            .zip(&mesh.gray)
+            .map(|(&p, &g)| shade(p, g)),
+    );
     if !mesh.uvs.is_empty() {
         twin.uvs.extend_from_slice(&mesh.uvs);
     }
@@ -251,8 +263,14 @@ fn twin_map(mesh: &star::map::Mesh, offset_x_m: f32) -> star::map::Mesh {
     twin
 }
 
-#[test]
-fn a_twin_room_refuses_a_cold_start_and_a_hint_still_starts() {
+/// Localizes the fixture's flight (cold or from a right hint) in a map of
+/// the fixture room and a copy of it beyond the far limit (`shade` paints
+/// the copy, see [`twin_map`]), with database views along the flight in
+/// both rooms.
+fn run_in_twin_map(
+    shade: impl Fn([f32; 3], f32) -> f32,
+    starts: &[StartMode],
+) -> Vec<OfflineReport> {
     use star::reloc::{build_database_along, AlongTrajectory, Relocalizer};
     use star::render::cpu::CpuRenderer;
     use std::sync::Arc;
@@ -267,7 +285,7 @@ fn a_twin_room_refuses_a_cold_start_and_a_hint_still_starts() {
     let step_m = fx.config.reloc.grid_spacing_m;
     let clear_m = f64::from(hi_m[0] - lo_m[0]) + fx.config.render.far_m + 1.0;
     let offset_x_m = (clear_m / step_m).ceil() * step_m;
-    let twin = Arc::new(twin_map(&mesh, offset_x_m as f32));
+    let twin = Arc::new(twin_map(&mesh, offset_x_m as f32, shade));
     let mut renderer = CpuRenderer::new(twin.clone()).expect("renderer");
     // The grid over the flown region, and views along the flight in both
     // rooms (as `star reloc build --poses` takes them).
@@ -298,24 +316,34 @@ fn a_twin_room_refuses_a_cold_start_and_a_hint_still_starts() {
     )
     .expect("database over both rooms");
 
-    let run = |start: StartMode| {
-        let options = OfflineOptions {
-            start,
-            world_from_camera_start: (start == StartMode::Hint).then(|| fx.gt.poses[0]),
-            relocalizer: Some(
-                Relocalizer::new(db.clone(), &fx.config.reloc, ds.camera()).expect("reloc"),
-            ),
-            ..OfflineOptions::default()
-        };
-        let renderer = Box::new(CpuRenderer::new(twin.clone()).expect("renderer"));
-        star::offline::localize_dataset(&ds, renderer, &fx.config, &options, |_| {})
-            .expect("localize")
+    starts
+        .iter()
+        .map(|&start| {
+            let options = OfflineOptions {
+                start,
+                world_from_camera_start: (start == StartMode::Hint).then(|| fx.gt.poses[0]),
+                relocalizer: Some(
+                    Relocalizer::new(db.clone(), &fx.config.reloc, ds.camera()).expect("reloc"),
+                ),
+                ..OfflineOptions::default()
+            };
+            let renderer = Box::new(CpuRenderer::new(twin.clone()).expect("renderer"));
+            star::offline::localize_dataset(&ds, renderer, &fx.config, &options, |_| {})
+                .expect("localize")
+        })
+        .collect()
+}
+
+#[test]
+fn a_twin_room_refuses_a_cold_start_and_a_hint_still_starts() {
+    let reports = run_in_twin_map(|_, g| g, &[StartMode::Cold, StartMode::Hint]);
+    let [cold, hinted] = &reports[..] else {
+        panic!("two runs");
     };
 
     // A cold start sees a room that is in the map twice: candidates pass the
     // gate in both, and nothing may be sent.
-    let cold = run(StartMode::Cold);
-    let i = integrity(&cold, "cold start, twin rooms");
+    let i = integrity(cold, "cold start, twin rooms");
     assert!(
         cold.reloc_ambiguous > 0,
         "the twin was never found: {} attempts",
@@ -325,7 +353,41 @@ fn a_twin_room_refuses_a_cold_start_and_a_hint_still_starts() {
     assert_eq!(i.poses_checked, 0);
 
     // A right hint is the prior that chooses: tracking starts.
-    let hinted = run(StartMode::Hint);
-    let i = integrity(&hinted, "right hint, twin rooms");
+    let i = integrity(hinted, "right hint, twin rooms");
+    assert!(i.poses_checked > FRAMES / 2, "{} poses", i.poses_checked);
+}
+
+#[test]
+fn a_look_alike_room_is_told_apart_by_its_correlation() {
+    // The copy has a dark band painted across floor, walls and ceiling
+    // (a fifth of the room's length): views of it still pass the gate in
+    // the copy, which tolerates what the map lacks, but correlate worse.
+    let mesh_x = std::sync::OnceLock::new();
+    let reports = run_in_twin_map(
+        |p, g| {
+            let &(lo, hi) = mesh_x.get_or_init(|| {
+                let fx = fixture();
+                let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
+                let (lo, hi) = mesh.bounds().expect("bounds");
+                (lo[0], hi[0])
+            });
+            let t = (p[0] - lo) / (hi - lo);
+            if (0.4..0.6).contains(&t) {
+                0.5 * g
+            } else {
+                g
+            }
+        },
+        &[StartMode::Cold],
+    );
+    let cold = &reports[0];
+    let i = integrity(cold, "cold start, look-alike rooms");
+    assert!(
+        cold.reloc_decided > 0,
+        "no passing rival was told apart: {} attempts, {} ambiguous",
+        cold.reloc_attempts,
+        cold.reloc_ambiguous
+    );
+    assert!(cold.relocalizations > 0, "never started");
     assert!(i.poses_checked > FRAMES / 2, "{} poses", i.poses_checked);
 }

@@ -188,6 +188,9 @@ pub struct LoopStats {
     /// Relocalization attempts refused because candidates at two places
     /// passed the gate (look-alike rooms).
     pub reloc_ambiguous: u64,
+    /// Passing rivals at another place that a decisive correlation told
+    /// apart from the held pose (`reloc::rivals::DECISIVE_MARGIN`).
+    pub reloc_decided: u64,
 }
 
 /// The STAR loop.

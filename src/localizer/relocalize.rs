@@ -415,6 +415,7 @@ impl Localizer {
                 Judgment::SamePlace => self.worker.recycle(r_kf),
                 Judgment::HeldIsBetter | Judgment::RivalIsBetter => {
                     decided = true;
+                    self.stats.reloc_decided += 1;
                     let rival_better = judgment == Judgment::RivalIsBetter;
                     tracing::info!(
                         capture_ns,
@@ -448,7 +449,10 @@ impl Localizer {
                     tracing::info!(
                         capture_ns,
                         first = ?v.world_from_camera.translation.vector,
+                        first_correlation = v.correlation,
                         second = ?r.world_from_camera.translation.vector,
+                        second_correlation = r.correlation,
+                        all_checked,
                         "relocalization refused: two places pass the gate"
                     );
                     self.worker.recycle(r_kf);

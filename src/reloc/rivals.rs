@@ -81,8 +81,9 @@ pub const LISTED_RIVALS: usize = 2 * MAX_RIVALS;
 /// the better place was the wrong one, the difference was at most 0.050.
 pub const DECISIVE_MARGIN: f32 = 0.08;
 /// ... (the true places of those pairs correlated at 0.73-0.96, the wrong
-/// ones at most 0.80 where the other place was the true one).
-pub const DECISIVE_MIN_CORRELATION: f32 = 0.8;
+/// ones at most 0.80 where the other place was the true one; true poses in
+/// the `realistic` test room correlate at 0.72-0.79).
+pub const DECISIVE_MIN_CORRELATION: f32 = 0.7;
 
 /// Whether a rival verified at `rival` stands at another place than
 /// `accepted` (a rival can align back to the accepted pose itself: that is
