@@ -20,7 +20,8 @@
 //! round in a symmetric room) is held while its rivals at other places are
 //! verified ([`crate::reloc::rivals::RivalRule`], the rule `star bench
 //! reloc` measures) and at the map's remembered symmetries, and refused
-//! when one passes. An accepted pose is not output yet: the next
+//! when one passes, unless one of the two places correlates decisively
+//! better (`Judgment::HeldIsBetter`, `RivalIsBetter`). An accepted pose is not output yet: the next
 //! `verify_frames` frames must track through the same gate, and only then
 //! is a pose output and `reset_counter` incremented. A wrong but confident
 //! pose would need to fool the gate on consecutive frames. An attempt
