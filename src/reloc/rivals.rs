@@ -27,7 +27,8 @@
 //!   [`RivalRule::is_rival`]): more than [`RIVAL_MIN_M`] from the pose,
 //!   not tried yet in this attempt, scored within the margin of the best
 //!   candidate near the pose (a landmark pose elsewhere always
-//!   qualifies), in the candidates' order, best first.
+//!   qualifies), in the candidates' order, best first, one per place
+//!   ([`SAME_PLACE_DEG`]).
 //!
 //! The caller renders and verifies them as any candidate (the same gate,
 //! refining renders included: a twin seen from a database view may need
