@@ -28,6 +28,14 @@
 //! (VmRSS) after loading and with each renderer built, and the wgpu
 //! renderer's device memory (mesh buffers, textures, targets).
 //!
+//! `--every N` takes the poses every `N` frames of the ground truth
+//! instead, all of them, so that consecutive renders are as far apart in
+//! time on every dataset (the 50 evenly strided poses of a 3000-frame
+//! floor are 6 times farther apart than a 500-frame room's, which a
+//! renderer that reuses the previous render's visibility pays for; the
+//! tracker renders a keyframe every 6 degrees or 8 % of the depth, at
+//! most 1 s apart: `--every 10` is 0.2 s at 50 Hz).
+//!
 //! `--cpu-default` times only the CPU rasterizer with its default cull;
 //! `--gpu-only` only the wgpu renderer with its cull on (and the budget);
 //! `--interleaved` times only that, on all the datasets in alternating
@@ -70,6 +78,20 @@ fn status_mb(key: &str) -> f64 {
         .map_or(0.0, |kb| kb / 1024.0)
 }
 
+/// `--every N`: poses every `N` frames of the ground truth, all of them
+/// (the same spacing in time on every dataset); else `None`: at most
+/// [`MAX_POSES`] evenly strided through it.
+fn every_frames() -> Option<usize> {
+    let args: Vec<String> = std::env::args().collect();
+    let at = args.iter().position(|a| a == "--every")?;
+    let n: usize = args
+        .get(at + 1)
+        .and_then(|v| v.parse().ok())
+        .expect("--every N: a whole number of frames");
+    assert!(n > 0, "--every N: at least 1 frame");
+    Some(n)
+}
+
 fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>, Option<f64>) {
     let config_path = dir.join("star.toml");
     let (mesh, far_m) = if config_path.exists() {
@@ -93,13 +115,16 @@ fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>, Option<f64>) {
         .camera
         .pinhole();
     let truth = Trajectory::read(&dir.join("groundtruth.txt")).expect("groundtruth.txt");
-    let poses = truth
-        .poses
-        .iter()
-        .step_by((truth.poses.len() / MAX_POSES).max(1))
-        .take(MAX_POSES)
-        .copied()
-        .collect();
+    let poses = match every_frames() {
+        Some(n) => truth.poses.iter().step_by(n).copied().collect(),
+        None => truth
+            .poses
+            .iter()
+            .step_by((truth.poses.len() / MAX_POSES).max(1))
+            .take(MAX_POSES)
+            .copied()
+            .collect(),
+    };
     let far_m = match std::env::var("STAR_BENCH_FAR_M") {
         Ok(v) => {
             let f: f64 = v.parse().expect("STAR_BENCH_FAR_M: meters");
@@ -403,10 +428,17 @@ fn bench_interleaved(dirs: &[PathBuf]) {
 }
 
 fn main() {
-    let dirs: Vec<PathBuf> = std::env::args()
-        .skip(1)
-        .filter(|a| !a.starts_with("--"))
-        .map(PathBuf::from)
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    // Dataset folders: the arguments that are neither flags nor the value
+    // of `--every`.
+    let dirs: Vec<PathBuf> = args
+        .iter()
+        .enumerate()
+        .filter(|(i, a)| {
+            !a.starts_with("--")
+                && (*i == 0 || args.get(i - 1).map(String::as_str) != Some("--every"))
+        })
+        .map(|(_, a)| PathBuf::from(a))
         .collect();
     if dirs.is_empty() {
         println!("render_map: no dataset given (cargo bench --bench render_map -- DATASET...)");

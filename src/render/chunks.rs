@@ -241,6 +241,61 @@ impl ChunkedMesh {
     }
 }
 
+/// Triangles per cluster (the last of a chunk may have fewer): the unit
+/// of both renderers' occlusion culls within a chunk.
+pub const CLUSTER_TRIS: usize = 256;
+
+// A cluster's number within its chunk fits `u8`.
+const _: () = assert!(MAX_CHUNK_TRIS / CLUSTER_TRIS <= 256);
+
+/// A run of [`CLUSTER_TRIS`] consecutive triangles of one chunk (a
+/// contiguous range of the index buffer), with the chunk-local range of
+/// vertices they use and their bounds.
+#[derive(Debug, Clone)]
+pub struct Cluster {
+    /// Chunk-local triangle numbers.
+    pub triangles: Range<usize>,
+    /// Chunk-local vertex numbers: every vertex of these triangles lies in
+    /// this range.
+    pub vertices: Range<usize>,
+    /// Bounds of those triangles' vertices, world frame.
+    pub bounds: Aabb,
+}
+
+/// The clusters of `chunk` of `mesh`, in triangle order.
+pub fn clusters(mesh: &ChunkedMesh, chunk: &MeshChunk) -> Vec<Cluster> {
+    let first_vertex = chunk.vertices.start as usize;
+    let (t0, t1) = (chunk.triangles.start as usize, chunk.triangles.end as usize);
+    let indices = mesh.indices.get(3 * t0..3 * t1).unwrap_or(&[]);
+    indices
+        .chunks(3 * CLUSTER_TRIS)
+        .enumerate()
+        .map(|(k, run)| {
+            let mut bounds = Aabb {
+                min_m: [f32::INFINITY; 3],
+                max_m: [f32::NEG_INFINITY; 3],
+            };
+            let (mut lo, mut hi) = (usize::MAX, 0);
+            for &i in run {
+                let p = mesh.positions.get(i as usize).copied().unwrap_or([0.0; 3]);
+                for a in 0..3 {
+                    bounds.min_m[a] = bounds.min_m[a].min(p[a]);
+                    bounds.max_m[a] = bounds.max_m[a].max(p[a]);
+                }
+                let local = (i as usize).saturating_sub(first_vertex);
+                lo = lo.min(local);
+                hi = hi.max(local + 1);
+            }
+            let first = k * CLUSTER_TRIS;
+            Cluster {
+                triangles: first..first + run.len() / 3,
+                vertices: lo.min(hi)..hi,
+                bounds,
+            }
+        })
+        .collect()
+}
+
 /// Sets `visible[i]` for every chunk `i` (`visible` is resized to the chunk
 /// count, without allocating after the first call): whether it passes
 /// `frustum`, or true for every chunk when `frustum` is `None`.

@@ -27,6 +27,7 @@ pub mod cpu;
 pub mod frustum;
 pub mod gpu;
 pub mod select;
+pub(crate) mod tiles;
 
 pub use select::{RenderConfig, RendererKind};
 

@@ -35,11 +35,9 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::setup::BAND_ROWS;
-use super::view::{View, NEAR_M};
-use crate::render::chunks::{Aabb, MeshChunk};
-
-/// Tile edge, pixels.
-pub(super) const TILE_PX: usize = 8;
+use super::view::View;
+use crate::render::chunks::MeshChunk;
+use crate::render::tiles::{screen_box, TileDepth, TILE_PX};
 /// Most batches of one render; the first is never culled.
 pub(super) const MAX_BATCHES: usize = 8;
 /// The first batch holds this share of the visible chunks...
@@ -49,12 +47,6 @@ const FIRST_BATCH_MIN: usize = 4;
 /// The previous render's visible chunks are drawn first when its camera
 /// was less than this far away, meters.
 pub(super) const COHERENT_M: f64 = 2.0;
-/// Relative margin of the depth comparison.
-const MARGIN: f32 = 1e-3;
-/// Padding of the boxes, meters (as the frustum test's).
-const BOX_PAD_M: f32 = 1e-3;
-/// Padding of the projected rectangles, pixels.
-const RECT_PAD_PX: f32 = 2.0;
 
 /// Per-render scratch of the occlusion cull. See the module docs.
 #[derive(Debug, Default)]
@@ -186,10 +178,7 @@ impl Occlusion {
 
     /// The tiles as last updated, for the triangle test.
     pub fn tiles(&self) -> TileDepth<'_> {
-        TileDepth {
-            min_inv_z: &self.tile_min_inv_z,
-            tiles_x: self.tiles_x,
-        }
+        TileDepth::new(&self.tile_min_inv_z, self.tiles_x)
     }
 
     /// What the raster bands write: the tiles, to fill, with the number of
@@ -217,114 +206,8 @@ impl Occlusion {
     }
 }
 
-/// The nearest `1/z` of box `b` (padded) in `view` and the tiles its
-/// projection touches (padded), `[x0, y0, x1, y1]` inclusive; `None` when
-/// the box reaches behind the near plane (it cannot be proved hidden).
-pub(super) fn screen_box(view: &View, b: &Aabb) -> Option<(f32, [u16; 4])> {
-    let mut near = f32::INFINITY;
-    let (mut u0, mut v0, mut u1, mut v1) = (
-        f32::INFINITY,
-        f32::INFINITY,
-        f32::NEG_INFINITY,
-        f32::NEG_INFINITY,
-    );
-    for corner in 0..8 {
-        let pick = |k: usize, bit: usize| {
-            if corner >> bit & 1 == 0 {
-                b.min_m[k] - BOX_PAD_M
-            } else {
-                b.max_m[k] + BOX_PAD_M
-            }
-        };
-        let p = view.camera_point([pick(0, 0), pick(1, 1), pick(2, 2)]);
-        near = near.min(p.z);
-        if p.z > NEAR_M {
-            let (u, v) = view.pixel_f32(p);
-            u0 = u0.min(u);
-            v0 = v0.min(v);
-            u1 = u1.max(u);
-            v1 = v1.max(v);
-        }
-    }
-    if !(near > NEAR_M && near.is_finite()) {
-        return None;
-    }
-    let (w, h) = (view.width as f32, view.height as f32);
-    let tile = |x: f32, limit: f32| {
-        ((x.clamp(0.0, limit - 1.0)) as usize / TILE_PX).min(u16::MAX as usize) as u16
-    };
-    Some((
-        1.0 / near,
-        [
-            tile(u0 - RECT_PAD_PX, w),
-            tile(v0 - RECT_PAD_PX, h),
-            tile(u1 + RECT_PAD_PX, w),
-            tile(v1 + RECT_PAD_PX, h),
-        ],
-    ))
-}
-
 /// Chunks in the first batch when `visible` chunks pass the frustum test.
 pub(super) fn first_batch(visible: usize) -> usize {
     (visible / FIRST_BATCH_DIVISOR).max(FIRST_BATCH_MIN)
 }
 
-/// Sets each element of `tiles` (the rows of tiles under one band) to the
-/// smallest `1/z` of the `width`-wide band `inv_z` under it (0 where a
-/// pixel is empty).
-pub(super) fn band_tiles(inv_z: &[f32], width: usize, tiles: &mut [f32]) {
-    tiles.fill(f32::INFINITY);
-    let tiles_x = width.div_ceil(TILE_PX).max(1);
-    for (y, row) in inv_z.chunks_exact(width.max(1)).enumerate() {
-        let first = y / TILE_PX * tiles_x;
-        let Some(tile_row) = tiles.get_mut(first..first + tiles_x) else {
-            continue;
-        };
-        for (tile, px) in tile_row.iter_mut().zip(row.chunks(TILE_PX)) {
-            *tile = px.iter().fold(*tile, |m, &d| m.min(d));
-        }
-    }
-}
-
-/// The farthest depth drawn per tile, read-only, for the triangle test.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct TileDepth<'a> {
-    min_inv_z: &'a [f32],
-    tiles_x: usize,
-}
-
-impl TileDepth<'_> {
-    /// Whether a box whose nearest `1/z` is `near_inv_z` (0: not
-    /// occludable) and whose projection touches tiles `[x0, y0, x1, y1]`
-    /// (as [`screen_box`] gives them) is hidden behind every one of them.
-    #[inline]
-    pub fn hides_box(&self, [x0, y0, x1, y1]: [u16; 4], near_inv_z: f32) -> bool {
-        if near_inv_z == 0.0 {
-            return false;
-        }
-        let limit = near_inv_z * (1.0 + MARGIN);
-        let (x0, x1) = (usize::from(x0), usize::from(x1));
-        (usize::from(y0)..=usize::from(y1)).all(|ty| {
-            self.min_inv_z
-                .get(ty * self.tiles_x + x0..=ty * self.tiles_x + x1)
-                .is_some_and(|row| row.iter().all(|&t| t > limit))
-        })
-    }
-
-    /// Whether a triangle whose covered pixel centers lie in columns
-    /// `x0..=x1` and rows `y0..=y1` and whose largest vertex `1/z` is
-    /// `max_inv_z` is hidden behind every tile it touches.
-    #[inline]
-    pub fn hides(&self, [x0, x1, y0, y1]: [usize; 4], max_inv_z: f32) -> bool {
-        let limit = max_inv_z * (1.0 + MARGIN);
-        if !(limit > 0.0) {
-            return false;
-        }
-        let (tx0, tx1) = (x0 / TILE_PX, x1 / TILE_PX);
-        (y0 / TILE_PX..=y1 / TILE_PX).all(|ty| {
-            self.min_inv_z
-                .get(ty * self.tiles_x + tx0..=ty * self.tiles_x + tx1)
-                .is_some_and(|row| row.iter().all(|&t| t > limit))
-        })
-    }
-}

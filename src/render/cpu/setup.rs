@@ -9,11 +9,10 @@
 //! sees its triangles depends on the thread count.
 
 use super::clip::{ClipVertex, Polygon, MAX_POLY};
-use std::ops::Range;
 
-use super::occlusion::{screen_box, TileDepth};
+use crate::render::tiles::{screen_box, TileDepth};
 use super::view::{CamVertex, View, CLIP_MASK, CULL_MASK, OUT_INVALID, SUBPIXEL_BITS};
-use crate::render::chunks::{Aabb, ChunkedMesh, MeshChunk};
+use crate::render::chunks::{self, ChunkedMesh, Cluster, MeshChunk};
 use crate::render::frustum::Frustum;
 
 /// Rows per band: the unit of work of the raster stage.
@@ -57,7 +56,7 @@ pub(super) struct Chunk {
     pub tris: Vec<ScreenTri>,
     /// Per band, the indices into `tris` of the triangles touching it.
     pub bins: Vec<Vec<u32>>,
-    /// The chunk's triangles in runs of [`CLUSTER_TRIS`], each tested
+    /// The chunk's triangles in runs of [`chunks::CLUSTER_TRIS`], each tested
     /// against the view before its vertices are transformed.
     clusters: Vec<Cluster>,
     /// Per screen triangle, the number of its cluster in the chunk.
@@ -89,25 +88,6 @@ impl Clusters<'_> {
     }
 }
 
-/// Triangles per cluster (the last of a chunk may have fewer).
-pub(super) const CLUSTER_TRIS: usize = 256;
-
-// A cluster's number within its chunk fits `u8`.
-const _: () = assert!(crate::render::chunks::MAX_CHUNK_TRIS / CLUSTER_TRIS <= 256);
-
-/// A run of consecutive triangles of one chunk, with the chunk-local range
-/// of vertices they use and their bounds.
-#[derive(Debug, Clone)]
-struct Cluster {
-    /// Chunk-local triangle numbers.
-    triangles: Range<usize>,
-    /// Chunk-local vertex numbers: every vertex of these triangles lies in
-    /// this range.
-    vertices: Range<usize>,
-    /// Bounds of those triangles' vertices, world frame.
-    bounds: Aabb,
-}
-
 /// A vertex after projection, before orientation.
 #[derive(Clone, Copy, Default)]
 struct Projected {
@@ -124,36 +104,7 @@ impl Chunk {
     /// triangles and bins grow to what the chunk has shown so far, as the
     /// first views of a part of the map are drawn.)
     pub fn new(chunk: &MeshChunk, mesh: &ChunkedMesh, texture: u32) -> Self {
-        let first_vertex = chunk.vertices.start as usize;
-        let (t0, t1) = (chunk.triangles.start as usize, chunk.triangles.end as usize);
-        let indices = mesh.indices.get(3 * t0..3 * t1).unwrap_or(&[]);
-        let clusters = indices
-            .chunks(3 * CLUSTER_TRIS)
-            .enumerate()
-            .map(|(k, run)| {
-                let mut bounds = Aabb {
-                    min_m: [f32::INFINITY; 3],
-                    max_m: [f32::NEG_INFINITY; 3],
-                };
-                let (mut lo, mut hi) = (usize::MAX, 0);
-                for &i in run {
-                    let p = mesh.positions.get(i as usize).copied().unwrap_or([0.0; 3]);
-                    for a in 0..3 {
-                        bounds.min_m[a] = bounds.min_m[a].min(p[a]);
-                        bounds.max_m[a] = bounds.max_m[a].max(p[a]);
-                    }
-                    let local = (i as usize).saturating_sub(first_vertex);
-                    lo = lo.min(local);
-                    hi = hi.max(local + 1);
-                }
-                let first = k * CLUSTER_TRIS;
-                Cluster {
-                    triangles: first..first + run.len() / 3,
-                    vertices: lo.min(hi)..hi,
-                    bounds,
-                }
-            })
-            .collect();
+        let clusters = chunks::clusters(mesh, chunk);
         Self {
             texture,
             verts: Vec::with_capacity(chunk.vertices.len()),

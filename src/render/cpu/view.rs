@@ -217,6 +217,25 @@ impl View {
     }
 }
 
+impl crate::render::tiles::BoxProjection for View {
+    fn camera_point(&self, p_world: [f32; 3]) -> Vec3A {
+        View::camera_point(self, p_world)
+    }
+
+    fn pixel_f32(&self, p: Vec3A) -> (f32, f32) {
+        View::pixel_f32(self, p)
+    }
+
+    fn size_px(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    fn near_m(&self) -> f32 {
+        NEAR_M
+    }
+}
+
+
 /// A pixel coordinate in fixed point, rounded to nearest, clamped to
 /// `±COORD_LIMIT_PX` (only reached through float rounding at the guard band).
 #[inline]
