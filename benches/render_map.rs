@@ -282,17 +282,41 @@ fn bench_dataset(dir: &Path, only: Only) {
                 memory.target_bytes as f64 / 1e6,
                 status_mb("VmRSS:"),
             );
-            let culls: &[bool] = if only.gpu_only {
-                &[true]
+            // Frustum and occlusion cull (the default), frustum only, none.
+            let modes = [
+                (true, true, "frustum + occlusion"),
+                (true, false, "frustum only"),
+                (false, false, "off"),
+            ];
+            let modes = if only.gpu_only {
+                &modes[..1]
             } else {
-                &[true, false]
+                &modes[..]
             };
-            for &cull in culls {
+            for &(cull, occlusion, what) in modes {
                 gpu.set_frustum_cull(cull);
+                gpu.set_occlusion_cull(occlusion);
+                let before = gpu.occlusion_stats();
                 let (median, p95, n) = time_renders(&mut gpu, &camera, &poses);
+                let after = gpu.occlusion_stats();
+                let renders = (after.renders - before.renders) as f64;
+                let occlusion_counts = if renders > 0.0 {
+                    format!(
+                        "; per render {:.2} passes, {:.0} of {:.0} clusters in view drawn ({:.0} in the first pass; {:.0} k triangles; {:.0} draw calls), \
+                         {:.0} % with the previous render's clusters first",
+                        (after.passes - before.passes) as f64 / renders,
+                        (after.clusters_drawn - before.clusters_drawn) as f64 / renders,
+                        (after.clusters_in_view - before.clusters_in_view) as f64 / renders,
+                        (after.clusters_first_pass - before.clusters_first_pass) as f64 / renders,
+                        (after.triangles_drawn - before.triangles_drawn) as f64 / renders / 1e3,
+                        (after.draw_calls - before.draw_calls) as f64 / renders,
+                        100.0 * (after.coherent_renders - before.coherent_renders) as f64 / renders,
+                    )
+                } else {
+                    String::new()
+                };
                 println!(
-                    "  wgpu software (cull {}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
-                    if cull { "on" } else { "off" },
+                    "  wgpu software (cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders{occlusion_counts}",
                 );
             }
             drop(gpu);

@@ -210,4 +210,3 @@ impl Occlusion {
 pub(super) fn first_batch(visible: usize) -> usize {
     (visible / FIRST_BATCH_DIVISOR).max(FIRST_BATCH_MIN)
 }
-

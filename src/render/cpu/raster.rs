@@ -14,10 +14,10 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use crate::render::tiles::{band_tiles, TILE_PX};
 use super::setup::{Chunk, ScreenTri, BAND_ROWS, NO_TEXTURE};
 use super::view::SUBPIXEL;
 use crate::map::GrayTexture;
+use crate::render::tiles::{band_tiles, TILE_PX};
 use crate::render::NO_DEPTH;
 
 // A band is whole rows of occlusion tiles.

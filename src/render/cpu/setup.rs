@@ -10,10 +10,10 @@
 
 use super::clip::{ClipVertex, Polygon, MAX_POLY};
 
-use crate::render::tiles::{screen_box, TileDepth};
 use super::view::{CamVertex, View, CLIP_MASK, CULL_MASK, OUT_INVALID, SUBPIXEL_BITS};
 use crate::render::chunks::{self, ChunkedMesh, Cluster, MeshChunk};
 use crate::render::frustum::Frustum;
+use crate::render::tiles::{screen_box, TileDepth};
 
 /// Rows per band: the unit of work of the raster stage.
 pub(super) const BAND_ROWS: usize = 16;

@@ -235,7 +235,6 @@ impl crate::render::tiles::BoxProjection for View {
     }
 }
 
-
 /// A pixel coordinate in fixed point, rounded to nearest, clamped to
 /// `±COORD_LIMIT_PX` (only reached through float rounding at the guard band).
 #[inline]

@@ -60,6 +60,9 @@ pub struct FrameTargets {
     /// View of the z-buffer.
     pub zbuffer_view: wgpu::TextureView,
     slots: [Slot; SLOTS],
+    /// The metric depth plane, read back between the passes of the
+    /// occlusion cull (`super::occlusion`).
+    probe: Slot,
 }
 
 /// Bytes per row of a `width`-pixel, 4-byte-per-pixel image, padded for
@@ -124,6 +127,16 @@ impl FrameTargets {
             gray,
             depth_m,
             slots: [slot(), slot()],
+            probe: Slot {
+                buffer: device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("star occlusion depth readback"),
+                    size: u64::from(padded) * u64::from(height),
+                    usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                    mapped_at_creation: false,
+                }),
+                state: Arc::new(AtomicU8::new(IDLE)),
+                busy: false,
+            },
         }
     }
 
@@ -136,7 +149,7 @@ impl FrameTargets {
     /// z-buffer) and the staging buffers.
     pub fn bytes(&self) -> u64 {
         let targets = 3 * 4 * u64::from(self.width) * u64::from(self.height);
-        targets + self.slots.iter().map(|s| s.buffer.size()).sum::<u64>()
+        targets + self.slots.iter().map(|s| s.buffer.size()).sum::<u64>() + self.probe.buffer.size()
     }
 
     /// A staging slot with no readback in flight, if any.
@@ -182,6 +195,80 @@ impl FrameTargets {
                 extent,
             );
         }
+    }
+
+    /// Records the copy of the metric depth target into the probe buffer
+    /// and (once submitted, with [`FrameTargets::request_probe_map`]) reads
+    /// it back between two passes.
+    pub fn record_probe_copy(&self, encoder: &mut wgpu::CommandEncoder) {
+        encoder.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.depth_m,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &self.probe.buffer,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(self.padded_row_bytes),
+                    rows_per_image: Some(self.height),
+                },
+            },
+            wgpu::Extent3d {
+                width: self.width,
+                height: self.height,
+                depth_or_array_layers: 1,
+            },
+        );
+    }
+
+    /// Requests the mapping of the probe buffer (after its copy was
+    /// submitted).
+    pub fn request_probe_map(&mut self) {
+        let s = &mut self.probe;
+        s.busy = true;
+        s.state.store(PENDING, Ordering::Release);
+        let state = Arc::clone(&s.state);
+        s.buffer.map_async(wgpu::MapMode::Read, .., move |result| {
+            let value = if result.is_ok() { MAPPED } else { FAILED };
+            state.store(value, Ordering::Release);
+        });
+    }
+
+    /// Gives the mapped probe's rows (`width` pixels of `f32` bytes each,
+    /// top first) to `read`, then unmaps it; or, when it is not mapped,
+    /// only releases it. Returns whether `read` ran.
+    pub fn read_probe(&mut self, read: impl FnOnce(&mut dyn Iterator<Item = &[f32]>)) -> bool {
+        let padded = self.padded_row_bytes as usize;
+        let row_bytes = self.width as usize * 4;
+        let s = &mut self.probe;
+        let ok = s.state.load(Ordering::Acquire) == MAPPED
+            && match s.buffer.get_mapped_range(..) {
+                Ok(view) => {
+                    let bytes: &[u8] = &view;
+                    // Mapped ranges are aligned far beyond 4 bytes, and
+                    // rows are padded to 256.
+                    match bytemuck::try_cast_slice::<u8, f32>(bytes) {
+                        Ok(pixels) => {
+                            let mut rows = pixels
+                                .chunks(padded / 4)
+                                .map(|r| r.get(..row_bytes / 4).unwrap_or(r));
+                            read(&mut rows);
+                            true
+                        }
+                        Err(_) => false,
+                    }
+                }
+                Err(_) => false,
+            };
+        if matches!(s.state.load(Ordering::Acquire), PENDING | MAPPED) {
+            s.buffer.unmap();
+        }
+        s.state.store(IDLE, Ordering::Release);
+        s.busy = false;
+        ok
     }
 
     /// Requests the mapping of slot `slot` (after its copies were submitted).

@@ -28,6 +28,7 @@
 pub mod adapter;
 mod draws;
 mod frame;
+mod occlusion;
 mod pass;
 mod pipeline;
 pub mod projection;
@@ -38,6 +39,7 @@ mod upload;
 pub use adapter::{
     auto_choice, lavapipe_installed, list_adapters, AdapterClass, AdapterPreference, AdapterSummary,
 };
+pub use occlusion::OcclusionStats;
 pub use renderer::{GpuMemory, GpuRenderer, PendingRender};
 pub use stream::StreamStats;
 pub use upload::TextureFormat;

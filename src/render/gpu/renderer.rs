@@ -23,6 +23,7 @@ use std::time::Duration;
 use super::adapter::{self, AdapterClass, AdapterPreference};
 use super::draws::{self, Draw};
 use super::frame::{FrameTargets, MapStatus};
+use super::occlusion::{self, BoxView, GpuOcclusion, OcclusionStats};
 use super::pass::{record_pass, PassInputs};
 use super::pipeline;
 use super::projection::{ViewUniform, NEAR_M, VIEW_UNIFORM_BYTES};
@@ -31,7 +32,7 @@ use super::upload::{self, Geometry, GpuMesh, TextureFormat};
 use super::GpuError;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
-use crate::render::chunks::CullStats;
+use crate::render::chunks::{self, CullStats};
 use crate::render::frustum::Frustum;
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
@@ -55,6 +56,8 @@ fn record_fault(fault: &Fault, message: String) {
 pub struct PendingRender {
     slot: usize,
     submission: wgpu::SubmissionIndex,
+    /// Its number among the renderer's renders.
+    render: u64,
 }
 
 /// Device memory of a [`GpuRenderer`], bytes, as allocated (the driver's
@@ -101,6 +104,9 @@ pub struct GpuRenderer {
     warned_multi_pass: bool,
     /// Whether chunks outside the frustum are skipped (on by default).
     cull: bool,
+    /// Whether clusters hidden behind what earlier passes drew are skipped
+    /// (on by default; with the frustum cull, on a resident mesh).
+    occlusion_cull: bool,
     /// Counts of the last render's frustum test.
     stats: CullStats,
     /// Far limit along the optical axis, meters; `None`: none.
@@ -307,6 +313,7 @@ impl GpuRenderer {
             warned_multi_pass: false,
             mesh: gpu_mesh,
             cull: true,
+            occlusion_cull: true,
             stats: CullStats::default(),
             far_m: None,
             frame: None,
@@ -335,6 +342,22 @@ impl GpuRenderer {
     /// default) or off (every chunk drawn; for tests and benchmarks).
     pub fn set_frustum_cull(&mut self, on: bool) {
         self.cull = on;
+    }
+
+    /// Turns the occlusion cull on (the default) or off. It works with the
+    /// frustum cull, on a mesh resident on the device (a streamed one is
+    /// drawn with the frustum cull only); see `super::occlusion`.
+    pub fn set_occlusion_cull(&mut self, on: bool) {
+        self.occlusion_cull = on;
+    }
+
+    /// Counts of the occlusion cull since start (all zero when it never
+    /// ran).
+    pub fn occlusion_stats(&self) -> OcclusionStats {
+        self.mesh
+            .occlusion
+            .as_ref()
+            .map_or_else(OcclusionStats::default, GpuOcclusion::stats)
     }
 
     /// Chunk and triangle counts of the last render's frustum test.
@@ -445,15 +468,17 @@ impl GpuRenderer {
                     label: Some("star keyframe"),
                 })
         };
+        let render = self.renders;
+        let occlusion = match (&mut self.mesh.occlusion, frustum) {
+            (Some(occ), Some(frustum)) if self.occlusion_cull => Some((occ, frustum)),
+            (Some(occ), _) => {
+                occ.forget();
+                None
+            }
+            (None, _) => None,
+        };
         let submission = match &mut self.mesh.geometry {
             Geometry::Resident { vertices, indices } => {
-                self.stats = draws::select(
-                    &self.mesh.chunks,
-                    &self.mesh.chunk_texture,
-                    frustum,
-                    &mut self.visible,
-                    &mut self.draws,
-                );
                 let inputs = PassInputs {
                     pipeline: &self.pipeline,
                     view_group: &self.view_group,
@@ -461,11 +486,80 @@ impl GpuRenderer {
                     vertices,
                     indices,
                 };
-                let mut encoder = new_encoder();
-                record_pass(&mut encoder, frame, &inputs, &self.draws, true, true);
-                frame.record_copies(&mut encoder, slot);
-                self.passes += 1;
-                self.queue.submit([encoder.finish()])
+                match occlusion {
+                    Some((occ, frustum)) => {
+                        self.stats = chunks::mark_visible(
+                            &self.mesh.chunks,
+                            Some(frustum),
+                            &mut self.visible,
+                        );
+                        let t = world_from_camera.translation.vector;
+                        let view = BoxView::new(world_from_camera, camera, NEAR_M);
+                        occ.begin(
+                            render,
+                            (&view, frustum, [t.x, t.y, t.z]),
+                            &self.visible,
+                            &mut self.draws,
+                        );
+                        let mut first = true;
+                        loop {
+                            let last = !occ.more();
+                            if self.draws.is_empty() && !last {
+                                // Nothing to draw before the test: it would
+                                // hide nothing.
+                                occ.tiles_mut().0.fill(0.0);
+                                occ.next_pass(&mut self.draws);
+                                continue;
+                            }
+                            let mut encoder = new_encoder();
+                            record_pass(&mut encoder, frame, &inputs, &self.draws, first, last);
+                            first = false;
+                            self.passes += 1;
+                            if last {
+                                frame.record_copies(&mut encoder, slot);
+                                break self.queue.submit([encoder.finish()]);
+                            }
+                            frame.record_probe_copy(&mut encoder);
+                            let submission = self.queue.submit([encoder.finish()]);
+                            frame.request_probe_map();
+                            let waited = self.device.poll(wgpu::PollType::Wait {
+                                submission_index: Some(submission),
+                                timeout: Some(RENDER_TIMEOUT),
+                            });
+                            let (tiles, tiles_x) = occ.tiles_mut();
+                            let width = w as usize;
+                            let read = frame.read_probe(|rows| {
+                                occlusion::fill_tiles(rows, width, tiles, tiles_x);
+                            });
+                            if waited.is_err() {
+                                return Err(GpuError::Timeout {
+                                    adapter: self.info.name.clone(),
+                                    waited_secs: RENDER_TIMEOUT.as_secs(),
+                                });
+                            }
+                            if !read {
+                                return Err(GpuError::MapFailed {
+                                    adapter: self.info.name.clone(),
+                                });
+                            }
+                            occ.next_pass(&mut self.draws);
+                        }
+                    }
+                    None => {
+                        self.stats = draws::select(
+                            &self.mesh.chunks,
+                            &self.mesh.chunk_texture,
+                            frustum,
+                            &mut self.visible,
+                            &mut self.draws,
+                        );
+                        let mut encoder = new_encoder();
+                        record_pass(&mut encoder, frame, &inputs, &self.draws, true, true);
+                        frame.record_copies(&mut encoder, slot);
+                        self.passes += 1;
+                        self.queue.submit([encoder.finish()])
+                    }
+                }
             }
             Geometry::Streamed(pool) => {
                 self.stats = draws::visible_chunks(
@@ -526,7 +620,11 @@ impl GpuRenderer {
         };
         frame.request_map(slot);
         self.renders += 1;
-        Ok(PendingRender { slot, submission })
+        Ok(PendingRender {
+            slot,
+            submission,
+            render,
+        })
     }
 
     /// Waits for a submitted render and copies it into `out`, which must be
@@ -579,6 +677,15 @@ impl GpuRenderer {
         }
         let unpacked = frame.unpack(pending.slot, out);
         self.check_fault()?;
+        if let Some(occ) = self.mesh.occlusion.as_mut() {
+            if unpacked && occ.drawing(pending.render) {
+                let width = w as usize;
+                let (tiles, tiles_x) = occ.tiles_mut();
+                let mut rows = out.depth_m.data().chunks_exact(width.max(1));
+                occlusion::fill_tiles(&mut rows, width, tiles, tiles_x);
+                occ.finish(pending.render);
+            }
+        }
         if unpacked {
             Ok(())
         } else {

@@ -12,6 +12,7 @@
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
+use super::occlusion::GpuOcclusion;
 use super::stream::{self, StreamPlan, StreamPool};
 use super::GpuError;
 use crate::map::Mesh;
@@ -69,6 +70,9 @@ pub struct GpuMesh {
     pub resident_bytes: u64,
     /// Bytes of the textures.
     pub texture_bytes: u64,
+    /// The clusters and scratch of the occlusion cull, for a resident
+    /// mesh (a streamed one is drawn with the frustum cull only).
+    pub occlusion: Option<GpuOcclusion>,
     /// Kept alive for the bind groups.
     _textures: Vec<wgpu::Texture>,
 }
@@ -333,7 +337,7 @@ pub fn upload(
 
     // Without groups every triangle is drawn, untextured; with groups,
     // only the grouped ones.
-    let chunk_texture = chunked
+    let chunk_texture: Vec<Option<usize>> = chunked
         .chunks
         .iter()
         .map(|c| match mesh.groups.get(c.group as usize) {
@@ -342,6 +346,10 @@ pub fn upload(
             None => None,
         })
         .collect();
+    let occlusion = match &geometry {
+        Geometry::Resident { .. } => Some(GpuOcclusion::new(&chunked, &chunk_texture)),
+        Geometry::Streamed(_) => None,
+    };
 
     let texture_bytes = textures
         .iter()
@@ -365,6 +373,7 @@ pub fn upload(
         texture_groups,
         chunks: chunked.chunks,
         chunk_texture,
+        occlusion,
         _textures: textures,
     }
 }
