@@ -38,7 +38,8 @@
 //!
 //! `--cpu-default` times only the CPU rasterizer with its default cull;
 //! `--gpu-only` only the wgpu renderer with its cull on (and the budget);
-//! `--interleaved` times only that, on all the datasets in alternating
+//! `--interleaved` times only that (with `--gpu-only`, the wgpu renderer
+//! instead), on all the datasets in alternating
 //! blocks (so that a changing machine load falls on each alike), and prints
 //! each median's ratio to the first dataset's.
 //!
@@ -392,7 +393,7 @@ const INTERLEAVED_ROUNDS: usize = 6;
 /// One dataset of [`bench_interleaved`]: its renderer, camera, poses,
 /// output and render times.
 struct Interleaved {
-    cpu: CpuRenderer,
+    renderer: Box<dyn Renderer>,
     camera: PinholeCamera,
     poses: Vec<Pose>,
     out: RenderedView,
@@ -405,16 +406,24 @@ struct Interleaved {
 /// falls on all of them alike (a block keeps its renders in trajectory
 /// order, as a tracker renders keyframes). Prints each median and p95 and
 /// the ratio of each median to the first dataset's.
-fn bench_interleaved(dirs: &[PathBuf]) {
+fn bench_interleaved(dirs: &[PathBuf], gpu: bool) {
     let mut runs: Vec<Interleaved> = dirs
         .iter()
         .map(|dir| {
             let (mesh, camera, poses, far_m) = load(dir);
-            let mut cpu = CpuRenderer::new(Arc::new(mesh)).expect("valid mesh");
-            cpu.set_far_m(far_m);
+            let renderer: Box<dyn Renderer> = if gpu {
+                let mut r = GpuRenderer::new(Arc::new(mesh), AdapterPreference::Software)
+                    .expect("a wgpu software adapter");
+                r.set_far_m(far_m);
+                Box::new(r)
+            } else {
+                let mut r = CpuRenderer::new(Arc::new(mesh)).expect("valid mesh");
+                r.set_far_m(far_m);
+                Box::new(r)
+            };
             let out = RenderedView::for_camera(&camera);
             Interleaved {
-                cpu,
+                renderer,
                 camera,
                 poses,
                 out,
@@ -424,28 +433,30 @@ fn bench_interleaved(dirs: &[PathBuf]) {
         .collect();
     for r in &mut runs {
         for p in &r.poses {
-            r.cpu.render(p, &r.camera, &mut r.out).expect("render");
+            r.renderer.render(p, &r.camera, &mut r.out).expect("render");
         }
     }
     for _ in 0..INTERLEAVED_ROUNDS {
         for r in &mut runs {
             for p in &r.poses {
                 let t = Instant::now();
-                r.cpu.render(p, &r.camera, &mut r.out).expect("render");
+                r.renderer.render(p, &r.camera, &mut r.out).expect("render");
                 r.samples_ms.push(t.elapsed().as_secs_f64() * 1e3);
             }
         }
     }
-    println!("interleaved, cpu (default cull), {INTERLEAVED_ROUNDS} alternating blocks of each dataset's poses:");
+    println!(
+        "interleaved, {} (default cull), {INTERLEAVED_ROUNDS} alternating blocks of each dataset's poses:",
+        runs.first().map_or(String::new(), |r| r.renderer.name()),
+    );
     let mut first_median = None;
     for (dir, r) in dirs.iter().zip(&mut runs) {
         let n = r.samples_ms.len();
         let (median, p95) = median_p95(&mut r.samples_ms);
         let first = *first_median.get_or_insert(median);
         println!(
-            "  {}: median {median:.1} ms, p95 {p95:.1} ms over {n} renders ({} threads); {:.2}x the first",
+            "  {}: median {median:.1} ms, p95 {p95:.1} ms over {n} renders; {:.2}x the first",
             dir.display(),
-            r.cpu.threads(),
             median / first,
         );
     }
@@ -469,7 +480,7 @@ fn main() {
         return;
     }
     if std::env::args().any(|a| a == "--interleaved") {
-        bench_interleaved(&dirs);
+        bench_interleaved(&dirs, std::env::args().any(|a| a == "--gpu-only"));
         return;
     }
     let only = Only {

@@ -81,6 +81,13 @@ pub struct RenderConfig {
     /// visible chunks as renders need them (least recently used evicted).
     /// Textures, targets and the CPU rasterizer are not bounded by it.
     pub gpu_budget_mb: f64,
+    /// Whether both renderers skip what is hidden behind what they drew
+    /// first (exact: the image is the same; default on). The CPU
+    /// rasterizer culls chunks, clusters and triangles between its
+    /// batches; wgpu draws a resident mesh in two passes with the depth of
+    /// the first read back between them (`render::gpu` docs). Off: the
+    /// frustum and far limit only.
+    pub occlusion_cull: bool,
 }
 
 impl Default for RenderConfig {
@@ -89,6 +96,7 @@ impl Default for RenderConfig {
             renderer: RendererKind::default(),
             far_m: DEFAULT_FAR_M,
             gpu_budget_mb: 0.0,
+            occlusion_cull: true,
         }
     }
 }
@@ -179,6 +187,8 @@ struct Settings {
     far_m: Option<f64>,
     /// wgpu mesh budget, bytes; 0: none.
     gpu_budget_bytes: u64,
+    /// Whether the occlusion cull is off (`render.occlusion_cull = false`).
+    no_occlusion_cull: bool,
 }
 
 impl Active {
@@ -191,11 +201,13 @@ impl Active {
                     settings.gpu_budget_bytes,
                 )?;
                 r.set_far_m(settings.far_m);
+                r.set_occlusion_cull(!settings.no_occlusion_cull);
                 Ok(Active::Gpu(Box::new(r)))
             }
             Stage::Cpu => {
                 let mut r = CpuRenderer::new(Arc::clone(mesh))?;
                 r.set_far_m(settings.far_m);
+                r.set_occlusion_cull(!settings.no_occlusion_cull);
                 Ok(Active::Cpu(Box::new(r)))
             }
         }
@@ -255,7 +267,7 @@ impl FallbackRenderer {
     ) -> Result<Self, RenderError> {
         let settings = Settings {
             far_m,
-            gpu_budget_bytes: 0,
+            ..Settings::default()
         };
         Self::start(kind, mesh, settings)
     }
@@ -268,6 +280,7 @@ impl FallbackRenderer {
         let settings = Settings {
             far_m: config.far_limit_m(),
             gpu_budget_bytes: config.gpu_budget_bytes(),
+            no_occlusion_cull: !config.occlusion_cull,
         };
         Self::start(config.renderer, mesh, settings)
     }
@@ -291,6 +304,7 @@ impl FallbackRenderer {
                         ?kind,
                         far_m = ?settings.far_m,
                         gpu_budget_mb = settings.gpu_budget_bytes as f64 / BYTES_PER_MB,
+                        occlusion_cull = !settings.no_occlusion_cull,
                         "keyframe renderer chosen"
                     );
                     return Ok(renderer);
@@ -444,6 +458,27 @@ mod tests {
         }
         let parsed: RenderConfig = toml::from_str("gpu_budget_mb = 256").expect("an integer");
         assert_eq!(parsed.gpu_budget_bytes(), 256_000_000);
+    }
+
+    #[test]
+    fn occlusion_cull_is_on_unless_the_config_turns_it_off() {
+        assert!(RenderConfig::default().occlusion_cull);
+        let parsed: RenderConfig = toml::from_str("far_m = 10").expect("valid");
+        assert!(parsed.occlusion_cull);
+        let off: RenderConfig = toml::from_str("occlusion_cull = false").expect("a bool");
+        assert!(!off.occlusion_cull);
+        assert!(toml::from_str::<RenderConfig>("occlusion_cull = 0").is_err());
+        // It reaches the renderer chain's settings.
+        let mesh = Arc::new(Mesh::default());
+        let chain = FallbackRenderer::configured(
+            &RenderConfig {
+                renderer: RendererKind::Cpu,
+                ..off
+            },
+            mesh,
+        )
+        .expect("the CPU rasterizer starts on an empty mesh");
+        assert!(chain.settings.no_occlusion_cull);
     }
 
     #[test]
