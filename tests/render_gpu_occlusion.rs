@@ -132,6 +132,10 @@ fn occlusion_cull_never_changes_the_wgpu_image() {
         );
     }
     let stats = culled.occlusion_stats();
+    eprintln!(
+        "{} poses, {in_frustum} triangles in the frustum; occlusion cull: {stats:?}",
+        poses.len()
+    );
     assert!(stats.renders > 0, "the occlusion cull never ran: {stats:?}");
     assert!(
         stats.coherent_renders * 2 > stats.renders,
