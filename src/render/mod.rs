@@ -6,7 +6,9 @@
 //! `select` turns `render.renderer` from the config into a renderer that
 //! falls back down the chain (hardware GPU, software GPU, CPU) on failure.
 //! Both split the mesh into spatial chunks once (`chunks`) and draw only the
-//! chunks that meet the view frustum (`frustum`).
+//! chunks that meet the view frustum (`frustum`), and of those only what is
+//! not hidden behind what they drew first (`tiles`, the occlusion test both
+//! share).
 //! Renderers take the mesh once at construction and render an ideal pinhole
 //! view (distortion is removed from camera frames instead). Pixel centers are
 //! at integer coordinates, as everywhere in `star`.

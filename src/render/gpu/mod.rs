@@ -4,7 +4,9 @@
 //! lavapipe/llvmpipe), the mesh split into spatial chunks and uploaded once
 //! (vertex and index buffers, gray textures sampled bilinearly with repeat
 //! addressing; each render draws only the chunks that meet the view
-//! frustum, adjacent ones merged into one draw call) or, when its vertex
+//! frustum, adjacent ones merged into one draw call, and of those the
+//! clusters not hidden behind what a first pass drew: `occlusion`) or,
+//! when its vertex
 //! and index data exceed `[render] gpu_budget_mb`, streamed through a
 //! fixed pool of chunk slots (`stream`), the pipeline
 //! built from `shaders/mesh.wgsl`, and the

@@ -9,6 +9,10 @@
 //! construction or when the image size changes, the draw list keeps its
 //! capacity.
 //!
+//! With the occlusion cull (the default, on a resident mesh) the view is
+//! drawn in two or three passes, the depth read back between them
+//! (`super::occlusion`); the first pass then waits for the device.
+//!
 //! A mesh streamed under a GPU budget (`super::stream`) draws one call per
 //! visible chunk from its slot, after uploading the chunks not resident.
 //! When a view needs more chunks than the pool has slots, it is drawn in
