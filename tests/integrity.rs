@@ -2,7 +2,8 @@
 //! the truth, counted without alignment by `star::offline::integrity`), under
 //! the faults that broke the closed world: a cold start without a pose, a
 //! wrong initial hint 1-3 m off (with and without a database), a covered
-//! lens, frames from a different place, and a view that jumps. Where
+//! lens, frames from a different place, a view that jumps, twin and
+//! look-alike rooms, and a hint facing the wrong way. Where
 //! recovery is possible it must happen; where it is not, nothing is sent.
 
 #![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
@@ -271,6 +272,20 @@ fn run_in_twin_map(
     shade: impl Fn([f32; 3], f32) -> f32,
     starts: &[StartMode],
 ) -> Vec<OfflineReport> {
+    let fx = fixture();
+    let hint = fx.gt.poses[0];
+    let starts: Vec<(StartMode, Option<Pose>)> = starts
+        .iter()
+        .map(|&s| (s, (s == StartMode::Hint).then_some(hint)))
+        .collect();
+    run_in_twin_map_from(shade, &starts)
+}
+
+/// As [`run_in_twin_map`], each run with its own start hint.
+fn run_in_twin_map_from(
+    shade: impl Fn([f32; 3], f32) -> f32,
+    starts: &[(StartMode, Option<Pose>)],
+) -> Vec<OfflineReport> {
     use star::reloc::{build_database_along, AlongTrajectory, Relocalizer};
     use star::render::cpu::CpuRenderer;
     use std::sync::Arc;
@@ -318,10 +333,10 @@ fn run_in_twin_map(
 
     starts
         .iter()
-        .map(|&start| {
+        .map(|&(start, hint)| {
             let options = OfflineOptions {
                 start,
-                world_from_camera_start: (start == StartMode::Hint).then(|| fx.gt.poses[0]),
+                world_from_camera_start: hint,
                 relocalizer: Some(
                     Relocalizer::new(db.clone(), &fx.config.reloc, ds.camera()).expect("reloc"),
                 ),
@@ -390,4 +405,28 @@ fn a_look_alike_room_is_told_apart_by_its_correlation() {
     );
     assert!(cold.relocalizations > 0, "never started");
     assert!(i.poses_checked > FRAMES / 2, "{} poses", i.poses_checked);
+}
+
+#[test]
+fn a_hint_at_the_right_place_facing_the_wrong_way_is_not_trusted() {
+    // An operator's `init_pose` with the right position and the yaw off by
+    // half a turn, in a room that has a twin: the hint fails its
+    // verification (the view it predicts is the other half of the room),
+    // and a hint that was never verified is no motion prior, so the search
+    // that follows is a cold one, which the twin refuses. Nothing may be
+    // sent, and in particular not the hint.
+    let fx = fixture();
+    let hint = fx.gt.poses[0];
+    let turn = nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
+    let turned = Pose::from_parts(hint.translation, turn * hint.rotation);
+    let reports = run_in_twin_map_from(|_, g| g, &[(StartMode::Hint, Some(turned))]);
+    let report = &reports[0];
+    let i = integrity(report, "hint facing the wrong way, twin rooms");
+    assert_eq!(i.poses_checked, 0, "a pose was sent");
+    assert_eq!(report.relocalizations, 0, "a room was chosen");
+    assert!(
+        report.reloc_ambiguous > 0,
+        "the search never met the twin: {} attempts",
+        report.reloc_attempts
+    );
 }
