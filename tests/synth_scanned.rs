@@ -413,3 +413,92 @@ fn a_python_without_open3d_is_a_clear_error() {
         "{stderr}"
     );
 }
+
+/// `star synth --preset building --scanned`: the floor is scanned room by
+/// room and along the corridor, and fused into one map that covers every
+/// space's floor and lies on the building's surfaces.
+#[test]
+fn a_scanned_building_covers_every_room_and_the_corridor() {
+    let Some(python) = common::open3d_python() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().expect("tmp");
+    let out = tmp.path().join("scanned-building");
+    // 5 cm voxels: a few seconds of fusion (the preset's is 3 cm).
+    synth(
+        &python,
+        &out,
+        &[
+            "--preset",
+            "building",
+            "--rooms",
+            "2",
+            "--scanned",
+            "--scan-voxel-m",
+            "0.05",
+            "--seed",
+            "1",
+            "--frames",
+            "5",
+        ],
+    );
+    let config = Config::load(&out.join("star.toml")).expect("OUT/star.toml is a valid config");
+    assert!(!config.map.world_from_mesh.is_identity());
+    let synth_toml = std::fs::read_to_string(out.join("synth.toml")).unwrap();
+    assert!(
+        synth_toml.contains("voxel_m = 0.05") && synth_toml.contains("one per space"),
+        "{synth_toml}"
+    );
+    let world = config.map.load_mesh().expect("map loads into the world");
+
+    let mut preset = Preset::by_name("building").unwrap();
+    preset.scene.building.as_mut().unwrap().rooms = 2;
+    let preset = preset.scanned();
+    let (scene, _, _) = scene_with_trajectory(&preset, 1, 0.1).unwrap();
+    let plan = scene.plan.clone().expect("a building");
+
+    // Every space's floor is scanned: of 25 cm cells of its floor (30 cm in
+    // from the walls), most hold a map vertex less than 5 cm above it.
+    let cell_m = 0.25;
+    let floor: HashSet<[i64; 2]> = world
+        .positions
+        .iter()
+        .filter(|p| p[2].abs() < 0.05)
+        .map(|p| {
+            [
+                (p[0] as f64 / cell_m).floor() as i64,
+                (p[1] as f64 / cell_m).floor() as i64,
+            ]
+        })
+        .collect();
+    for (k, (min, size)) in plan.spaces().into_iter().enumerate() {
+        let cells = |a: usize| {
+            ((min[a] + 0.3) / cell_m).ceil() as i64..((min[a] + size[a] - 0.3) / cell_m) as i64
+        };
+        let (mut all, mut seen) = (0, 0);
+        for i in cells(0) {
+            for j in cells(1) {
+                all += 1;
+                seen += usize::from(floor.contains(&[i, j]));
+            }
+        }
+        println!("space {k}: {seen} of {all} floor cells scanned");
+        assert!(
+            all > 0 && seen * 10 >= all * 7,
+            "space {k}: {seen} of {all}"
+        );
+    }
+
+    // Placed by star.toml, the vertices lie on the building's surfaces: a
+    // vertex of the truth map within 10 cm (a neighbouring cell).
+    let truth_cells = occupied_cells(&scene.map, 0.1);
+    let step = (world.positions.len() / 20_000).max(1);
+    let (mut near, mut all) = (0, 0);
+    for p in world.positions.iter().step_by(step) {
+        all += 1;
+        let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        near += usize::from(near_vertex(&truth_cells, 0.1, &p));
+    }
+    println!("{near} of {all} map vertices near the building's surfaces");
+    assert!(near * 100 >= all * 99, "{near} of {all}");
+}

@@ -5,8 +5,9 @@
 //! from a scanning run by TSDF fusion (Open3D, through Python) and writes
 //! `OUT/star.toml`, the config that places that map in the world.
 //! `--preset building` synthesizes a floor of rooms flown room to room;
-//! `--rooms N` sets how many rooms (the scanned variant of a building is
-//! refused, see `docs/building-scale.md`).
+//! `--rooms N` sets how many rooms; with `--scanned` the floor is scanned
+//! room by room and along the corridor and fused at 3 cm voxels
+//! (`docs/building-scale.md`).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -113,9 +114,6 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     }
     if let Some(spec) = &preset.scene.building {
         spec.validate().context("--rooms")?;
-        if preset.scanned.is_some() {
-            bail!(crate::synth::sequence::SCANNED_BUILDING);
-        }
     }
     if let Some(voxel_m) = args.scan_voxel_m {
         let Some(spec) = preset.scanned.as_mut() else {

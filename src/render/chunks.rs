@@ -342,7 +342,8 @@ pub fn mark_visible(
 /// number, and the input order does not matter.
 fn order_clusters(tris: &mut [u32], centroids: &[[f32; 3]]) {
     tris.sort_unstable();
-    let mut stack = vec![0..tris.len()];
+    let mut stack = Vec::with_capacity(32);
+    stack.push(0..tris.len());
     while let Some(range) = stack.pop() {
         let part = &mut tris[range.clone()];
         if part.len() <= CLUSTER_TRIS {

@@ -105,6 +105,10 @@ pub struct Preset {
     pub scanned: Option<ScannedSpec>,
 }
 
+/// TSDF voxel of a scanned building, meters: coarser than one room's 1 cm,
+/// since a whole floor is fused into one map.
+pub const BUILDING_SCAN_VOXEL_M: f64 = 0.03;
+
 /// Names of all presets, in `--list-presets` order.
 pub const PRESET_NAMES: [&str; 5] = ["ideal", "realistic", "aggressive", "scanned", "building"];
 
@@ -217,14 +221,23 @@ impl Preset {
     /// The scanned variant of this preset: the map is rebuilt from a
     /// scanning run of the scene (holes come from where the scan did not
     /// look, so the scene's patch holes are off) and the flight gets a
-    /// moving light and auto-exposure steps. Keeps the name.
+    /// moving light and auto-exposure steps. Keeps the name. A building's
+    /// scan is fused at [`BUILDING_SCAN_VOXEL_M`].
     pub fn scanned(self) -> Preset {
+        let fresh = self.scanned.is_none();
+        let mut spec = self.scanned.unwrap_or_default();
+        if self.scene.building.is_some() && fresh {
+            // A whole floor at 1 cm would be about 70 M triangles
+            // (docs/building-scale.md); 3 cm gives a map the size of the
+            // closed-world floor's.
+            spec.voxel_m = BUILDING_SCAN_VOXEL_M;
+        }
         Preset {
             scene: ScenePreset {
                 map_hole_fraction: 0.0,
                 ..self.scene
             },
-            scanned: Some(self.scanned.unwrap_or_default()),
+            scanned: Some(spec),
             ..self
         }
     }

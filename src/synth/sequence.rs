@@ -30,7 +30,9 @@ use super::preset::{ImageSource, Preset};
 use super::scanned::exposure::ExposureSchedule;
 use super::scanned::fusion::FusionStats;
 use super::scanned::lighting::{depth_normals, shade};
-use super::scanned::{build_scanned_map, star_toml_text, ScanTools, ScannedError};
+use super::scanned::{
+    build_scanned_map, flight_light_box, star_toml_text, ScanTools, ScannedError,
+};
 use super::scene::{build_scene, Scene, SceneParams};
 use super::trajectory::{RoomBox, SynthTrajectory, TrajectoryError, TrajectoryKind};
 use crate::dataset::{CameraFile, DatasetError, DatasetWriter, Trajectory};
@@ -41,13 +43,6 @@ use crate::render::RenderError;
 /// First TUM timestamp of a synthetic sequence, seconds (any positive
 /// value works; a realistic one catches tools that assume small stamps).
 pub const START_STAMP_S: f64 = 1_000.0;
-/// Why the scanned variant of a building is refused (see
-/// `docs/building-scale.md`).
-pub const SCANNED_BUILDING: &str = "the scanned variant of a building is not supported: one TSDF \
-     volume at the scanned preset's 1 cm voxels over a whole floor needs far more memory \
-     and time than this machine class has (docs/building-scale.md); synthesize the \
-     building without --scanned";
-
 /// Most frames one sequence may have (10 minutes at 50 Hz).
 pub const MAX_FRAMES: usize = 30_000;
 
@@ -91,9 +86,6 @@ pub enum SequenceError {
     /// Building the scanned map failed.
     #[error("building the scanned map")]
     Scanned(#[from] ScannedError),
-    /// The preset combines what is not supported together.
-    #[error("{0}")]
-    Unsupported(&'static str),
     /// The building parameters are out of range.
     #[error("invalid building")]
     Building(#[from] super::scene::building::BuildingSpecError),
@@ -263,9 +255,6 @@ pub fn write_sequence_with(
     }
     if let Some(spec) = &preset.scene.building {
         spec.validate()?;
-        if preset.scanned.is_some() {
-            return Err(SequenceError::Unsupported(SCANNED_BUILDING));
-        }
     }
     let duration_s = options.frames as f64 / preset.rate_hz;
     let (scene, trajectory, scene_seed) = scene_with_trajectory(preset, options.seed, duration_s)?;
@@ -352,15 +341,26 @@ pub fn write_sequence_with(
             let q = p.rotation.quaternion();
             format!("{} {} {} {} {} {} {}", t.x, t.y, t.z, q.i, q.j, q.k, q.w)
         };
-        let light = map.scan_light.position_m;
+        let mut lights: Vec<[f64; 3]> = Vec::new();
+        for l in &map.scan_lights {
+            let p = [l.position_m.x, l.position_m.y, l.position_m.z];
+            if lights.last() != Some(&p) {
+                lights.push(p);
+            }
+        }
+        let light = if lights.len() == 1 {
+            format!("{:?}", lights[0])
+        } else {
+            format!("{lights:?} (one per space)")
+        };
         text.push_str(&format!(
             "\n# What the scanned variant drew (poses \"tx ty tz qx qy qz qw\"):\n\
              # the map's declared placement (star.toml, the first scan camera): {}\n\
              # the map's true placement (with the registration error):         {}\n\
-             # scan light at {:?} m; {} scan frames fused into {} tiles\n",
+             # scan light at {} m; {} scan frames fused into {} tiles\n",
             pose_text(&map.world_from_mesh_declared),
             pose_text(&map.world_from_mesh_true),
-            [light.x, light.y, light.z],
+            light,
             map.scan_frames,
             map.fusion.tiles,
         ));
@@ -411,7 +411,11 @@ pub fn write_sequence_with(
             |view, pose, t| {
                 if let Some((light, phase_rad, _)) = &flight {
                     depth_normals(&view.depth_m, &render_camera, &mut normals);
-                    let light = light.at(scene.room_size_m, *phase_rad, t);
+                    let p = pose.translation.vector;
+                    let (origin_m, box_m) = flight_light_box(&scene, [p.x, p.y, p.z]);
+                    let mut light = light.at(box_m, *phase_rad, t);
+                    light.position_m.x += origin_m[0];
+                    light.position_m.y += origin_m[1];
                     shade(
                         &mut view.gray,
                         &view.depth_m,
@@ -629,17 +633,49 @@ mod tests {
     }
 
     #[test]
-    fn scanned_building_is_refused_clearly() {
-        let tmp = tempfile::tempdir().expect("tmp");
-        let options = SequenceOptions {
-            preset: small_building(1).scanned(),
-            seed: 1,
-            frames: 1,
-            write_depth: false,
-        };
-        let err = write_sequence(tmp.path(), &options, &mut |_| {}).unwrap_err();
-        assert!(matches!(err, SequenceError::Unsupported(_)), "{err}");
-        assert!(err.to_string().contains("building"), "{err}");
+    fn a_building_is_scanned_space_by_space_each_under_its_own_light() {
+        let preset = small_building(4).scanned();
+        let spec = preset.scanned.clone().expect("scanned");
+        assert_eq!(spec.voxel_m, crate::synth::preset::BUILDING_SCAN_VOXEL_M);
+        let (scene, _, _) = scene_with_trajectory(&preset, 2, 10.0).expect("placed");
+        let plan = scene.plan.clone().expect("building");
+        let walk = crate::synth::scanned::scan_path_for(&scene, &spec, 2).expect("walk");
+        let spaces = plan.spaces();
+        assert_eq!(spaces.len(), 5, "4 rooms and the corridor");
+        assert_eq!(walk.lap_count(), spaces.len() * spec.scan_path.laps.len());
+        let lights = crate::synth::scanned::scan_lights(&scene, &spec, 2, &walk);
+        assert_eq!(lights.len(), walk.lap_count());
+        let mut visited = vec![0usize; spaces.len()];
+        let n = 4000;
+        for i in 0..n {
+            let t = walk.duration_s() * i as f64 / n as f64;
+            let p = walk.position_at(t);
+            let p = [p.x, p.y, p.z];
+            assert!(
+                !scene.furniture.iter().any(|b| b.contains(p, 0.25)),
+                "{p:?} in furniture"
+            );
+            assert!(plan.is_free(p, 0.25), "{p:?} outside the free space");
+            let space = plan.space_at(p).expect("in a room or the corridor");
+            // The lap's space is the one the walker stands in, and its
+            // light hangs there.
+            let lap = walk.lap_index_at(t);
+            assert_eq!(lap / spec.scan_path.laps.len(), space, "{p:?}");
+            let light = lights[lap].position_m;
+            let (min, size) = spaces[space];
+            assert!((0..2).all(|k| {
+                let l = [light.x, light.y][k];
+                l >= min[k] && l <= min[k] + size[k]
+            }));
+            visited[space] += 1;
+        }
+        assert!(visited.iter().all(|&v| v > 0), "{visited:?}");
+        // The flight's light circles the space the camera is in.
+        let (min, size) = spaces[4];
+        let mid = [min[0] + 0.5 * size[0], min[1] + 0.5 * size[1], 1.0];
+        let (origin, box_m) = crate::synth::scanned::flight_light_box(&scene, mid);
+        assert_eq!(origin, min);
+        assert_eq!([box_m[0], box_m[1]], size);
     }
 
     #[test]

@@ -233,8 +233,9 @@ pub struct ScannedMap {
     pub world_from_mesh_true: Pose,
     /// The scanning walk.
     pub scan_path: ScanPath,
-    /// The scan's light.
-    pub scan_light: PointLight,
+    /// The scan's light, per lap of the walk (one per room, or per space of
+    /// a building).
+    pub scan_lights: Vec<PointLight>,
     /// Frames fused.
     pub scan_frames: usize,
     /// Time rendering and corrupting the scan frames, seconds.
@@ -245,12 +246,35 @@ pub struct ScannedMap {
 
 /// The scanning walk of `scene` for `seed`. It avoids the room's walls and
 /// the furniture; the occluders (objects absent from the map) were not
-/// there at scan time.
+/// there at scan time. A building is scanned space by space: the same laps
+/// in every room, in door order, then in the corridor (whose laps are
+/// long, thin ellipses along it), each space's walk drawn from a seed of
+/// its own; the walker steps from one space to the next between two frames.
 pub fn scan_path_for(
     scene: &Scene,
     spec: &ScannedSpec,
     seed: u64,
 ) -> Result<ScanPath, ScanPathError> {
+    if let Some(plan) = &scene.plan {
+        let is_free = |p: [f64; 3], margin_m: f64| {
+            plan.is_free(p, margin_m) && !scene.furniture.iter().any(|b| b.contains(p, margin_m))
+        };
+        let mut walk: Option<ScanPath> = None;
+        for (k, (min_m, size_m)) in plan.spaces().into_iter().enumerate() {
+            let part = ScanPath::generate_in(
+                &spec.scan_path,
+                min_m,
+                [size_m[0], size_m[1], plan.spec.height_m],
+                derive_seed(seed, 0x5ca_0000 + k as u64),
+                &is_free,
+            )?;
+            walk = Some(match walk {
+                None => part,
+                Some(walk) => walk.then(part),
+            });
+        }
+        return walk.ok_or(ScanPathError::NoLaps);
+    }
     let is_free = |p: [f64; 3], margin_m: f64| {
         (0..3).all(|k| p[k] >= margin_m && p[k] <= scene.room_size_m[k] - margin_m)
             && !scene.furniture.iter().any(|b| b.contains(p, margin_m))
@@ -294,6 +318,54 @@ pub fn scan_light(spec: &ScannedSpec, room_size_m: [f64; 3], seed: u64) -> Point
     }
 }
 
+/// The scan light of each lap of `path` (the walk [`scan_path_for`] drew
+/// for `scene` and `seed`): the room's one light, or in a building one per
+/// space (each room's and the corridor's, [`scan_light`] placed in that
+/// space).
+pub fn scan_lights(
+    scene: &Scene,
+    spec: &ScannedSpec,
+    seed: u64,
+    path: &ScanPath,
+) -> Vec<PointLight> {
+    let Some(plan) = &scene.plan else {
+        return vec![scan_light(spec, scene.room_size_m, seed); path.lap_count()];
+    };
+    let laps_per_space = spec.scan_path.laps.len();
+    plan.spaces()
+        .iter()
+        .enumerate()
+        .flat_map(|(k, (min_m, size_m))| {
+            let mut light = scan_light(
+                spec,
+                [size_m[0], size_m[1], plan.spec.height_m],
+                derive_seed(seed, 0x119_0000 + k as u64),
+            );
+            light.position_m.x += min_m[0];
+            light.position_m.y += min_m[1];
+            std::iter::repeat_n(light, laps_per_space)
+        })
+        .collect()
+}
+
+/// Where the flight's moving light circles when the camera is at
+/// `p_world`: the room (`origin`, `size`), or in a building the space the
+/// camera is in (the corridor when it stands in a doorway).
+pub fn flight_light_box(scene: &Scene, p_world: [f64; 3]) -> ([f64; 2], [f64; 3]) {
+    let Some(plan) = &scene.plan else {
+        return ([0.0, 0.0], scene.room_size_m);
+    };
+    let spaces = plan.spaces();
+    let k = plan
+        .space_at(p_world)
+        .unwrap_or(spaces.len().saturating_sub(1));
+    spaces
+        .get(k)
+        .map_or(([0.0, 0.0], scene.room_size_m), |(min_m, size_m)| {
+            (*min_m, [size_m[0], size_m[1], plan.spec.height_m])
+        })
+}
+
 fn matrix_rows(pose: &Pose) -> [f64; 16] {
     let m: Matrix4<f64> = pose.to_homogeneous();
     let mut out = [0.0; 16];
@@ -330,7 +402,7 @@ pub fn build_scanned_map(
     let world_from_mesh_true = world_from_mesh_declared
         * registration_error(spec.registration_error_m, spec.registration_error_deg, seed);
     let mesh_from_world = world_from_mesh_true.inverse();
-    let light = scan_light(spec, scene.room_size_m, seed);
+    let lights = scan_lights(scene, spec, seed, &path);
 
     // Render the scanning run.
     let started = Instant::now();
@@ -352,6 +424,9 @@ pub fn build_scanned_map(
     for i in 0..frames {
         let t_s = path.duration_s() * i as f64 / frames as f64;
         let world_from_camera = path.pose_at(t_s);
+        let Some(light) = lights.get(path.lap_index_at(t_s)) else {
+            return Err(ScannedError::Path(ScanPathError::NoLaps));
+        };
         renderer.render(&world_from_camera, &camera, &mut view)?;
         depth_normals(&view.depth_m, &camera, &mut normals);
         shade(
@@ -360,7 +435,7 @@ pub fn build_scanned_map(
             &normals,
             &camera,
             &world_from_camera,
-            &light,
+            light,
         );
         let frame_seed = derive_seed(seed, 0x5ca0_0000 + i as u64);
         let mut noise = Gaussian::new(derive_seed(frame_seed, 1));
@@ -452,7 +527,7 @@ pub fn build_scanned_map(
         world_from_mesh_declared,
         world_from_mesh_true,
         scan_path: path,
-        scan_light: light,
+        scan_lights: lights,
         scan_frames: frames,
         scan_render_s,
         fusion,

@@ -154,6 +154,18 @@ impl ScanPath {
         seed: u64,
         is_free: &dyn Fn([f64; 3], f64) -> bool,
     ) -> Result<Self, ScanPathError> {
+        Self::generate_in(spec, [0.0, 0.0], room_size_m, seed, is_free)
+    }
+
+    /// [`ScanPath::generate`] for a room whose floor spans `origin_m ..
+    /// origin_m + size` in `x` and `y` (world frame; `0..size[2]` in `z`).
+    pub fn generate_in(
+        spec: &ScanPathSpec,
+        origin_m: [f64; 2],
+        room_size_m: [f64; 3],
+        seed: u64,
+        is_free: &dyn Fn([f64; 3], f64) -> bool,
+    ) -> Result<Self, ScanPathError> {
         if spec.laps.is_empty() {
             return Err(ScanPathError::NoLaps);
         }
@@ -162,7 +174,7 @@ impl ScanPath {
             laps.push(Self::generate_lap(
                 spec,
                 lap,
-                room_size_m,
+                (origin_m, room_size_m),
                 super::super::corrupt::derive_seed(seed, 0x1a9 + k as u64),
                 is_free,
             )?);
@@ -176,7 +188,7 @@ impl ScanPath {
     fn generate_lap(
         spec: &ScanPathSpec,
         lap: &ScanLap,
-        room_size_m: [f64; 3],
+        (origin_m, room_size_m): ([f64; 2], [f64; 3]),
         seed: u64,
         is_free: &dyn Fn([f64; 3], f64) -> bool,
     ) -> Result<Lap, ScanPathError> {
@@ -194,7 +206,11 @@ impl ScanPath {
             let deg = |x: f64| x.to_radians();
             let candidate = Lap {
                 lap: *lap,
-                center_m: Vector3::new(0.5 * room_size_m[0], 0.5 * room_size_m[1], 0.0),
+                center_m: Vector3::new(
+                    origin_m[0] + 0.5 * room_size_m[0],
+                    origin_m[1] + 0.5 * room_size_m[1],
+                    0.0,
+                ),
                 radii_m,
                 theta0_rad: std::f64::consts::TAU * rng.uniform(),
                 direction: if rng.uniform() < 0.5 { 1.0 } else { -1.0 },
@@ -228,6 +244,30 @@ impl ScanPath {
     /// Time of the whole walk (all laps), seconds.
     pub fn duration_s(&self) -> f64 {
         self.laps.iter().map(|l| l.duration_s).sum()
+    }
+
+    /// Walks `next` after this walk's last lap (the walker steps from one
+    /// room to the next between two frames). Both must be of one spec.
+    pub fn then(mut self, next: ScanPath) -> Self {
+        self.laps.extend(next.laps);
+        self
+    }
+
+    /// Number of laps.
+    pub fn lap_count(&self) -> usize {
+        self.laps.len()
+    }
+
+    /// The number of the lap walked at `t_s`.
+    pub fn lap_index_at(&self, t_s: f64) -> usize {
+        let mut t = t_s;
+        for (k, lap) in self.laps.iter().enumerate() {
+            if t < lap.duration_s {
+                return k;
+            }
+            t -= lap.duration_s;
+        }
+        self.laps.len().saturating_sub(1)
     }
 
     /// The lap walked at `t_s` and the time into it.

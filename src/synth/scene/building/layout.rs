@@ -211,6 +211,29 @@ impl FloorPlan {
         }
     }
 
+    /// The floor rectangles `(min, size)` (world, meters) of the rooms, in
+    /// [`FloorPlan::rooms`] order, then of the corridor.
+    pub fn spaces(&self) -> Vec<([f64; 2], [f64; 2])> {
+        let corridor_size = [
+            self.corridor_max_m[0] - self.corridor_min_m[0],
+            self.corridor_max_m[1] - self.corridor_min_m[1],
+        ];
+        self.rooms
+            .iter()
+            .map(|r| (r.min_m, r.size_m))
+            .chain(std::iter::once((self.corridor_min_m, corridor_size)))
+            .collect()
+    }
+
+    /// The number (in [`FloorPlan::spaces`]) of the space whose floor
+    /// rectangle holds `p`'s `x` and `y`, or `None` (in a wall or a
+    /// doorway's reveal, or outside).
+    pub fn space_at(&self, p: [f64; 3]) -> Option<usize> {
+        self.spaces()
+            .iter()
+            .position(|(min, size)| (0..2).all(|k| p[k] >= min[k] && p[k] <= min[k] + size[k]))
+    }
+
     /// Floor area of the rooms and the corridor, m².
     pub fn floor_area_m2(&self) -> f64 {
         let corridor = (self.corridor_max_m[0] - self.corridor_min_m[0])
