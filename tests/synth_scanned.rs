@@ -424,7 +424,7 @@ fn a_scanned_building_covers_every_room_and_the_corridor() {
     };
     let tmp = tempfile::tempdir().expect("tmp");
     let out = tmp.path().join("scanned-building");
-    // 5 cm voxels: a few seconds of fusion (the preset's is 3 cm).
+    // 5 cm voxels: a few seconds of fusion (the preset's is 2 cm).
     synth(
         &python,
         &out,

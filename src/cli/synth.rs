@@ -6,7 +6,7 @@
 //! `OUT/star.toml`, the config that places that map in the world.
 //! `--preset building` synthesizes a floor of rooms flown room to room;
 //! `--rooms N` sets how many rooms; with `--scanned` the floor is scanned
-//! room by room and along the corridor and fused at 3 cm voxels
+//! room by room and along the corridor and fused at 2 cm voxels
 //! (`docs/building-scale.md`).
 
 use std::path::PathBuf;

@@ -106,8 +106,15 @@ pub struct Preset {
 }
 
 /// TSDF voxel of a scanned building, meters: coarser than one room's 1 cm,
-/// since a whole floor is fused into one map.
-pub const BUILDING_SCAN_VOXEL_M: f64 = 0.03;
+/// since a whole floor is fused into one map (at 3 cm the vertex colors are
+/// too blurred for the tracker's correlation gates: docs/building-scale.md).
+pub const BUILDING_SCAN_VOXEL_M: f64 = 0.02;
+
+/// Rotation of a scanned building's registration error, degrees: a map
+/// registered to the floor plan is off by about the one room's centimeters
+/// everywhere (0.03 degrees is 1.8 cm at 34 m, the 68 m floor's half
+/// length), not by 0.3 degrees, which would put its far end 18 cm off.
+pub const BUILDING_REGISTRATION_ERROR_DEG: f64 = 0.03;
 
 /// Names of all presets, in `--list-presets` order.
 pub const PRESET_NAMES: [&str; 5] = ["ideal", "realistic", "aggressive", "scanned", "building"];
@@ -228,9 +235,9 @@ impl Preset {
         let mut spec = self.scanned.unwrap_or_default();
         if self.scene.building.is_some() && fresh {
             // A whole floor at 1 cm would be about 70 M triangles
-            // (docs/building-scale.md); 3 cm gives a map the size of the
-            // closed-world floor's.
+            // (docs/building-scale.md).
             spec.voxel_m = BUILDING_SCAN_VOXEL_M;
+            spec.registration_error_deg = BUILDING_REGISTRATION_ERROR_DEG;
         }
         Preset {
             scene: ScenePreset {
