@@ -6,19 +6,12 @@
 //! [`MeshChunk`]s of at most [`MAX_CHUNK_TRIS`] (median splits on the longest
 //! axis of the triangle centroids), each a contiguous range of the reordered
 //! index buffer with a contiguous range of vertices of its own (a vertex
-//! shared by two chunks, or by two clusters, is copied into each, so a
-//! chunk or a cluster can be transformed without the rest) and a
-//! world-frame [`Aabb`]. A chunk never mixes
-//! triangles of two mesh groups. Within a chunk the triangles are ordered
-//! so that every run of [`CLUSTER_TRIS`] (a [`Cluster`], the unit of both
-//! renderers' occlusion culls) is itself spatially compact: the same median
-//! splits go on inside the chunk, cutting at multiples of [`CLUSTER_TRIS`],
-//! and each cluster keeps its triangles in mesh order. (In mesh order alone a
-//! run of 256 triangles of a finely cut wall is a strip meters long and a few
-//! centimeters high, whose box is rarely hidden.)
-//! [`ChunkedMesh::source_triangle`] maps each triangle back to its mesh
-//! index, which the CPU rasterizer uses to break depth ties exactly as in
-//! mesh order.
+//! shared by two chunks is copied into both, so a chunk can be transformed
+//! without the rest) and a world-frame [`Aabb`]. A chunk never mixes
+//! triangles of two mesh groups. Within a chunk triangles keep their mesh
+//! order; [`ChunkedMesh::source_triangle`] maps each back to its mesh index,
+//! which the CPU rasterizer uses to break depth ties exactly as in mesh
+//! order.
 //!
 //! Per render, each chunk's box is tested against the view [`Frustum`]
 //! ([`mark_visible`]).
@@ -189,23 +182,17 @@ impl ChunkedMesh {
             chunks: Vec::with_capacity(leaves.len()),
         };
         let has_uvs = !mesh.uvs.is_empty();
-        // Local number of each mesh vertex in the cluster being built, valid
-        // where `stamp` holds that cluster's serial number (over the whole
-        // mesh): every cluster has vertices of its own, so its vertex range
-        // is contiguous and disjoint from the others'.
+        // Local number of each mesh vertex in the chunk being built, valid
+        // where `stamp` holds that chunk's number.
         let mut local = vec![0u32; mesh.positions.len()];
         let mut stamp = vec![u32::MAX; mesh.positions.len()];
-        let mut cluster_serial = 0u32;
-        for (group, range) in leaves {
+        for (chunk_number, (group, range)) in leaves.into_iter().enumerate() {
             let tris = &mut order[range];
-            order_clusters(tris, &centroids);
+            tris.sort_unstable();
             let first_tri = out.source_triangle.len() as u32;
             let first_vertex = out.positions.len();
             let mut bounds = Aabb::EMPTY;
-            for (k, &t) in tris.iter().enumerate() {
-                if k > 0 && k % CLUSTER_TRIS == 0 {
-                    cluster_serial += 1;
-                }
+            for &t in tris.iter() {
                 let Some(tri) = mesh.indices.get(3 * t as usize..3 * t as usize + 3) else {
                     continue;
                 };
@@ -214,8 +201,8 @@ impl ChunkedMesh {
                     let (Some(slot), Some(seen)) = (local.get_mut(v), stamp.get_mut(v)) else {
                         continue;
                     };
-                    if *seen != cluster_serial {
-                        *seen = cluster_serial;
+                    if *seen != chunk_number as u32 {
+                        *seen = chunk_number as u32;
                         let n = out.positions.len();
                         if n >= u32::MAX as usize {
                             return Err(too_large("vertices", n));
@@ -233,7 +220,6 @@ impl ChunkedMesh {
                 }
                 out.source_triangle.push(t);
             }
-            cluster_serial += 1;
             out.chunks.push(MeshChunk {
                 triangles: first_tri..out.source_triangle.len() as u32,
                 vertices: first_vertex as u32..out.positions.len() as u32,
@@ -334,54 +320,6 @@ pub fn mark_visible(
     stats
 }
 
-/// Orders the triangles `tris` of one chunk so that each run of
-/// [`CLUSTER_TRIS`] from its start is spatially compact: splits on the
-/// longest axis of the centroids' bounds, at the multiple of
-/// [`CLUSTER_TRIS`] nearest the median, until every part is one cluster;
-/// each cluster in mesh order. Deterministic: ties are broken by triangle
-/// number, and the input order does not matter.
-fn order_clusters(tris: &mut [u32], centroids: &[[f32; 3]]) {
-    tris.sort_unstable();
-    let mut stack = Vec::with_capacity(32);
-    stack.push(0..tris.len());
-    while let Some(range) = stack.pop() {
-        let part = &mut tris[range.clone()];
-        if part.len() <= CLUSTER_TRIS {
-            part.sort_unstable();
-            continue;
-        }
-        let axis = longest_axis(part, centroids);
-        // Clusters in the lower part: at least one, and at least one triangle
-        // left for the upper part.
-        let clusters = part.len().div_ceil(CLUSTER_TRIS);
-        let mid = (clusters / 2).max(1) * CLUSTER_TRIS;
-        part.select_nth_unstable_by(mid, |&a, &b| {
-            centroids[a as usize][axis]
-                .total_cmp(&centroids[b as usize][axis])
-                .then(a.cmp(&b))
-        });
-        let split_at = range.start + mid;
-        stack.push(split_at..range.end);
-        stack.push(range.start..split_at);
-    }
-}
-
-/// The axis (0, 1, 2) along which the centroids of `tris` spread widest.
-fn longest_axis(tris: &[u32], centroids: &[[f32; 3]]) -> usize {
-    let mut bounds = Aabb::EMPTY;
-    for &t in tris {
-        bounds.add(centroids[t as usize]);
-    }
-    let extent = [0, 1, 2].map(|k| bounds.max_m[k] - bounds.min_m[k]);
-    if extent[0] >= extent[1] && extent[0] >= extent[2] {
-        0
-    } else if extent[1] >= extent[2] {
-        1
-    } else {
-        2
-    }
-}
-
 /// Splits `order[range]` at the median centroid on the longest axis of the
 /// centroids' bounds until every part holds at most [`MAX_CHUNK_TRIS`]
 /// triangles; calls `leaf` with each part, in tree order. Ties are broken by
@@ -399,7 +337,18 @@ fn split(
             continue;
         }
         let tris = &mut order[range.clone()];
-        let axis = longest_axis(tris, centroids);
+        let mut bounds = Aabb::EMPTY;
+        for &t in tris.iter() {
+            bounds.add(centroids[t as usize]);
+        }
+        let extent = [0, 1, 2].map(|k| bounds.max_m[k] - bounds.min_m[k]);
+        let axis = if extent[0] >= extent[1] && extent[0] >= extent[2] {
+            0
+        } else if extent[1] >= extent[2] {
+            1
+        } else {
+            2
+        };
         let mid = tris.len() / 2;
         tris.select_nth_unstable_by(mid, |&a, &b| {
             centroids[a as usize][axis]
@@ -511,56 +460,6 @@ mod tests {
             })
             .fold(0.0f32, f32::max);
         assert!(widest < 6.0, "widest chunk {widest} m");
-    }
-
-    #[test]
-    fn clusters_are_compact_and_in_mesh_order_within() {
-        // 0.1 m cells on a 10 x 10 m grid: in mesh order a run of 256
-        // triangles is a strip 10 m long; a compact cluster is about 1 m.
-        let mesh = grid(100, 5.0, 2.0);
-        let chunked = ChunkedMesh::build(&mesh).unwrap();
-        let again = ChunkedMesh::build(&mesh).unwrap();
-        assert_eq!(
-            chunked.source_triangle, again.source_triangle,
-            "deterministic"
-        );
-        let mut widest = 0.0f32;
-        for chunk in &chunked.chunks {
-            let clusters = clusters(&chunked, chunk);
-            assert_eq!(
-                clusters.len(),
-                chunk.triangle_count().div_ceil(CLUSTER_TRIS)
-            );
-            let mut next_vertex = 0;
-            for (k, cluster) in clusters.iter().enumerate() {
-                assert_eq!(cluster.triangles.start, k * CLUSTER_TRIS);
-                // Vertices of its own: ranges consecutive and disjoint.
-                assert_eq!(cluster.vertices.start, next_vertex);
-                next_vertex = cluster.vertices.end;
-                let b = &cluster.bounds;
-                widest = widest.max((b.max_m[0] - b.min_m[0]).max(b.max_m[1] - b.min_m[1]));
-                let first = chunk.triangles.start as usize;
-                let src = &chunked.source_triangle
-                    [first + cluster.triangles.start..first + cluster.triangles.end];
-                assert!(src.windows(2).all(|w| w[0] < w[1]), "mesh order within");
-                // The cluster's vertices are the chunk-local range it names.
-                for t in cluster.triangles.clone() {
-                    for k in 0..3 {
-                        let v = chunked.indices[3 * (first + t) + k] - chunk.vertices.start;
-                        assert!(cluster.vertices.contains(&(v as usize)));
-                    }
-                }
-            }
-        }
-        assert!(widest < 2.5, "widest cluster {widest} m");
-        // Compact clusters have short borders: their copied vertices add
-        // less than 30 % to the grid's (12 688 against 10 201).
-        assert!(
-            chunked.positions.len() * 10 < mesh.positions.len() * 13,
-            "{} vertices for the mesh's {}",
-            chunked.positions.len(),
-            mesh.positions.len()
-        );
     }
 
     #[test]
