@@ -260,38 +260,32 @@ impl ScanPath {
 
     /// The number of the lap walked at `t_s`.
     pub fn lap_index_at(&self, t_s: f64) -> usize {
-        let mut t = t_s;
-        for (k, lap) in self.laps.iter().enumerate() {
-            if t < lap.duration_s {
-                return k;
-            }
-            t -= lap.duration_s;
-        }
-        self.laps.len().saturating_sub(1)
+        self.lap_at(t_s).0
     }
 
-    /// The lap walked at `t_s` and the time into it.
-    fn lap_at(&self, t_s: f64) -> (&Lap, f64) {
+    /// The lap walked at `t_s`, its number and the time into it.
+    fn lap_at(&self, t_s: f64) -> (usize, &Lap, f64) {
         let mut t = t_s;
         for (k, lap) in self.laps.iter().enumerate() {
             if t < lap.duration_s || k + 1 == self.laps.len() {
-                return (lap, t);
+                return (k, lap, t);
             }
             t -= lap.duration_s;
         }
         // Unreachable: `generate` refuses a walk without laps.
-        (&self.laps[self.laps.len() - 1], t)
+        let last = self.laps.len() - 1;
+        (last, &self.laps[last], t)
     }
 
     /// Camera position at `t_s`, world frame.
     pub fn position_at(&self, t_s: f64) -> Vector3<f64> {
-        let (lap, t) = self.lap_at(t_s);
+        let (_, lap, t) = self.lap_at(t_s);
         lap.position_at(&self.spec, t)
     }
 
     /// `world_from_camera` at `t_s`.
     pub fn pose_at(&self, t_s: f64) -> Pose {
-        let (lap, t) = self.lap_at(t_s);
+        let (_, lap, t) = self.lap_at(t_s);
         lap.pose_at(&self.spec, t)
     }
 }
