@@ -363,6 +363,7 @@ fn info(args: &InfoArgs) -> Result<()> {
         "texels": texels,
         "bounds_m": {"min": lo, "max": hi, "size": [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]]},
         "colored_fraction": colored,
+        "detail_spacing_m": mesh.detail_spacing_m(),
         "floor": floor_json,
         "holes": {
             "views": holes.views,
@@ -438,6 +439,15 @@ fn print_info(
         mesh.textures.len(),
         100.0 * colored
     );
+    let detail_m = mesh.detail_spacing_m();
+    if detail_m > 0.0 {
+        println!(
+            "  appearance sampled every {:.1} mm (median texel or vertex spacing): the gates read pyramid levels no finer than that",
+            1e3 * detail_m
+        );
+    } else {
+        println!("  appearance: flat colors only (no texture, no vertex color gradient)");
+    }
     println!(
         "  bounds [{:.2}, {:.2}, {:.2}] .. [{:.2}, {:.2}, {:.2}] m ({:.2} x {:.2} x {:.2})",
         lo[0],

@@ -129,7 +129,8 @@ impl Localizer {
         // The plain correlation at level 1 (what `track_min_correlation`
         // was measured at); local contrast at its lowest over levels 0-2,
         // as the relocalization gate reads it: a slide of a few pixels
-        // shows at the finest level first. `f32::min` skips a `NaN` level
+        // shows at the finest level first. On a map coarser than the
+        // camera, each level one up (`Keyframe::gate_level`). `f32::min` skips a `NaN` level
         // (no coarser level for the local mean); with none, it is not a
         // refusal and the plain correlation decides.
         let samples = &mut self.correlation_samples;
@@ -143,8 +144,9 @@ impl Localizer {
                 samples,
             )
         };
-        let ncc = at(1);
-        let local = [at(0), at(2)]
+        let first = self.keyframe.gate_level;
+        let ncc = at(first + 1);
+        let local = [at(first), at(first + 2)]
             .iter()
             .flatten()
             .fold(ncc.map_or(f32::NAN, |(_, l)| l), |m, &(_, l)| m.min(l));

@@ -22,6 +22,7 @@
 
 pub mod align;
 mod config;
+mod detail;
 mod error;
 pub mod floor;
 mod format;

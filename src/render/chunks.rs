@@ -93,6 +93,9 @@ pub struct ChunkedMesh {
     /// The chunks, in index-buffer order: by group (mesh group order, then
     /// the ungrouped triangles), each group in the order of its split tree.
     pub chunks: Vec<MeshChunk>,
+    /// How fine the mesh's appearance is, meters ([`Mesh::detail_spacing_m`]):
+    /// every render of it says so ([`super::RenderedView::detail_m`]).
+    pub detail_m: f32,
 }
 
 /// Per-render counts of the frustum test.
@@ -180,6 +183,7 @@ impl ChunkedMesh {
             indices: Vec::with_capacity(mesh.indices.len()),
             source_triangle: Vec::with_capacity(triangles),
             chunks: Vec::with_capacity(leaves.len()),
+            detail_m: mesh.detail_spacing_m(),
         };
         let has_uvs = !mesh.uvs.is_empty();
         // Local number of each mesh vertex in the chunk being built, valid

@@ -83,6 +83,11 @@ pub struct RenderedView {
     pub gray: ImageF32,
     /// Depth along the optical axis in meters; [`NO_DEPTH`] where nothing was hit.
     pub depth_m: ImageF32,
+    /// How fine the rendered map's appearance is, meters
+    /// ([`crate::map::Mesh::detail_spacing_m`]; 0: full detail): set by
+    /// the renderer with every view, read by the keyframe to choose the
+    /// pyramid levels its correlation gates trust.
+    pub detail_m: f32,
 }
 
 impl RenderedView {
@@ -91,6 +96,7 @@ impl RenderedView {
         Self {
             gray: ImageF32::new(width, height, 0.0),
             depth_m: ImageF32::new(width, height, NO_DEPTH),
+            detail_m: 0.0,
         }
     }
 

@@ -9,7 +9,8 @@
 //! with its version trimmed of the points an occluder covers
 //! ([`correlations`]), the correlation of local contrast (intensity over
 //! the local mean, trimmed the same way), and the smallest of each over
-//! levels 0, 1 and 2 ([`min_correlations`]). Allocates nothing: the
+//! three levels from the keyframe's [`Keyframe::gate_level`] (0, 1 and 2
+//! on a map as fine as the camera; [`min_correlations`]). Allocates nothing: the
 //! per-frame check of tracking ([`plain_and_local`]) projects the points
 //! once into a buffer its caller reserved, and refits from there.
 
@@ -19,8 +20,10 @@ use crate::geometry::{PinholeCamera, Pose};
 
 use super::{Keyframe, KeyframeLevel, Pyramid};
 
-/// The smallest [`correlations`] over pyramid levels 0, 1 and 2 (each
-/// figure on its own); `None` when level 0 or 1 cannot be evaluated.
+/// The smallest [`correlations`] over three pyramid levels from the
+/// keyframe's [`Keyframe::gate_level`] (levels 0, 1 and 2 on a map as fine
+/// as the camera; each figure on its own); `None` when the first two
+/// cannot be evaluated.
 pub fn min_correlations(
     keyframe: &Keyframe,
     frame: &Pyramid,
@@ -28,7 +31,8 @@ pub fn min_correlations(
     camera_from_keyframe: &Pose,
 ) -> Option<Correlations> {
     let mut out: Option<Correlations> = None;
-    for level in 0..3 {
+    let first = keyframe.gate_level;
+    for level in first..first + 3 {
         match correlations(keyframe, frame, camera, camera_from_keyframe, level) {
             Some(c) => {
                 out = Some(out.map_or(c, |o| Correlations {
@@ -39,7 +43,7 @@ pub fn min_correlations(
                     local_kept: o.local_kept.min(c.local_kept),
                 }));
             }
-            None if level < 2 => return None,
+            None if level < first + 2 => return None,
             None => {}
         }
     }

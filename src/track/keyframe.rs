@@ -86,6 +86,10 @@ pub struct Keyframe {
     pub requested_at_ns: u64,
     /// Median depth of the finest-level points, meters (0 when none).
     pub median_depth_m: f32,
+    /// The finest pyramid level the correlation gates read
+    /// ([`gate_level`]): 0 on a map as fine as the camera, 1 where the
+    /// map's appearance is coarser than the camera's pixels at level 0.
+    pub gate_level: usize,
     /// Per level, finest first.
     pub levels: Vec<KeyframeLevel>,
     scratch: PrepScratch,
@@ -103,6 +107,35 @@ struct PrepScratch {
     /// Selection threshold of each block, row-major.
     thresholds: Vec<f32>,
     depths: Vec<f32>,
+}
+
+/// A pyramid level's pixels are as fine as the map when, at the keyframe's
+/// median depth, one covers at least this fraction of the map's detail
+/// spacing. Measured (docs/building-scale.md, "Gates at the map's
+/// detail"): true poses on a map scanned at 1 cm (10.8 mm spacing) pass
+/// the gates at level 0 seen from 2.5 m (0.55 of the spacing per pixel);
+/// on one scanned at 2 cm (22.8 mm) level 0 (0.26) correlated as poorly as
+/// wrong poses in local contrast (0.32-0.63), level 1 (0.52) at
+/// 0.70-0.91.
+const GATE_PIXEL_PER_DETAIL: f32 = 0.5;
+
+/// The coarsest first level of the gates: they read three levels from it
+/// (the pyramid's four levels), and a gate that started coarser would
+/// miss the slides of a few centimeters that the finer levels catch.
+pub const MAX_GATE_LEVEL: usize = 1;
+
+/// The finest pyramid level whose pixels, at `median_depth_m` through a
+/// focal length of `fx` pixels, cover at least half the map's detail
+/// spacing `detail_m` (0 for a map as fine as the camera, or no depth),
+/// at most [`MAX_GATE_LEVEL`].
+pub fn gate_level(detail_m: f32, median_depth_m: f32, fx: f32) -> usize {
+    if !(detail_m > 0.0 && median_depth_m > 0.0 && fx > 0.0) {
+        return 0;
+    }
+    let pixel_m = median_depth_m / fx;
+    (0..MAX_GATE_LEVEL)
+        .find(|&l| pixel_m * (1u32 << l) as f32 >= GATE_PIXEL_PER_DETAIL * detail_m)
+        .unwrap_or(MAX_GATE_LEVEL)
 }
 
 /// Gradient magnitude histogram range (gray levels per pixel).
@@ -127,6 +160,7 @@ impl Keyframe {
             world_from_keyframe: Pose::identity(),
             requested_at_ns: 0,
             median_depth_m: 0.0,
+            gate_level: 0,
             levels,
             scratch: PrepScratch {
                 gray: Pyramid::new(w, h, n_levels),
@@ -206,6 +240,11 @@ impl Keyframe {
             let mid = s.depths.len() / 2;
             *s.depths.select_nth_unstable_by(mid, f32::total_cmp).1
         };
+        self.gate_level = gate_level(
+            view.detail_m,
+            self.median_depth_m,
+            self.levels[0].camera.fx as f32,
+        );
     }
 }
 
@@ -435,4 +474,27 @@ fn block_median(
         }
     }
     HIST_BINS as f32
+}
+
+#[cfg(test)]
+mod gate_level_tests {
+    use super::*;
+
+    #[test]
+    fn the_gates_start_where_the_pixels_are_as_coarse_as_the_map() {
+        // 420 px focal length, 2.5 m away: 6 mm pixels at level 0.
+        assert_eq!(gate_level(0.0078, 2.5, 420.0), 0, "a textured map");
+        assert_eq!(gate_level(0.0108, 2.5, 420.0), 0, "scanned at 1 cm");
+        assert_eq!(gate_level(0.0228, 2.5, 420.0), 1, "scanned at 2 cm");
+        assert_eq!(gate_level(0.0228, 5.0, 420.0), 0, "2 cm, from 5 m");
+        assert_eq!(gate_level(0.1, 1.0, 420.0), MAX_GATE_LEVEL, "capped");
+    }
+
+    #[test]
+    fn no_detail_or_no_depth_reads_every_level() {
+        assert_eq!(gate_level(0.0, 2.5, 420.0), 0);
+        assert_eq!(gate_level(0.05, 0.0, 420.0), 0);
+        assert_eq!(gate_level(f32::NAN, 2.5, 420.0), 0);
+        assert_eq!(gate_level(0.05, 2.5, f32::NAN), 0);
+    }
 }

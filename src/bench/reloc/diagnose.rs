@@ -110,9 +110,10 @@ impl Bench {
                 let (c0, c1, c2) = (corr(0), corr(1), corr(2));
                 let trimmed =
                     |c: Option<crate::track::Correlations>| c.map_or(f32::NAN, |c| c.trimmed);
+                let local = |c: Option<crate::track::Correlations>| c.map_or(f32::NAN, |c| c.local);
                 let off = a.camera_from_keyframe.translation.vector.norm();
                 at_truth = format!(
-                        "at truth: inliers {:.2} visible {:.2} residual {:.1} ncc {:.2}/{:.2}/{:.2} trimmed {:.2}/{:.2}/{:.2} gain {:.2} off {off:.3} m",
+                        "at truth: inliers {:.2} visible {:.2} residual {:.1} ncc {:.2}/{:.2}/{:.2} trimmed {:.2}/{:.2}/{:.2} local {:.2}/{:.2}/{:.2} gain {:.2} off {off:.3} m",
                         q.inlier_ratio,
                         q.visible_ratio,
                         q.residual_rms,
@@ -122,6 +123,9 @@ impl Bench {
                         trimmed(c0),
                         trimmed(c1),
                         trimmed(c2),
+                        local(c0),
+                        local(c1),
+                        local(c2),
                         a.gain
                     );
             }

@@ -333,6 +333,7 @@ impl Renderer for CpuRenderer {
             None => work(),
         };
         *binned_triangles = binned;
+        out.detail_m = chunked.detail_m;
         stats.visible_chunks -= hidden_chunks;
         stats.visible_triangles -= hidden_triangles;
         Ok(())

@@ -120,6 +120,8 @@ pub struct GpuRenderer {
     fault: Fault,
     renders: u64,
     fail_at: Option<u64>,
+    /// The mesh's appearance spacing, meters, told with every view.
+    detail_m: f32,
 }
 
 impl GpuRenderer {
@@ -236,6 +238,7 @@ impl GpuRenderer {
             TextureFormat::Unorm8 => wgpu::Features::empty(),
         };
         let (chunked, plan) = upload::validate(mesh, &limits, gpu_budget_bytes)?;
+        let detail_m = chunked.detail_m;
         let device_error = |message: String| GpuError::Device {
             adapter: info.name.clone(),
             message,
@@ -324,6 +327,7 @@ impl GpuRenderer {
             fault,
             renders: 0,
             fail_at: None,
+            detail_m,
         })
     }
 
@@ -653,6 +657,7 @@ impl GpuRenderer {
                 max_dimension: self.max_dimension,
             });
         }
+        out.detail_m = self.detail_m;
         // The map callback runs inside poll once the copy has completed.
         for _ in 0..2 {
             match frame.status(pending.slot) {
