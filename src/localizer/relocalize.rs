@@ -127,10 +127,13 @@ impl Localizer {
         };
         let pose = camera_from_keyframe;
         // The plain correlation at level 1 (what `track_min_correlation`
-        // was measured at); local contrast at its lowest over levels 0-2,
-        // as the relocalization gate reads it: a slide of a few pixels
-        // shows at the finest level first. On a map coarser than the
-        // camera, each level one up (`Keyframe::gate_level`). `f32::min` skips a `NaN` level
+        // was measured at); local contrast at its lowest over levels 0-2:
+        // a slide of a few pixels shows at the finest level first. Unlike
+        // the relocalization gate, this check keeps level 0 on a map
+        // coarser than the camera (`Keyframe::gate_level`): its threshold
+        // is low enough for true poses on a 2 cm scan (0.43-0.50 there),
+        // and on `aggressive --scanned` seed 1 (1 cm) reading from level 1
+        // let drifting poses through (docs/building-scale.md). `f32::min` skips a `NaN` level
         // (no coarser level for the local mean); with none, it is not a
         // refusal and the plain correlation decides.
         let samples = &mut self.correlation_samples;
@@ -144,9 +147,8 @@ impl Localizer {
                 samples,
             )
         };
-        let first = self.keyframe.gate_level;
-        let ncc = at(first + 1);
-        let local = [at(first), at(first + 2)]
+        let ncc = at(1);
+        let local = [at(0), at(2)]
             .iter()
             .flatten()
             .fold(ncc.map_or(f32::NAN, |(_, l)| l), |m, &(_, l)| m.min(l));
