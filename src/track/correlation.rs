@@ -339,6 +339,17 @@ mod tests {
         tex: impl Fn(usize, usize) -> f32,
         edit: impl Fn(usize, usize, f32) -> f32,
     ) -> (Keyframe, Pyramid, PinholeCamera) {
+        setup_detail(tex, edit, 0.0)
+    }
+
+    /// [`setup_textured`] from a map whose appearance is sampled every
+    /// `detail_m` meters (the plane is 2 m away, 120 px focal length:
+    /// 16.7 mm pixels at level 0).
+    fn setup_detail(
+        tex: impl Fn(usize, usize) -> f32,
+        edit: impl Fn(usize, usize, f32) -> f32,
+        detail_m: f32,
+    ) -> (Keyframe, Pyramid, PinholeCamera) {
         let camera = PinholeCamera::new(160, 128, 120.0, 120.0, 79.5, 63.5);
         let config = TrackerConfig {
             pyramid_levels: 3,
@@ -354,6 +365,7 @@ mod tests {
             }
         }
         view.depth_m = ImageF32::new(160, 128, 2.0);
+        view.detail_m = detail_m;
         let mut keyframe = Keyframe::new(&camera, &config);
         keyframe.prepare(&view, Pose::identity(), 1, &config);
         let mut pyramid = Pyramid::new(160, 128, 3);
@@ -436,5 +448,35 @@ mod tests {
         let (kf, frame, camera) = setup_textured(tex, |_, _, v| v);
         let c = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("in place");
         assert!(c.local > 0.95 && c.all > 0.95, "{c:?}");
+    }
+
+    #[test]
+    fn a_coarse_map_is_checked_at_the_levels_it_holds() {
+        // The camera sees a fine grain (period 2.5 px) over the coarse
+        // pattern; the map kept only the coarse pattern, as a scan fused at
+        // voxels coarser than the camera's pixels does.
+        let coarse = |x: usize, y: usize| {
+            let (x, y) = (x as f32, y as f32);
+            128.0 + 50.0 * (x * 0.3).sin() * (y * 0.23).cos()
+        };
+        let grain = |x: usize, y: usize| 30.0 * ((x as f32) * 2.5).sin() * ((y as f32) * 2.3).sin();
+        let seen = |x: usize, y: usize, v: f32| v + grain(x, y);
+        // Told nothing of the map's detail, the gate reads level 0, where
+        // the grain the map lacks decides.
+        let (kf, frame, camera) = setup_detail(coarse, seen, 0.0);
+        assert_eq!(kf.gate_level, 0);
+        let fine = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("level 0");
+        // A map sampled every 5 cm: level 0's 16.7 mm pixels are finer than
+        // half of that, level 1's 33 mm are not.
+        let (kf, frame, camera) = setup_detail(coarse, seen, 0.05);
+        assert_eq!(kf.gate_level, 1);
+        let held = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("level 1");
+        assert!(held.local > 0.9, "{held:?}");
+        assert!(fine.local < held.local - 0.2, "{fine:?} {held:?}");
+        // A wrong view of the same coarse map still fails there.
+        let (kf, frame, camera) =
+            setup_detail(coarse, |x, y, _| coarse(x + 9, y + 7) + grain(x, y), 0.05);
+        let wrong = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("wrong");
+        assert!(wrong.local < 0.5, "{wrong:?}");
     }
 }
