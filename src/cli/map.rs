@@ -442,7 +442,7 @@ fn print_info(
     let detail_m = mesh.detail_spacing_m();
     if detail_m > 0.0 {
         println!(
-            "  appearance sampled every {:.1} mm (median texel or vertex spacing): the gates read pyramid levels no finer than that",
+            "  appearance sampled every {:.1} mm (median texel or vertex spacing): relocalization's verification reads the pyramid levels no finer than that",
             1e3 * detail_m
         );
     } else {

@@ -130,11 +130,11 @@ impl Localizer {
         // was measured at); local contrast at its lowest over levels 0-2:
         // a slide of a few pixels shows at the finest level first. Unlike
         // the relocalization gate, this check keeps level 0 on a map
-        // coarser than the camera (`Keyframe::gate_level`): its threshold
-        // is low enough for true poses on a 2 cm scan (0.43-0.50 there),
-        // and on `aggressive --scanned` seed 1 (1 cm) reading from level 1
-        // let drifting poses through (docs/building-scale.md). `f32::min` skips a `NaN` level
-        // (no coarser level for the local mean); with none, it is not a
+        // coarser than the camera (`Keyframe::gate_level`): reading from
+        // level 1 let drifting poses through on `aggressive --scanned`
+        // seed 1 (1 cm), although on a 2 cm scan level 0 costs true poses
+        // (docs/building-scale.md). `f32::min` skips a `NaN` level (no
+        // coarser level for the local mean); with none, it is not a
         // refusal and the plain correlation decides.
         let samples = &mut self.correlation_samples;
         let mut at = |level| {

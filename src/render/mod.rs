@@ -86,7 +86,7 @@ pub struct RenderedView {
     /// How fine the rendered map's appearance is, meters
     /// ([`crate::map::Mesh::detail_spacing_m`]; 0: full detail): set by
     /// the renderer with every view, read by the keyframe to choose the
-    /// pyramid levels its correlation gates trust.
+    /// pyramid levels relocalization's verification trusts.
     pub detail_m: f32,
 }
 
