@@ -12,7 +12,7 @@
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
 use crate::geometry::{PinholeCamera, Pose};
-use crate::track::correlation::{correlation, min_correlations, Correlations};
+use crate::track::correlation::{correlation, min_correlations_from, Correlations};
 use crate::track::{AlignQuality, Aligner, Alignment, Keyframe, Pyramid};
 
 use super::config::RelocConfig;
@@ -55,9 +55,27 @@ pub fn passes_whole_gate(
 ) -> Option<Correlations> {
     let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
     (passes_gate(&a.quality, config) && gain_ok)
-        .then(|| min_correlations(keyframe, frame, camera, &a.camera_from_keyframe))
+        .then(|| {
+            min_correlations_from(
+                keyframe,
+                frame,
+                camera,
+                &a.camera_from_keyframe,
+                first_gate_level(keyframe, config),
+            )
+        })
         .flatten()
         .filter(|c| c.all >= config.min_correlation && c.local >= config.min_local_correlation)
+}
+
+/// The first pyramid level the gate reads: the keyframe's
+/// [`Keyframe::gate_level`] with `gate_at_map_detail`, else 0.
+fn first_gate_level(keyframe: &Keyframe, config: &RelocConfig) -> usize {
+    if config.gate_at_map_detail {
+        keyframe.gate_level
+    } else {
+        0
+    }
 }
 
 /// Initial yaw offsets tried per candidate, radians: the yaw the search
@@ -211,7 +229,13 @@ pub fn verify_candidate(
             visible = q.visible_ratio,
             residual_gray = q.residual_rms,
             gain = a.gain,
-            correlations = ?min_correlations(keyframe, frame, camera, &a.camera_from_keyframe)
+            correlations = ?min_correlations_from(
+                keyframe,
+                frame,
+                camera,
+                &a.camera_from_keyframe,
+                first_gate_level(keyframe, config)
+            )
                 .map(|c| (c.all, c.trimmed, c.local, c.kept, c.local_kept)),
             accepted = accepted.is_some(),
             position_m = ?world_from_camera.translation.vector.as_slice(),

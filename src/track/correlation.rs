@@ -9,8 +9,8 @@
 //! with its version trimmed of the points an occluder covers
 //! ([`correlations`]), the correlation of local contrast (intensity over
 //! the local mean, trimmed the same way), and the smallest of each over
-//! three levels from the keyframe's [`Keyframe::gate_level`] (0, 1 and 2
-//! on a map as fine as the camera; [`min_correlations`]). Allocates nothing: the
+//! levels 0, 1 and 2 ([`min_correlations`]), or over three levels from a
+//! coarser one ([`min_correlations_from`]). Allocates nothing: the
 //! per-frame check of tracking ([`plain_and_local`]) projects the points
 //! once into a buffer its caller reserved, and refits from there.
 
@@ -20,18 +20,28 @@ use crate::geometry::{PinholeCamera, Pose};
 
 use super::{Keyframe, KeyframeLevel, Pyramid};
 
-/// The smallest [`correlations`] over three pyramid levels from the
-/// keyframe's [`Keyframe::gate_level`] (levels 0, 1 and 2 on a map as fine
-/// as the camera; each figure on its own); `None` when the first two
-/// cannot be evaluated.
+/// The smallest [`correlations`] over pyramid levels 0, 1 and 2 (each
+/// figure on its own); `None` when level 0 or 1 cannot be evaluated.
 pub fn min_correlations(
     keyframe: &Keyframe,
     frame: &Pyramid,
     camera: &PinholeCamera,
     camera_from_keyframe: &Pose,
 ) -> Option<Correlations> {
+    min_correlations_from(keyframe, frame, camera, camera_from_keyframe, 0)
+}
+
+/// [`min_correlations`] over the three levels from `first` (the keyframe's
+/// [`Keyframe::gate_level`] to read only the levels the map holds); `None`
+/// when the first two cannot be evaluated.
+pub fn min_correlations_from(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+    first: usize,
+) -> Option<Correlations> {
     let mut out: Option<Correlations> = None;
-    let first = keyframe.gate_level;
     for level in first..first + 3 {
         match correlations(keyframe, frame, camera, camera_from_keyframe, level) {
             Some(c) => {
@@ -465,18 +475,21 @@ mod tests {
         // the grain the map lacks decides.
         let (kf, frame, camera) = setup_detail(coarse, seen, 0.0);
         assert_eq!(kf.gate_level, 0);
-        let fine = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("level 0");
+        let fine = min_correlations_from(&kf, &frame, &camera, &Pose::identity(), kf.gate_level)
+            .expect("level 0");
         // A map sampled every 5 cm: level 0's 16.7 mm pixels are finer than
         // half of that, level 1's 33 mm are not.
         let (kf, frame, camera) = setup_detail(coarse, seen, 0.05);
         assert_eq!(kf.gate_level, 1);
-        let held = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("level 1");
+        let held = min_correlations_from(&kf, &frame, &camera, &Pose::identity(), kf.gate_level)
+            .expect("level 1");
         assert!(held.local > 0.9, "{held:?}");
         assert!(fine.local < held.local - 0.2, "{fine:?} {held:?}");
         // A wrong view of the same coarse map still fails there.
         let (kf, frame, camera) =
             setup_detail(coarse, |x, y, _| coarse(x + 9, y + 7) + grain(x, y), 0.05);
-        let wrong = min_correlations(&kf, &frame, &camera, &Pose::identity()).expect("wrong");
+        let wrong = min_correlations_from(&kf, &frame, &camera, &Pose::identity(), kf.gate_level)
+            .expect("wrong");
         assert!(wrong.local < 0.5, "{wrong:?}");
     }
 }

@@ -24,7 +24,7 @@ mod tests;
 
 pub use align::{AlignQuality, Aligner, Alignment, MAX_LEVELS};
 pub use config::{IlluminationModel, TrackerConfig};
-pub use correlation::{correlations, min_correlations, Correlations};
+pub use correlation::{correlations, min_correlations, min_correlations_from, Correlations};
 pub use keyframe::{KeyPoint, Keyframe, KeyframeLevel};
 pub use pyramid::Pyramid;
 
