@@ -330,3 +330,21 @@ pub fn try_candidate(
         verdict = verify_candidate(aligner, &keyframe, frame, camera, config, &[0.0]);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::track::TrackerConfig;
+
+    #[test]
+    fn the_gate_reads_from_level_0_unless_told_to_trust_the_maps_detail() {
+        let camera = PinholeCamera::new(160, 128, 120.0, 120.0, 79.5, 63.5);
+        let mut keyframe = Keyframe::new(&camera, &TrackerConfig::default());
+        keyframe.gate_level = 1; // a map coarser than the camera
+        let mut config = RelocConfig::default();
+        assert!(!config.gate_at_map_detail, "off by default");
+        assert_eq!(first_gate_level(&keyframe, &config), 0);
+        config.gate_at_map_detail = true;
+        assert_eq!(first_gate_level(&keyframe, &config), 1);
+    }
+}
