@@ -292,6 +292,7 @@ fn info(args: &InfoArgs) -> Result<()> {
         .bounds()
         .with_context(|| format!("{}: the map has no vertices", args.mesh.display()))?;
     let colored = colored_fraction(&mesh);
+    let detail_m = mesh.detail_spacing_m();
     let texels: usize = mesh.textures.iter().map(|t| t.texels.len()).sum();
 
     // The floor, in the frame the tracker sees (the config's placement).
@@ -363,7 +364,7 @@ fn info(args: &InfoArgs) -> Result<()> {
         "texels": texels,
         "bounds_m": {"min": lo, "max": hi, "size": [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]]},
         "colored_fraction": colored,
-        "detail_spacing_m": mesh.detail_spacing_m(),
+        "detail_spacing_m": detail_m,
         "floor": floor_json,
         "holes": {
             "views": holes.views,
@@ -401,6 +402,7 @@ fn info(args: &InfoArgs) -> Result<()> {
         &mesh,
         (lo, hi),
         colored,
+        detail_m,
         &floor,
         z_up_floor.map(|f| f.z_m),
         suggested.as_ref(),
@@ -419,6 +421,7 @@ fn print_info(
     mesh: &Mesh,
     (lo, hi): ([f32; 3], [f32; 3]),
     colored: f64,
+    detail_m: f32,
     floor: &Result<FloorPlane, crate::map::align::AlignError>,
     z_up_floor_m: Option<f64>,
     suggested: Option<&MeshTransformConfig>,
@@ -439,10 +442,9 @@ fn print_info(
         mesh.textures.len(),
         100.0 * colored
     );
-    let detail_m = mesh.detail_spacing_m();
     if detail_m > 0.0 {
         println!(
-            "  appearance sampled every {:.1} mm (median texel or vertex spacing): relocalization's verification reads the pyramid levels no finer than that",
+            "  appearance sampled every {:.1} mm (median texel or vertex spacing); with [reloc] gate_at_map_detail, relocalization's verification reads only the pyramid levels no finer than that",
             1e3 * detail_m
         );
     } else {

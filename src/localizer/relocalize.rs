@@ -129,8 +129,9 @@ impl Localizer {
         // The plain correlation at level 1 (what `track_min_correlation`
         // was measured at); local contrast at its lowest over levels 0-2:
         // a slide of a few pixels shows at the finest level first. Unlike
-        // the relocalization gate, this check keeps level 0 on a map
-        // coarser than the camera (`Keyframe::gate_level`): reading from
+        // the relocalization gate with `gate_at_map_detail`, this check
+        // keeps level 0 on a map coarser than the camera
+        // (`Keyframe::gate_level`): reading from
         // level 1 let drifting poses through on `aggressive --scanned`
         // seed 1 (1 cm), although on a 2 cm scan level 0 costs true poses
         // (docs/building-scale.md). `f32::min` skips a `NaN` level (no

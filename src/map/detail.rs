@@ -4,11 +4,11 @@
 //! A scanned map (TSDF fusion, marching cubes) stores one color per vertex,
 //! a voxel apart: between vertices its appearance is a linear blend, and
 //! detail finer than the voxel is gone. A textured map holds detail down to
-//! its texels. Relocalization's verification gate reads only the pyramid
-//! levels whose pixels are no finer than the map holds (see
-//! `track::Keyframe::gate_level`): a camera image at full resolution has
-//! detail a 2 cm map cannot, and a true pose then correlates as poorly
-//! there as a wrong one.
+//! its texels. With `[reloc] gate_at_map_detail`, relocalization's
+//! verification reads only the pyramid levels whose pixels are no finer
+//! than the map holds (see `track::Keyframe::gate_level`): a camera image
+//! at full resolution has detail a 2 cm map cannot, and a true pose then
+//! correlates as poorly there as a wrong one.
 
 use super::Mesh;
 

@@ -85,8 +85,8 @@ pub struct RenderedView {
     pub depth_m: ImageF32,
     /// How fine the rendered map's appearance is, meters
     /// ([`crate::map::Mesh::detail_spacing_m`]; 0: full detail): set by
-    /// the renderer with every view, read by the keyframe to choose the
-    /// pyramid levels relocalization's verification trusts.
+    /// the renderer with every view, read by the keyframe to find the
+    /// pyramid levels the map supports (`track::Keyframe::gate_level`).
     pub detail_m: f32,
 }
 

@@ -86,11 +86,12 @@ pub struct Keyframe {
     pub requested_at_ns: u64,
     /// Median depth of the finest-level points, meters (0 when none).
     pub median_depth_m: f32,
-    /// The finest pyramid level relocalization's verification gate reads
-    /// ([`gate_level`]; [`super::min_correlations`]): 0 on a map as fine
-    /// as the camera, 1 where the map's appearance is coarser than the
-    /// camera's pixels at level 0. Tracking's own correlation check reads
-    /// from level 0 regardless.
+    /// The finest pyramid level the map's appearance supports
+    /// ([`gate_level`]): 0 on a map as fine as the camera, 1 where it is
+    /// coarser than the camera's pixels at level 0. Relocalization's
+    /// verification starts there with `[reloc] gate_at_map_detail`
+    /// ([`super::min_correlations_from`]); otherwise, and in tracking's
+    /// own correlation check, every gate reads from level 0.
     pub gate_level: usize,
     /// Per level, finest first.
     pub levels: Vec<KeyframeLevel>,
