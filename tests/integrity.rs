@@ -281,20 +281,17 @@ fn run_in_twin_map(
     run_in_twin_map_from(shade, &starts)
 }
 
-/// The fixture room and a copy of it beyond the far limit (`shade` paints
-/// the copy, see [`twin_map`]), with database views along the flight in
-/// both rooms: the map, its database, and how far along x the copy stands.
-struct TwinWorld {
-    map: std::sync::Arc<star::map::Mesh>,
-    db: star::reloc::RelocDatabase,
-    offset_x_m: f64,
-}
-
-fn twin_world(fx: &Fixture, ds: &Dataset, shade: impl Fn([f32; 3], f32) -> f32) -> TwinWorld {
-    use star::reloc::{build_database_along, AlongTrajectory};
+/// As [`run_in_twin_map`], each run with its own start hint.
+fn run_in_twin_map_from(
+    shade: impl Fn([f32; 3], f32) -> f32,
+    starts: &[(StartMode, Option<Pose>)],
+) -> Vec<OfflineReport> {
+    use star::reloc::{build_database_along, AlongTrajectory, Relocalizer};
     use star::render::cpu::CpuRenderer;
     use std::sync::Arc;
 
+    let fx = fixture();
+    let ds = plain(&fx);
     let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
     // Far enough along that neither room is seen from the other (through a
     // doorway) within the renderer's far limit, a whole number of grid
@@ -333,24 +330,7 @@ fn twin_world(fx: &Fixture, ds: &Dataset, shade: impl Fn([f32; 3], f32) -> f32) 
         &mut |_, _| {},
     )
     .expect("database over both rooms");
-    TwinWorld {
-        map: twin,
-        db,
-        offset_x_m,
-    }
-}
 
-/// As [`run_in_twin_map`], each run with its own start hint.
-fn run_in_twin_map_from(
-    shade: impl Fn([f32; 3], f32) -> f32,
-    starts: &[(StartMode, Option<Pose>)],
-) -> Vec<OfflineReport> {
-    use star::reloc::Relocalizer;
-    use star::render::cpu::CpuRenderer;
-
-    let fx = fixture();
-    let ds = plain(&fx);
-    let world = twin_world(&fx, &ds, shade);
     starts
         .iter()
         .map(|&(start, hint)| {
@@ -358,12 +338,11 @@ fn run_in_twin_map_from(
                 start,
                 world_from_camera_start: hint,
                 relocalizer: Some(
-                    Relocalizer::new(world.db.clone(), &fx.config.reloc, ds.camera())
-                        .expect("reloc"),
+                    Relocalizer::new(db.clone(), &fx.config.reloc, ds.camera()).expect("reloc"),
                 ),
                 ..OfflineOptions::default()
             };
-            let renderer = Box::new(CpuRenderer::new(world.map.clone()).expect("renderer"));
+            let renderer = Box::new(CpuRenderer::new(twin.clone()).expect("renderer"));
             star::offline::localize_dataset(&ds, renderer, &fx.config, &options, |_| {})
                 .expect("localize")
         })
@@ -449,103 +428,5 @@ fn a_hint_at_the_right_place_facing_the_wrong_way_is_not_trusted() {
         report.reloc_ambiguous > 0,
         "the search never met the twin: {} attempts",
         report.reloc_attempts
-    );
-}
-
-/// The map's own look-alike of a place, as `star::reloc::twins::map_twin`
-/// finds it for a pose held after its rivals: `world`'s render at `held`,
-/// searched over its database and verified at the places found.
-fn map_twin_in(
-    fx: &Fixture,
-    ds: &Dataset,
-    map: std::sync::Arc<star::map::Mesh>,
-    db: star::reloc::RelocDatabase,
-    held: &Pose,
-    frame_correlation: f32,
-) -> Option<star::reloc::Verified> {
-    use star::reloc::twins::{map_twin, Held, MAP_TWIN_CHECKS};
-    use star::reloc::Relocalizer;
-    use star::render::cpu::CpuRenderer;
-    use star::render::{RenderedView, Renderer};
-    use star::track::{build_config, Aligner, Keyframe};
-    use std::cell::RefCell;
-
-    let camera = *ds.camera();
-    let pinhole = camera.pinhole();
-    let tracker = build_config(&fx.config.tracker);
-    let mut reloc = Relocalizer::new(db, &fx.config.reloc, &camera).expect("reloc");
-    let mut aligner = Aligner::new(&tracker);
-    let renderer = RefCell::new(CpuRenderer::new(map).expect("renderer"));
-    let mut view = RenderedView::for_camera(&pinhole);
-    let render_at = |pose: &Pose, view: &mut RenderedView| -> Box<Keyframe> {
-        renderer
-            .borrow_mut()
-            .render(pose, &pinhole, view)
-            .expect("render");
-        let mut kf = Box::new(Keyframe::new(&pinhole, &tracker));
-        kf.prepare(view, *pose, 0, &tracker);
-        kf
-    };
-    let held_view = render_at(held, &mut view);
-    map_twin(
-        &mut reloc,
-        &mut aligner,
-        &camera,
-        Held {
-            world_from_camera: held,
-            correlation: frame_correlation,
-            keyframe: &held_view,
-        },
-        MAP_TWIN_CHECKS,
-        &mut |pose| Some(render_at(pose, &mut view)),
-        &mut |_| {},
-    )
-}
-
-#[test]
-fn the_map_finds_its_own_twin_of_a_place_and_none_of_a_unique_one() {
-    // The rival rule asks the frame, and misses a twin place where the
-    // frame does not verify (the scanned floor's corridor, 40 m along:
-    // docs/building-scale.md). The map's own render is asked instead.
-    let fx = fixture();
-    let ds = plain(&fx);
-    let held = fx.gt.poses[FRAMES / 2];
-    // A frame that correlated at 0.8 with the held pose: about what true
-    // poses reach on the fixture (0.72-0.79) and on the scanned floor.
-    let frame_correlation = 0.8;
-
-    let world = twin_world(&fx, &ds, |_, g| g);
-    let twin = map_twin_in(
-        &fx,
-        &ds,
-        world.map.clone(),
-        world.db.clone(),
-        &held,
-        frame_correlation,
-    )
-    .expect("the copy of the room is the map's twin of the held pose");
-    let expected = Translation3::new(world.offset_x_m, 0.0, 0.0) * held;
-    let off = expected.inverse() * twin.world_from_camera;
-    assert!(
-        off.translation.vector.norm() < 0.05 && off.rotation.angle().to_degrees() < 2.0,
-        "the twin was found {:.3} m / {:.2} deg from the copy of the held pose",
-        off.translation.vector.norm(),
-        off.rotation.angle().to_degrees()
-    );
-
-    // The room alone (its own database): no other place looks like it.
-    let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
-    let alone = map_twin_in(
-        &fx,
-        &ds,
-        std::sync::Arc::new(mesh),
-        fx.db.clone(),
-        &held,
-        frame_correlation,
-    );
-    assert!(
-        alone.is_none(),
-        "a twin found in a map of one room: {:?}",
-        alone.map(|v| v.world_from_camera.translation.vector)
     );
 }

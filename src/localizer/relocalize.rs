@@ -21,11 +21,7 @@
 //! verified ([`crate::reloc::rivals::RivalRule`], the rule `star bench
 //! reloc` measures) and at the map's remembered symmetries, and refused
 //! when one passes, unless one of the two places correlates decisively
-//! better (`Judgment::HeldIsBetter`, `RivalIsBetter`). It is refused as
-//! well when the map itself looks the same elsewhere: its render at the
-//! held pose, searched and verified as a frame would be, passes at another
-//! place ([`crate::reloc::twins`]; that place is remembered as a
-//! symmetry). An accepted pose is not output yet: the next
+//! better (`Judgment::HeldIsBetter`, `RivalIsBetter`). An accepted pose is not output yet: the next
 //! `verify_frames` frames must track through the same gate, and only then
 //! is a pose output and `reset_counter` incremented. A wrong but confident
 //! pose would need to fool the gate on consecutive frames. An attempt
@@ -34,7 +30,6 @@
 use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
 use crate::reloc::rivals::{Judgment, RivalRule, LISTED_RIVALS};
-use crate::reloc::twins::{map_twin, Held};
 use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
@@ -474,40 +469,18 @@ impl Localizer {
                 }
             }
         }
-        if let Some(twin) = self.twin_passes(&reloc, &v, capture_ns) {
-            tracing::info!(
-                capture_ns,
-                first = ?v.world_from_camera.translation.vector,
-                second = ?twin.translation.vector,
-                "relocalization refused: a known look-alike place passes the gate too"
-            );
-            self.worker.recycle(kf);
-            self.stats.reloc_ambiguous += 1;
-            self.reloc = Some(reloc);
-            return;
-        }
-        match self.map_twin_of(&mut reloc, &v, &kf, capture_ns) {
-            Err(()) => {
-                tracing::debug!(
-                    capture_ns,
-                    "render thread busy during the map's look-alike check"
-                );
-                self.worker.recycle(kf);
-            }
-            Ok(Some(twin)) => {
+        match self.twin_passes(&reloc, &v, capture_ns) {
+            Some(twin) => {
                 tracing::info!(
                     capture_ns,
-                    held = ?v.world_from_camera.translation.vector,
-                    frame_correlation = v.correlation,
-                    twin = ?twin.world_from_camera.translation.vector,
-                    render_correlation = twin.correlation,
-                    "relocalization refused: the map looks the same at another place"
+                    first = ?v.world_from_camera.translation.vector,
+                    second = ?twin.translation.vector,
+                    "relocalization refused: a known look-alike place passes the gate too"
                 );
-                self.remember_symmetry(&v.world_from_camera, &twin.world_from_camera);
                 self.worker.recycle(kf);
                 self.stats.reloc_ambiguous += 1;
             }
-            Ok(None) => {
+            None => {
                 tracing::debug!(
                     rivals = n_rivals,
                     "no other place passes the gate; verifying"
@@ -655,63 +628,6 @@ impl Localizer {
             }
         }
         None
-    }
-
-    /// The map's own look-alike of the held pose `held`, whose keyframe is
-    /// `kf` ([`crate::reloc::twins::map_twin`], up to `[reloc]
-    /// map_twin_checks` places); `Err` when the render thread refused a
-    /// render (busy), so that a place went unchecked.
-    fn map_twin_of(
-        &mut self,
-        reloc: &mut Relocalizer,
-        held: &Verified,
-        kf: &Keyframe,
-        capture_ns: u64,
-    ) -> Result<Option<Verified>, ()> {
-        let checks = reloc.config().map_twin_checks as usize;
-        let mut refused = false;
-        let worker = &self.worker;
-        let stats = &mut self.stats;
-        let next_id = &mut self.next_keyframe_id;
-        let mut render = |world_from_keyframe: &Pose| {
-            let requested = worker.try_request(RenderRequest {
-                world_from_keyframe: *world_from_keyframe,
-                id: *next_id,
-                requested_at_ns: capture_ns,
-            });
-            if !requested {
-                refused = true;
-                return None;
-            }
-            *next_id += 1;
-            stats.reloc_candidates += 1;
-            match worker.wait_result() {
-                Ok(kf) => Some(kf),
-                Err(e) => {
-                    stats.render_failures += 1;
-                    tracing::warn!(error = %e, "relocalization render failed");
-                    None
-                }
-            }
-        };
-        let twin = map_twin(
-            reloc,
-            &mut self.reloc_aligner,
-            &self.camera,
-            Held {
-                world_from_camera: &held.world_from_camera,
-                correlation: held.correlation,
-                keyframe: kf,
-            },
-            checks,
-            &mut render,
-            &mut |kf| worker.recycle(kf),
-        );
-        if refused {
-            Err(())
-        } else {
-            Ok(twin)
-        }
     }
 
     /// Takes a candidate that passed the gate: its keyframe becomes the

@@ -164,11 +164,6 @@ pub struct RelocConfig {
     /// floor it accepted look-alike rooms 8 and 40 m away
     /// (docs/building-scale.md).
     pub gate_at_map_detail: bool,
-    /// How many places elsewhere the render of a pose the motion prior
-    /// cannot vouch for is verified at, looking for the map's own
-    /// look-alikes of it ([`super::twins`]; 0: not looked for). At most
-    /// [`super::twins::MAP_TWIN_CHECKS`].
-    pub map_twin_checks: u32,
 }
 
 impl Default for RelocConfig {
@@ -213,7 +208,6 @@ impl Default for RelocConfig {
             landmark_max_hamming_bits: 50,
             landmark_min_inliers: 15,
             gate_at_map_detail: false,
-            map_twin_checks: super::twins::MAP_TWIN_CHECKS as u32,
         }
     }
 }
@@ -263,7 +257,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 31] = [
+        let checks: [(&'static str, bool, String); 30] = [
             (
                 "yaw_steps",
                 (1..=360).contains(&self.yaw_steps),
@@ -430,15 +424,6 @@ impl RelocConfig {
                 format!(
                     "expected >= 0 (0: no limit), found {}",
                     self.attempt_budget_s
-                ),
-            ),
-            (
-                "map_twin_checks",
-                self.map_twin_checks as usize <= super::twins::MAP_TWIN_CHECKS,
-                format!(
-                    "expected 0..={}, found {}",
-                    super::twins::MAP_TWIN_CHECKS,
-                    self.map_twin_checks
                 ),
             ),
             (

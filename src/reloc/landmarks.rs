@@ -413,11 +413,7 @@ impl LandmarkLocator {
                     let reach = (radius_m + LANDMARK_VIEW_RANGE_M) as f32;
                     self.index.best_two_near(queries, center, reach, out);
                 }
-                // Beyond a place: the whole map's, and the pose is kept
-                // only outside it (below).
-                SearchRegion::Everywhere | SearchRegion::Beyond { .. } => {
-                    self.index.best_two_everywhere(queries, out)
-                }
+                SearchRegion::Everywhere => self.index.best_two_everywhere(queries, out),
             }
             self.world_m.clear();
             self.normalized.clear();

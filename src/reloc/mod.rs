@@ -31,8 +31,6 @@
 //!   - [`rivals`]: when a pose may be taken on the prior alone, and the
 //!     candidates at another place that must otherwise fail the gate
 //!     before it is accepted (look-alike rooms).
-//!   - [`twins`]: the map's own look-alikes of a pose that passed the
-//!     gate (its render verified at the other places it resembles).
 //!   - [`verify`]: the strict acceptance gate a rendered candidate passes
 //!     (its correlation test is [`crate::track::correlation`]).
 //! - [`config`]: the `[reloc]` section.
@@ -54,7 +52,6 @@ pub mod prior;
 pub mod region;
 pub mod rivals;
 pub mod search;
-pub mod twins;
 pub mod verify;
 pub mod vocabulary;
 

@@ -1,6 +1,5 @@
-//! Where relocalization searches: near the last tracked position, over
-//! the whole map, or everywhere but near a place (the map's look-alikes of
-//! a place, [`super::twins`]).
+//! Where relocalization searches: near the last tracked position, or over
+//! the whole map.
 //!
 //! Takes a center and a radius (or nothing); gives the membership test that
 //! the descriptor search ([`super::search`]) and the landmark pose
@@ -20,13 +19,6 @@ pub enum SearchRegion {
     },
     /// The whole database.
     Everywhere,
-    /// Entries farther than `radius_m` from `center_m`.
-    Beyond {
-        /// The place left out, world, meters.
-        center_m: Vector3<f64>,
-        /// Radius left out around it, meters.
-        radius_m: f64,
-    },
 }
 
 impl SearchRegion {
@@ -35,7 +27,6 @@ impl SearchRegion {
         match self {
             Self::Near { center_m, radius_m } => (position_m - center_m).norm() <= *radius_m,
             Self::Everywhere => true,
-            Self::Beyond { center_m, radius_m } => (position_m - center_m).norm() > *radius_m,
         }
     }
 }

@@ -95,9 +95,6 @@ pub struct Relocalizer {
     db: RelocDatabase,
     index: SearchIndex,
     config: RelocConfig,
-    /// `config` with the verification at the map's detail: the gate the
-    /// map's render is verified through elsewhere ([`super::twins`]).
-    twin_gate: RelocConfig,
     thumbnailer: Thumbnailer,
     best: [Ranked; MAX_TOP_K],
     n_best: usize,
@@ -125,10 +122,6 @@ impl Relocalizer {
             index: SearchIndex::new(&db),
             db,
             config: config.clone(),
-            twin_gate: RelocConfig {
-                gate_at_map_detail: true,
-                ..config.clone()
-            },
             thumbnailer: Thumbnailer::for_camera(camera),
             best: [Ranked::default(); MAX_TOP_K],
             n_best: 0,
@@ -159,15 +152,6 @@ impl Relocalizer {
         &self.config
     }
 
-    /// The gate the map's own render is verified through at other places
-    /// ([`super::twins`]): the `[reloc]` gate, read from the pyramid level
-    /// the map's detail supports (`gate_at_map_detail`, whatever the
-    /// setting): render and map are alike in what they lack, and a coarse
-    /// map's look-alike must not escape through the detail neither holds.
-    pub fn twin_gate(&self) -> &RelocConfig {
-        &self.twin_gate
-    }
-
     /// Descriptors of a camera frame at every query shift; `None` when it
     /// has too little contrast.
     pub fn describe(
@@ -182,30 +166,6 @@ impl Relocalizer {
             width,
             height,
             stride,
-            self.config.min_contrast_gray,
-        )?;
-        let t = &self.thumbnailer;
-        Some(QUERY_SHIFTS_PX.map(|dx| t.shifted(dx)))
-    }
-
-    /// Descriptors of a rendered view of the map (ideal pinhole `gray`,
-    /// gray levels, and its depth, meters, each `width x height`) at every
-    /// query shift, described as the database's own views were (pixels
-    /// without depth filled from around them); `None` when it has too
-    /// little contrast. The map's own look-alikes of a place are searched
-    /// with it ([`super::twins`]).
-    pub fn describe_render(
-        &mut self,
-        gray: &[f32],
-        depth_m: &[f32],
-        width: usize,
-        height: usize,
-    ) -> Option<Query> {
-        self.thumbnailer.describe_f32(
-            gray,
-            Some(depth_m),
-            width,
-            height,
             self.config.min_contrast_gray,
         )?;
         let t = &self.thumbnailer;
@@ -275,53 +235,23 @@ impl Relocalizer {
     ) -> &[Candidate] {
         let top_k = (self.config.top_k as usize).clamp(1, MAX_TOP_K);
         let m = (self.config.rank_candidates as usize).min(MAX_TOP_K);
-        if m <= top_k {
-            return self.hamming_candidates(query, region, top_k);
-        }
-        self.search_ranked_among(query, region, aligner, frame, (m, top_k))
-    }
-
-    /// The `top_k` nearest entries by Hamming distance as candidates, at
-    /// their database poses, unscored.
-    fn hamming_candidates(
-        &mut self,
-        query: &Query,
-        region: SearchRegion,
-        top_k: usize,
-    ) -> &[Candidate] {
-        self.n_best = self.index.top_k(query, region, top_k, &mut self.best);
-        self.candidates.clear();
-        for i in 0..self.n_best {
-            let ranked = self.best[i];
-            let candidate = Candidate {
-                ranked,
-                world_from_camera: self.db.entries[ranked.index as usize].world_from_camera,
-                yaw_rad: Some(self.shift_yaw_rad(ranked.shift)),
-                score: f32::NEG_INFINITY,
-            };
-            // Never full: a search returns at most MAX_TOP_K.
-            if self.candidates.push(candidate).is_err() {
-                break;
+        if m <= top_k || self.db.coarse_points.is_empty() || frame.is_empty() {
+            let n = self.search(query, region).len();
+            self.candidates.clear();
+            for i in 0..n {
+                let ranked = self.best[i];
+                let candidate = Candidate {
+                    ranked,
+                    world_from_camera: self.db.entries[ranked.index as usize].world_from_camera,
+                    yaw_rad: Some(self.shift_yaw_rad(ranked.shift)),
+                    score: f32::NEG_INFINITY,
+                };
+                // Never full: a search returns at most MAX_TOP_K.
+                if self.candidates.push(candidate).is_err() {
+                    break;
+                }
             }
-        }
-        &self.candidates
-    }
-
-    /// [`Self::search_ranked`] with its two numbers given: the `m` nearest
-    /// by Hamming distance aligned, the best `top_k` kept (each at most
-    /// [`MAX_TOP_K`]), ranked even when `m <= top_k`.
-    pub fn search_ranked_among(
-        &mut self,
-        query: &Query,
-        region: SearchRegion,
-        aligner: &mut Aligner,
-        frame: &Pyramid,
-        (m, top_k): (usize, usize),
-    ) -> &[Candidate] {
-        let top_k = top_k.clamp(1, MAX_TOP_K);
-        let m = m.clamp(1, MAX_TOP_K);
-        if self.db.coarse_points.is_empty() || frame.is_empty() {
-            return self.hamming_candidates(query, region, top_k);
+            return &self.candidates;
         }
         let n = self.index.top_k(query, region, m, &mut self.best);
         let level = frame_level(&self.camera, frame.len() - 1);
@@ -498,27 +428,20 @@ impl SearchIndex {
     ) -> usize {
         let k = k.clamp(1, MAX_TOP_K);
         let mut n = 0usize;
-        // Some(inside): keep the entries inside the sphere (true) or
-        // outside it (false); None: keep every entry.
-        let (center, r2, keep) = match region {
+        let (center, r2, near) = match region {
             SearchRegion::Near { center_m, radius_m } => (
                 [center_m.x as f32, center_m.y as f32, center_m.z as f32],
                 (radius_m * radius_m) as f32,
-                Some(true),
+                true,
             ),
-            SearchRegion::Beyond { center_m, radius_m } => (
-                [center_m.x as f32, center_m.y as f32, center_m.z as f32],
-                (radius_m * radius_m) as f32,
-                Some(false),
-            ),
-            SearchRegion::Everywhere => ([0.0; 3], 0.0, None),
+            SearchRegion::Everywhere => ([0.0; 3], 0.0, false),
         };
         for (i, (desc, pos)) in self.descriptors.iter().zip(&self.positions_m).enumerate() {
-            if let Some(inside) = keep {
+            if near {
                 let d2 = (pos[0] - center[0]).powi(2)
                     + (pos[1] - center[1]).powi(2)
                     + (pos[2] - center[2]).powi(2);
-                if (d2 <= r2) != inside {
+                if d2 > r2 {
                     continue;
                 }
             }

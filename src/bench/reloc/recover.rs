@@ -13,7 +13,6 @@ use std::time::Instant;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::reloc::prior::{landmark_regions, sources, Source};
 use crate::reloc::rivals::{Judgment, RivalRule, LISTED_RIVALS};
-use crate::reloc::twins::{map_twin, Held};
 use crate::reloc::{
     try_candidate, Candidate, MotionPrior, Query, RelocConfig, SearchRegion, Verified,
     LANDMARK_CANDIDATE,
@@ -179,18 +178,6 @@ impl Bench {
                         }
                     }
                 }
-                if let Some(held) = verdict {
-                    tally.twin_checked += 1;
-                    if self.map_twin(&held, tally).is_some() {
-                        tally.twin_refused += 1;
-                        let e = query.truth.inverse() * held.world_from_camera;
-                        tally.twin_refused_right += usize::from(
-                            e.translation.vector.norm() <= 0.05
-                                && e.rotation.angle().to_degrees() <= 2.0,
-                        );
-                        verdict = None;
-                    }
-                }
             }
             _ if !region_searched => {
                 // The descriptor search runs for the retrieval figures even
@@ -300,66 +287,6 @@ impl Bench {
             (&mut self.spare, &mut self.returned),
             &mut render,
         )
-    }
-
-    /// The map's own look-alike of `held` ([`map_twin`]), as the service
-    /// looks for it: the held pose rendered (the service has that keyframe
-    /// already; here it costs one render more), searched and verified at
-    /// the places its render resembles.
-    fn map_twin(&mut self, held: &Verified, tally: &mut Tally) -> Option<Verified> {
-        let checks = self.config.reloc.map_twin_checks as usize;
-        if checks == 0 {
-            return None;
-        }
-        let (candidate_r, pinhole, kview, tracker) = (
-            &mut self.candidate_r,
-            &self.pinhole,
-            &mut self.kview,
-            &self.tracker,
-        );
-        let mut render_into = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
-            let t_render = Instant::now();
-            candidate_r
-                .render(world_from_keyframe, pinhole, kview)
-                .ok()?;
-            tally.renders += 1;
-            kf.prepare(kview, *world_from_keyframe, 0, tracker);
-            tally.render_ms += t_render.elapsed().as_secs_f64() * 1e3;
-            Some(())
-        };
-        let mut view = self.spare.pop()?;
-        if render_into(&held.world_from_camera, &mut view).is_none() {
-            self.spare.push(view);
-            return None;
-        }
-        // One pool for both callbacks: a keyframe recycled after one place
-        // is drawn again for the next.
-        let pool = std::cell::RefCell::new(std::mem::take(&mut self.spare));
-        let mut draw = |world_from_keyframe: &Pose| {
-            let mut kf = pool.borrow_mut().pop()?;
-            if render_into(world_from_keyframe, &mut kf).is_some() {
-                Some(kf)
-            } else {
-                pool.borrow_mut().push(kf);
-                None
-            }
-        };
-        let twin = map_twin(
-            &mut self.reloc,
-            &mut self.aligner,
-            &self.camera,
-            Held {
-                world_from_camera: &held.world_from_camera,
-                correlation: held.correlation,
-                keyframe: &view,
-            },
-            checks,
-            &mut draw,
-            &mut |kf: Box<Keyframe>| pool.borrow_mut().push(kf),
-        );
-        self.spare = pool.into_inner();
-        self.spare.push(view);
-        twin
     }
 
     /// Where the nearest good keyframe sits in the full ranking: what a

@@ -120,12 +120,6 @@ pub(super) struct Tally {
     /// of those, the rival's place was the better.
     pub(super) decisive: usize,
     pub(super) decisive_rival: usize,
-    /// Poses still held after their rivals whose render was searched for
-    /// the map's own look-alikes ([`crate::reloc::twins`]), and those
-    /// refused because one was found; of those, the held pose was right.
-    pub(super) twin_checked: usize,
-    pub(super) twin_refused: usize,
-    pub(super) twin_refused_right: usize,
 }
 
 impl Tally {
@@ -218,10 +212,6 @@ impl Tally {
         println!(
             "    look-alike places: {} rivals at another place verified, {} poses refused because one passed too (counted in no pose), {} beyond the prior's reach replaced by a rival within it, {} passing rivals told apart by a decisive correlation ({} of them the better place)",
             self.rivals_tried, self.ambiguous, self.prior_chose, self.decisive, self.decisive_rival
-        );
-        println!(
-            "    the map's own look-alikes: {} held poses searched for them, {} refused because the map looks the same elsewhere ({} of them right, a success given up; counted in no pose)",
-            self.twin_checked, self.twin_refused, self.twin_refused_right
         );
         let elsewhere = self.wrong.iter().filter(|w| w.0 > 1.0).count();
         if !self.wrong.is_empty() {
