@@ -454,6 +454,8 @@ impl Localizer {
             jump_deg,
             dt_s,
             keyframe_age_s,
+            from_keyframe_m = result.camera_from_keyframe.translation.vector.norm(),
+            from_keyframe_deg = result.camera_from_keyframe.rotation.angle().to_degrees(),
             stale = self.pending,
             "frame aligned"
         );
