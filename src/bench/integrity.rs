@@ -176,6 +176,7 @@ pub fn run(options: &IntegrityOptions) -> Result<()> {
         mesh: &mesh,
         db: &db,
         config: &options.config,
+        twins: crate::reloc::twins::GeometricTwins::new(&mesh, &options.config.reloc),
     };
     // One random stream per kind, so that a kind run alone repeats itself.
     let stream = |k: u64| SplitMix64::new(options.seed ^ 0x1a7e_9e11 ^ (k << 32));
@@ -346,6 +347,8 @@ struct Runner<'a> {
     mesh: &'a Arc<Mesh>,
     db: &'a RelocDatabase,
     config: &'a Config,
+    /// The map's geometric twins, built once for every trial.
+    twins: crate::reloc::twins::GeometricTwins,
 }
 
 impl Runner<'_> {
@@ -373,11 +376,10 @@ impl Runner<'_> {
         let options = OfflineOptions {
             world_from_camera_start: hint,
             realtime: true,
-            relocalizer: Some(Relocalizer::new(
-                self.db.clone(),
-                &self.config.reloc,
-                ds.camera(),
-            )?),
+            relocalizer: Some(
+                Relocalizer::new(self.db.clone(), &self.config.reloc, ds.camera())?
+                    .with_twins(self.twins.clone()),
+            ),
             start,
             ..OfflineOptions::default()
         };

@@ -103,7 +103,7 @@ pub fn run(args: &LocalizeArgs) -> Result<()> {
         Some(path) => {
             let db = RelocDatabase::read(path)?;
             db.check_compatible(dataset.camera(), map_fingerprint(&mesh))?;
-            Some(Relocalizer::new(db, &config.reloc, dataset.camera())?)
+            Some(Relocalizer::new(db, &config.reloc, dataset.camera())?.with_map(&mesh))
         }
         None => None,
     };

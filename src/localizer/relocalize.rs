@@ -21,7 +21,11 @@
 //! verified ([`crate::reloc::rivals::RivalRule`], the rule `star bench
 //! reloc` measures) and at the map's remembered symmetries, and refused
 //! when one passes, unless one of the two places correlates decisively
-//! better (`Judgment::HeldIsBetter`, `RivalIsBetter`). An accepted pose is not output yet: the next
+//! better (`Judgment::HeldIsBetter`, `RivalIsBetter`); then at its
+//! geometric twins, the places where its view's surfaces stand again
+//! ([`crate::reloc::twins`]): refused when the view fits at many places or
+//! the frame passes a looser gate at one. An accepted pose is not output
+//! yet: the next
 //! `verify_frames` frames must track through the same gate, and only then
 //! is a pose output and `reset_counter` incremented. A wrong but confident
 //! pose would need to fool the gate on consecutive frames. An attempt
@@ -29,7 +33,8 @@
 
 use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
-use crate::reloc::rivals::{Judgment, RivalRule, LISTED_RIVALS};
+use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
+use crate::reloc::twins::{twin_pose, TwinCheck};
 use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
@@ -480,6 +485,10 @@ impl Localizer {
                 self.worker.recycle(kf);
                 self.stats.reloc_ambiguous += 1;
             }
+            None if self.geometric_twins_refuse(&mut reloc, &v, &kf, capture_ns) => {
+                self.worker.recycle(kf);
+                self.stats.reloc_ambiguous += 1;
+            }
             None => {
                 tracing::debug!(
                     rivals = n_rivals,
@@ -628,6 +637,62 @@ impl Localizer {
             }
         }
         None
+    }
+
+    /// Whether the map's geometry refuses `held` (a pose the prior cannot
+    /// vouch for, aligned against `kf`): its view fits at many places, or
+    /// the frame passes the looser gate at one of its geometric twins
+    /// ([`crate::reloc::twins`]). A twin the render thread could not render
+    /// was not ruled out, and refuses too.
+    fn geometric_twins_refuse(
+        &mut self,
+        reloc: &mut Relocalizer,
+        held: &Verified,
+        kf: &Keyframe,
+        capture_ns: u64,
+    ) -> bool {
+        let n = match reloc.twins_mut().check(kf) {
+            TwinCheck::Unique => return false,
+            TwinCheck::Degenerate => {
+                tracing::info!(
+                    capture_ns,
+                    held = ?held.world_from_camera.translation.vector,
+                    "relocalization refused: the view's geometry fits at many places in the map"
+                );
+                return true;
+            }
+            TwinCheck::Check(n) => n,
+        };
+        for k in 0..n {
+            let Some(twin) = reloc.twins_mut().found().get(k).copied() else {
+                break;
+            };
+            let pose = twin_pose(&held.world_from_camera, &twin);
+            let (found, refused) =
+                self.try_reloc_candidate(reloc.twins_mut().loose(), &pose, None, capture_ns);
+            if refused {
+                tracing::debug!(
+                    capture_ns,
+                    "render thread busy during the geometric twin check"
+                );
+                return true;
+            }
+            let Some((r, r_kf)) = found else {
+                continue;
+            };
+            self.worker.recycle(r_kf);
+            if elsewhere(&held.world_from_camera, &r.world_from_camera) {
+                tracing::info!(
+                    capture_ns,
+                    held = ?held.world_from_camera.translation.vector,
+                    twin = ?r.world_from_camera.translation.vector,
+                    twin_score = twin.score,
+                    "relocalization refused: the frame passes at a place where the map's geometry repeats"
+                );
+                return true;
+            }
+        }
+        false
     }
 
     /// Takes a candidate that passed the gate: its keyframe becomes the

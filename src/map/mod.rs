@@ -32,6 +32,7 @@ mod obj;
 mod obj_write;
 mod ply;
 mod ply_write;
+pub mod repeats;
 mod subdivide;
 mod validate;
 

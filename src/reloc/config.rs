@@ -10,6 +10,20 @@ use serde::{Deserialize, Serialize};
 
 use super::search::MAX_TOP_K;
 
+/// Which maps [`RelocConfig::geometric_twins`] checks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GeometricTwinMaps {
+    /// None.
+    Never,
+    /// Maps with no texture: their appearance is vertex color (a scan's).
+    Untextured,
+    /// Every map. On the textured `building` floor (look-alike rooms by
+    /// design) it refused 41 of 95 right cold starts: there the rivals'
+    /// correlation tells the places apart (docs/building-scale.md).
+    Always,
+}
+
 /// `[reloc]`: database grid, search and acceptance gate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -164,6 +178,14 @@ pub struct RelocConfig {
     /// floor it accepted look-alike rooms 8 and 40 m away
     /// (docs/building-scale.md).
     pub gate_at_map_detail: bool,
+    /// On which maps a pose the motion prior cannot vouch for is also
+    /// checked at its geometric twins, the places where its view's surfaces
+    /// stand again ([`super::twins`]): refused when its view fits at many
+    /// places, or when the frame passes a looser gate at one of the best
+    /// three. `untextured` (the default): maps whose appearance is vertex
+    /// color, as a scan's is, with the scan's light baked in; there the
+    /// frame can look more like a twin's scan than like its own place's.
+    pub geometric_twins: GeometricTwinMaps,
 }
 
 impl Default for RelocConfig {
@@ -208,6 +230,7 @@ impl Default for RelocConfig {
             landmark_max_hamming_bits: 50,
             landmark_min_inliers: 15,
             gate_at_map_detail: false,
+            geometric_twins: GeometricTwinMaps::Untextured,
         }
     }
 }

@@ -31,6 +31,9 @@
 //!   - [`rivals`]: when a pose may be taken on the prior alone, and the
 //!     candidates at another place that must otherwise fail the gate
 //!     before it is accepted (look-alike rooms).
+//!   - [`twins`]: the places where a held pose's view stands again in
+//!     the map's geometry, checked before a pose the prior cannot vouch
+//!     for is accepted.
 //!   - [`verify`]: the strict acceptance gate a rendered candidate passes
 //!     (its correlation test is [`crate::track::correlation`]).
 //! - [`config`]: the `[reloc]` section.
@@ -52,6 +55,7 @@ pub mod prior;
 pub mod region;
 pub mod rivals;
 pub mod search;
+pub mod twins;
 pub mod verify;
 pub mod vocabulary;
 
@@ -63,7 +67,7 @@ pub use build::{
 };
 pub use build_stats::StageTimes;
 pub use checkpoint::checkpoint_path;
-pub use config::RelocConfig;
+pub use config::{GeometricTwinMaps, RelocConfig};
 pub use database::{
     map_fingerprint, CoarsePoints, CoarseSlice, RelocDatabase, RelocDbError, RelocEntry,
 };

@@ -75,11 +75,10 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
         Some(path) => {
             let db = RelocDatabase::read(path)?;
             db.check_compatible(&config.camera.intrinsics, map_fingerprint(&mesh_data))?;
-            Some(Relocalizer::new(
-                db,
-                &config.reloc,
-                &config.camera.intrinsics,
-            )?)
+            Some(
+                Relocalizer::new(db, &config.reloc, &config.camera.intrinsics)?
+                    .with_map(&mesh_data),
+            )
         }
         None => None,
     };

@@ -11,8 +11,10 @@
 use std::time::Instant;
 
 use crate::geometry::{PinholeCamera, Pose};
+use crate::map::repeats::Twin;
 use crate::reloc::prior::{landmark_regions, sources, Source};
-use crate::reloc::rivals::{Judgment, RivalRule, LISTED_RIVALS};
+use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
+use crate::reloc::twins::{twin_pose, TwinCheck, DEGENERATE_TWINS};
 use crate::reloc::{
     try_candidate, Candidate, MotionPrior, Query, RelocConfig, SearchRegion, Verified,
     LANDMARK_CANDIDATE,
@@ -125,6 +127,9 @@ impl Bench {
         // gate as well makes the frame ambiguous, and no pose is given.
         match verdict {
             Some(v) if self.check_rivals && !rule.accepts_alone(&v.world_from_camera) => {
+                // The held keyframe is the last spare one until the next
+                // render: its view's geometric twins now.
+                let mut held_twins = self.twin_check();
                 for source in steps {
                     let rank_ms = self.gather(source, landmark, &descriptor, &mut candidates);
                     if !region_searched && matches!(source, Source::Views(_)) {
@@ -164,6 +169,7 @@ impl Bench {
                             held = r;
                             verdict = Some(r);
                             verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
+                            held_twins = self.twin_check();
                         }
                         Judgment::PriorChooses => {
                             tally.prior_chose += 1;
@@ -176,6 +182,12 @@ impl Bench {
                             verdict = None;
                             break;
                         }
+                    }
+                }
+                // Still held beyond the prior's reach: its geometric twins.
+                if let Some(held) = verdict.filter(|v| !rule.accepts_alone(&v.world_from_camera)) {
+                    if !self.twins_pass(&held, held_twins, tally) {
+                        verdict = None;
                     }
                 }
             }
@@ -287,6 +299,73 @@ impl Bench {
             (&mut self.spare, &mut self.returned),
             &mut render,
         )
+    }
+
+    /// The geometric twins of the keyframe just accepted (the last spare
+    /// one), as far as `[reloc] geometric_twin_checks` allows.
+    fn twin_check(&mut self) -> (TwinCheck, heapless::Vec<Twin, DEGENERATE_TWINS>) {
+        let Some(kf) = self.spare.last() else {
+            return (TwinCheck::Unique, heapless::Vec::new());
+        };
+        let twins = self.reloc.twins_mut();
+        let check = twins.check(kf);
+        (check, twins.found().iter().copied().collect())
+    }
+
+    /// Whether `held` survives its geometric twins (`check`, from
+    /// [`Self::twin_check`] when it was accepted): false when its view is
+    /// degenerate or the frame passes the looser gate at a twin.
+    fn twins_pass(
+        &mut self,
+        held: &Verified,
+        (check, found): (TwinCheck, heapless::Vec<Twin, DEGENERATE_TWINS>),
+        tally: &mut Tally,
+    ) -> bool {
+        let n = match check {
+            TwinCheck::Unique => return true,
+            TwinCheck::Degenerate => {
+                tally.geometric_degenerate += 1;
+                return false;
+            }
+            TwinCheck::Check(n) => n,
+        };
+        for twin in found.iter().take(n) {
+            tally.geometric_checked += 1;
+            let pose = twin_pose(&held.world_from_camera, twin);
+            let loose = self.reloc.twins_mut().loose().clone();
+            let (candidate_r, pinhole, kview, tracker) = (
+                &mut self.candidate_r,
+                &self.pinhole,
+                &mut self.kview,
+                &self.tracker,
+            );
+            let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
+                let t_render = Instant::now();
+                candidate_r
+                    .render(world_from_keyframe, pinhole, kview)
+                    .ok()?;
+                tally.renders += 1;
+                let t_prepare = Instant::now();
+                kf.prepare(kview, *world_from_keyframe, u64::MAX, tracker);
+                tally.prepare_ms += t_prepare.elapsed().as_secs_f64() * 1e3;
+                tally.render_ms += t_render.elapsed().as_secs_f64() * 1e3;
+                Some(())
+            };
+            let passed = attempt(
+                &mut self.aligner,
+                &self.pyramid,
+                &self.camera,
+                &loose,
+                (&pose, None),
+                (&mut self.spare, &mut self.returned),
+                &mut render,
+            );
+            if passed.is_some_and(|r| elsewhere(&held.world_from_camera, &r.world_from_camera)) {
+                tally.geometric_refused += 1;
+                return false;
+            }
+        }
+        true
     }
 
     /// Where the nearest good keyframe sits in the full ranking: what a

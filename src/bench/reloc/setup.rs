@@ -164,7 +164,7 @@ impl Bench {
         let warp = DistortionWarp::new(&camera)?;
         let render_camera = *warp.render_camera();
         let sensor = SensorModel::new(preset.photometric, &camera, seed);
-        let mut reloc = Relocalizer::new(db.clone(), rc, &camera)?;
+        let mut reloc = Relocalizer::new(db.clone(), rc, &camera)?.with_map(&map);
         if let Some(probes) = probes_from_env() {
             reloc.landmarks_mut().set_probes(probes);
         }
@@ -238,7 +238,7 @@ impl Bench {
             db.entries.len(),
             db.landmarks.len()
         );
-        let reloc = Relocalizer::new(db.clone(), &config.reloc, &camera)?;
+        let reloc = Relocalizer::new(db.clone(), &config.reloc, &camera)?.with_map(&mesh);
         let queries = Queries::Dataset {
             dataset,
             truth,

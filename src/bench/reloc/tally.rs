@@ -120,6 +120,12 @@ pub(super) struct Tally {
     /// of those, the rival's place was the better.
     pub(super) decisive: usize,
     pub(super) decisive_rival: usize,
+    /// Poses the prior could not vouch for whose view fits at many places
+    /// in the map's geometry, refused ([`crate::reloc::twins`]); geometric
+    /// twins checked, and poses refused because the frame passed at one.
+    pub(super) geometric_degenerate: usize,
+    pub(super) geometric_checked: usize,
+    pub(super) geometric_refused: usize,
 }
 
 impl Tally {
@@ -212,6 +218,13 @@ impl Tally {
         println!(
             "    look-alike places: {} rivals at another place verified, {} poses refused because one passed too (counted in no pose), {} beyond the prior's reach replaced by a rival within it, {} passing rivals told apart by a decisive correlation ({} of them the better place)",
             self.rivals_tried, self.ambiguous, self.prior_chose, self.decisive, self.decisive_rival
+        );
+        println!(
+            "    geometric twins: {} poses refused because their view fits at {} or more places; {} twins checked, {} poses refused because the frame passed the looser gate at one (both counted in no pose)",
+            self.geometric_degenerate,
+            crate::reloc::twins::DEGENERATE_TWINS,
+            self.geometric_checked,
+            self.geometric_refused
         );
         let elsewhere = self.wrong.iter().filter(|w| w.0 > 1.0).count();
         if !self.wrong.is_empty() {
