@@ -517,7 +517,7 @@ mod tests {
             let corners = [(x0, y0), (x0 + w, y0), (x0 + w, y0 + d), (x0, y0 + d)];
             for k in 0..4 {
                 let ((ax, ay), (bx, by)) = (corners[k], corners[(k + 1) % 4]);
-                let steps = ((bx - ax) as f64).hypot(by - ay) / 0.1;
+                let steps = (bx - ax).hypot(by - ay) / 0.1;
                 for i in 0..steps.round() as usize {
                     let u = i as f64 / steps;
                     for j in 0..(h / 0.2) as usize {

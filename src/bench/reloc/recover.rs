@@ -271,7 +271,25 @@ impl Bench {
 
     /// Renders and verifies one candidate (or rival) through the gate.
     fn try_one(&mut self, c: &Candidate, tally: &mut Tally) -> Option<Verified> {
-        let index = c.ranked.index;
+        let gate = self.config.reloc.clone();
+        self.try_at(
+            &gate,
+            (&c.world_from_camera, c.yaw_rad),
+            c.ranked.index,
+            tally,
+        )
+    }
+
+    /// Renders and verifies `world_from_candidate` (with the yaw the search
+    /// matched at; `None`: a precise pose) through `gate`; `index` names its
+    /// keyframes.
+    fn try_at(
+        &mut self,
+        gate: &RelocConfig,
+        start: (&Pose, Option<f64>),
+        index: u32,
+        tally: &mut Tally,
+    ) -> Option<Verified> {
         let (candidate_r, pinhole, kview, tracker) = (
             &mut self.candidate_r,
             &self.pinhole,
@@ -294,8 +312,8 @@ impl Bench {
             &mut self.aligner,
             &self.pyramid,
             &self.camera,
-            &self.config.reloc,
-            (&c.world_from_camera, c.yaw_rad),
+            gate,
+            start,
             (&mut self.spare, &mut self.returned),
             &mut render,
         )
@@ -333,33 +351,7 @@ impl Bench {
             tally.geometric_checked += 1;
             let pose = twin_pose(&held.world_from_camera, twin);
             let loose = self.reloc.twins_mut().loose().clone();
-            let (candidate_r, pinhole, kview, tracker) = (
-                &mut self.candidate_r,
-                &self.pinhole,
-                &mut self.kview,
-                &self.tracker,
-            );
-            let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
-                let t_render = Instant::now();
-                candidate_r
-                    .render(world_from_keyframe, pinhole, kview)
-                    .ok()?;
-                tally.renders += 1;
-                let t_prepare = Instant::now();
-                kf.prepare(kview, *world_from_keyframe, u64::MAX, tracker);
-                tally.prepare_ms += t_prepare.elapsed().as_secs_f64() * 1e3;
-                tally.render_ms += t_render.elapsed().as_secs_f64() * 1e3;
-                Some(())
-            };
-            let passed = attempt(
-                &mut self.aligner,
-                &self.pyramid,
-                &self.camera,
-                &loose,
-                (&pose, None),
-                (&mut self.spare, &mut self.returned),
-                &mut render,
-            );
+            let passed = self.try_at(&loose, (&pose, None), u32::MAX, tally);
             if passed.is_some_and(|r| elsewhere(&held.world_from_camera, &r.world_from_camera)) {
                 tally.geometric_refused += 1;
                 return false;
