@@ -83,3 +83,50 @@ fn locating_from_landmarks_allocates_nothing() {
         );
     }
 }
+
+/// The geometric twin check of a held pose ([`star::reloc::twins`])
+/// allocates nothing after construction; what it finds lies at least 1 m
+/// away and scores at least the minimum (a plain box room lets a view of
+/// one wall slide along it).
+#[test]
+fn checking_geometric_twins_allocates_nothing() {
+    let mesh = common::room::textured_room();
+    let camera = PinholeCamera::new(320, 256, 210.0, 210.0, 159.5, 127.5);
+    let config = RelocConfig {
+        geometric_twins: star::reloc::GeometricTwinMaps::Always,
+        ..RelocConfig::default()
+    };
+    let mut twins = star::reloc::twins::GeometricTwins::new(&mesh, &config);
+    assert!(twins.has_map());
+    let mut renderer = CpuRenderer::new(Arc::new(mesh.clone())).expect("renderer");
+    let tracker = star::track::TrackerConfig::default();
+    let mut view = RenderedView::for_camera(&camera);
+    let mut keyframes = Vec::new();
+    for (x, yaw) in [(2.7, 0.4), (1.5, 2.0), (3.5, -1.2)] {
+        let pose = Pose::from_parts(
+            Translation3::new(x, 2.3, 1.3),
+            camera_rotation(yaw, (-8f64).to_radians(), 0.0),
+        );
+        renderer.render(&pose, &camera, &mut view).expect("render");
+        let mut kf = star::track::Keyframe::new(&camera, &tracker);
+        kf.prepare(&view, pose, 1, &tracker);
+        keyframes.push(kf);
+    }
+    twins.check(&keyframes[0]);
+    let mut found = Vec::with_capacity(16);
+    let mut allocations = 0;
+    for kf in &keyframes {
+        start_counting();
+        twins.check(kf);
+        allocations += stop_counting();
+        found.extend_from_slice(twins.found());
+    }
+    assert_eq!(allocations, 0, "allocations while checking twins");
+    for t in &found {
+        assert!(
+            t.offset_m[0].hypot(t.offset_m[1]) >= star::map::repeats::MIN_OFFSET_M,
+            "{t:?}"
+        );
+        assert!(t.score >= star::map::repeats::MIN_SCORE, "{t:?}");
+    }
+}
