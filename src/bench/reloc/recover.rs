@@ -320,7 +320,7 @@ impl Bench {
     }
 
     /// The geometric twins of the keyframe just accepted (the last spare
-    /// one), as far as `[reloc] geometric_twin_checks` allows.
+    /// one), up to [`crate::reloc::twins::TWIN_CHECKS`] to check.
     fn twin_check(&mut self) -> (TwinCheck, heapless::Vec<Twin, DEGENERATE_TWINS>) {
         let Some(kf) = self.spare.last() else {
             return (TwinCheck::Unique, heapless::Vec::new());
