@@ -6,25 +6,31 @@
 //! points of one view (a rendered keyframe's) and gives the offsets, best
 //! first, under which at least [`MIN_SCORE`] of them land on the map's
 //! surfaces again at least [`MIN_OFFSET_M`] away. Relocalization checks a
-//! pose it cannot vouch for at each such offset (`reloc::rivals`): on a
+//! pose it cannot vouch for at each such offset (`reloc::twins`): on a
 //! scanned map the baked light differs from place to place, so a frame can
 //! look more like the scan of a place's twin than like its own, and
 //! appearance alone cannot rule the twin out. Geometry can find it.
 //!
-//! Method. Every triangle is sampled every half cell into a grid of
-//! [`CELL_M`] cells, each cell a bit mask of [`SLICES`] height slices of
-//! [`SLICE_M`] from the map's lowest point; a copy dilated by one cell and
-//! one slice tolerates the points' and the surfaces' noise. Every offset of
-//! a grid four times coarser is scored (the fraction of the view's points
-//! that fall in occupied coarse cells, themselves dilated by one), then the
-//! best coarse local maxima are refined at full resolution. A view of a
-//! plain wall fits anywhere along it: such a view has many twins, and only
-//! the best [`MAX_COARSE_PEAKS`] are refined.
+//! Method. Every steep triangle (normal within
+//! [`MAX_NORMAL_ELEVATION_DEG`] of horizontal: walls and furniture sides;
+//! floors and ceilings are alike everywhere) is sampled every half cell
+//! into a grid of [`CELL_M`] cells, each cell a bit mask of [`SLICES`]
+//! height slices of [`SLICE_M`] from the map's lowest point, then dilated by
+//! one cell and one slice against the points' and the surfaces' noise. Of
+//! the view's points, those on steep surfaces where they are count. Every
+//! offset of a grid eight times coarser is scored (the fraction of the
+//! points that fall in occupied coarse cells), and the best
+//! [`MAX_COARSE_PEAKS`] coarse local maxima are refined at full resolution.
+//! A refined offset is a twin when it scores at least [`MIN_SCORE`] and the
+//! camera moved by it still sees its points through free space (the
+//! midpoints of its rays, [`MIN_FREE_FRACTION`]): a view of one end wall
+//! of a room also fits the opposite wall, from outside the room. A view of
+//! a plain wall fits anywhere along it, and then has many twins.
 //!
-//! Cost: one pass over the triangles at load (about a second for a
-//! 15 M-triangle floor) and a few megabytes; a search over a 60 x 30 m
-//! floor with 256 points takes about 20 ms. Nothing allocates after
-//! [`MapOccupancy::build`].
+//! Cost, measured on the 22-room scanned floor (14.7 M triangles, a
+//! 68 x 17 m grid): one pass over the triangles at load, 0.9-1.4 s, and
+//! about 2 MB; a search, 2.5-17 ms. Nothing allocates after
+//! [`MapOccupancy::build`] and [`MapOccupancy::scratch`].
 
 use nalgebra::Vector3;
 
@@ -53,12 +59,12 @@ pub const MIN_OFFSET_M: f64 = 1.0;
 pub const MAX_COARSE_PEAKS: usize = 200;
 /// Largest angle between a counted triangle's normal and the horizontal,
 /// degrees: floors, ceilings and table tops repeat everywhere.
-const MAX_NORMAL_ELEVATION_DEG: f64 = 60.0;
+pub const MAX_NORMAL_ELEVATION_DEG: f64 = 60.0;
 /// Rays shorter than this are not tested for free space, meters.
 const MIN_RAY_M: f64 = 0.6;
 /// A twin camera must see at least this fraction of its points through
 /// free space (ray midpoints) ...
-const MIN_FREE_FRACTION: f32 = 0.8;
+pub const MIN_FREE_FRACTION: f32 = 0.8;
 /// ... or at least the held camera's fraction less this (a scan's noise).
 const FREE_MARGIN: f32 = 0.1;
 /// Two offsets closer than this are one, meters.
