@@ -42,6 +42,9 @@ pub const CELL_M: f64 = 0.05;
 pub const SLICE_M: f64 = 0.1;
 /// Height slices (bits per cell); higher surfaces go in the last.
 pub const SLICES: u32 = 32;
+/// Most cells of the grid (64 MB; a 200 x 200 m floor). A larger map, or
+/// one vertex far from the rest, is not searched.
+pub const MAX_CELLS: usize = 16 << 20;
 /// Coarse cells per side, in cells.
 const COARSE: usize = 8;
 /// Points of a view scored, at most (the rest are skipped evenly).
@@ -175,10 +178,21 @@ impl MapOccupancy {
         };
         let origin_m = [f64::from(lo[0]), f64::from(lo[1])];
         let z0_m = f64::from(lo[2]);
-        let cells = |extent: f32| {
-            ((f64::from(extent) / CELL_M).ceil() as usize + 1).next_multiple_of(COARSE)
-        };
-        let (nx, ny) = (cells(hi[0] - lo[0]), cells(hi[1] - lo[1]));
+        let cells = |extent: f32| (f64::from(extent) / CELL_M).ceil() + 1.0;
+        let (fx, fy) = (cells(hi[0] - lo[0]), cells(hi[1] - lo[1]));
+        // Not `>`: a NaN or infinite extent fails this too.
+        if !(fx * fy <= MAX_CELLS as f64) {
+            tracing::warn!(
+                extent_m = ?[hi[0] - lo[0], hi[1] - lo[1]],
+                max_cells = MAX_CELLS,
+                "map too large for the geometric twin grid (a stray vertex far away?); twins are not checked"
+            );
+            return Self::none();
+        }
+        let (nx, ny) = (
+            (fx as usize).next_multiple_of(COARSE),
+            (fy as usize).next_multiple_of(COARSE),
+        );
         let grid = occupancy(mesh, origin_m, z0_m, nx, ny);
         Self {
             origin_m,
@@ -604,6 +618,13 @@ mod tests {
         let nan = vec![Vector3::new(f64::NAN, 0.0, 1.0); 100];
         map.twins(&camera(0.3, 0.4), &nan, &mut scratch, &mut out);
         assert!(out.is_empty());
+        // A vertex 10 km away would need a grid of 800 M cells: none.
+        let mut stray = mesh.clone();
+        stray.positions.push([10_000.0, 10_000.0, 1.0]);
+        stray.gray.push(128.0);
+        let base = stray.positions.len() as u32 - 1;
+        stray.indices.extend_from_slice(&[0, 1, base]);
+        assert!(MapOccupancy::build(&stray).is_empty());
         // An empty map, and scratch from another map.
         let empty = MapOccupancy::build(&Mesh::default());
         assert!(empty.is_empty());

@@ -25,6 +25,15 @@ use super::query::QueryFrame;
 use super::setup::Bench;
 use super::tally::Tally;
 
+/// Which gate [`Bench::try_at`] verifies through.
+#[derive(Debug, Clone, Copy)]
+enum Gate {
+    /// `[reloc]`'s.
+    Strict,
+    /// The looser one of geometric twins ([`crate::reloc::twins::loose_gate`]).
+    Loose,
+}
+
 /// What one search gave.
 pub(super) struct Outcome {
     /// The frame's descriptor.
@@ -271,9 +280,8 @@ impl Bench {
 
     /// Renders and verifies one candidate (or rival) through the gate.
     fn try_one(&mut self, c: &Candidate, tally: &mut Tally) -> Option<Verified> {
-        let gate = self.config.reloc.clone();
         self.try_at(
-            &gate,
+            Gate::Strict,
             (&c.world_from_camera, c.yaw_rad),
             c.ranked.index,
             tally,
@@ -285,11 +293,15 @@ impl Bench {
     /// keyframes.
     fn try_at(
         &mut self,
-        gate: &RelocConfig,
+        gate: Gate,
         start: (&Pose, Option<f64>),
         index: u32,
         tally: &mut Tally,
     ) -> Option<Verified> {
+        let gate = match gate {
+            Gate::Strict => &self.config.reloc,
+            Gate::Loose => self.reloc.twins_mut().loose(),
+        };
         let (candidate_r, pinhole, kview, tracker) = (
             &mut self.candidate_r,
             &self.pinhole,
@@ -350,8 +362,7 @@ impl Bench {
         for twin in found.iter().take(n) {
             tally.geometric_checked += 1;
             let pose = twin_pose(&held.world_from_camera, twin);
-            let loose = self.reloc.twins_mut().loose().clone();
-            let passed = self.try_at(&loose, (&pose, None), u32::MAX, tally);
+            let passed = self.try_at(Gate::Loose, (&pose, None), u32::MAX, tally);
             if passed.is_some_and(|r| elsewhere(&held.world_from_camera, &r.world_from_camera)) {
                 tally.geometric_refused += 1;
                 return false;
