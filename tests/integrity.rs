@@ -13,6 +13,7 @@ mod common;
 use common::reloc_fixture::{
     assembled, fixture, frame_path, run_with, write_image, Fixture, FAULT_START, FRAMES,
 };
+use common::room::twin_map;
 use nalgebra::{Translation3, Vector3};
 use star::dataset::Dataset;
 use star::geometry::Pose;
@@ -224,44 +225,6 @@ fn a_view_that_jumps_is_not_sent() {
             );
         }
     }
-}
-
-/// The fixture's map with a copy of itself `offset_x_m` along x: two rooms
-/// that are the same to the last vertex, as the rooms of one design in a
-/// building.
-/// `mesh` and a copy of it `offset_x_m` along x; `shade` gives the copy's
-/// vertex gray from the original's position and gray (a look-alike copy:
-/// the same shell, something painted otherwise).
-fn twin_map(
-    mesh: &star::map::Mesh,
-    offset_x_m: f32,
-    shade: impl Fn([f32; 3], f32) -> f32,
-) -> star::map::Mesh {
-    let mut twin = mesh.clone();
-    let n_vertices = mesh.positions.len() as u32;
-    let n_indices = mesh.indices.len() as u32;
-    twin.positions.extend(
-        mesh.positions
-            .iter()
-            .map(|p| [p[0] + offset_x_m, p[1], p[2]]),
-    );
-    twin.gray.extend(
-        mesh.positions
-            .iter()
-            .zip(&mesh.gray)
-            .map(|(&p, &g)| shade(p, g)),
-    );
-    if !mesh.uvs.is_empty() {
-        twin.uvs.extend_from_slice(&mesh.uvs);
-    }
-    twin.indices
-        .extend(mesh.indices.iter().map(|i| i + n_vertices));
-    twin.groups
-        .extend(mesh.groups.iter().map(|g| star::map::MeshGroup {
-            first_index: g.first_index + n_indices,
-            ..*g
-        }));
-    twin
 }
 
 /// Localizes the fixture's flight (cold or from a right hint) in a map of

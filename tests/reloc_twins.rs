@@ -7,13 +7,15 @@
 
 #![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 
+mod common;
+
 use std::sync::Arc;
 
+use common::room::twin_map;
 use nalgebra::Translation3;
 use star::config::Config;
 use star::dataset::Dataset;
 use star::geometry::Pose;
-use star::map::{Mesh, MeshGroup};
 use star::reloc::rivals::elsewhere;
 use star::reloc::twins::{twin_pose, GeometricTwins, TwinCheck};
 use star::reloc::{try_candidate, GeometricTwinMaps};
@@ -27,27 +29,6 @@ use star::track::{build_config, Aligner, Keyframe, Pyramid};
 const COPY_X_M: f64 = 20.0;
 /// The copy's light, relative to the room's.
 const COPY_GAIN: f32 = 0.6;
-
-/// `mesh` and a copy of it moved by `COPY_X_M`, its gray scaled by
-/// `COPY_GAIN`.
-fn built_twice(mesh: &Mesh) -> Mesh {
-    let mut out = mesh.clone();
-    let base = mesh.positions.len() as u32;
-    let first_index = mesh.indices.len() as u32;
-    out.positions.extend(
-        mesh.positions
-            .iter()
-            .map(|p| [p[0] + COPY_X_M as f32, p[1], p[2]]),
-    );
-    out.gray.extend(mesh.gray.iter().map(|g| g * COPY_GAIN));
-    out.uvs.extend_from_slice(&mesh.uvs);
-    out.indices.extend(mesh.indices.iter().map(|i| i + base));
-    out.groups.extend(mesh.groups.iter().map(|g| MeshGroup {
-        first_index: g.first_index + first_index,
-        ..*g
-    }));
-    out
-}
 
 #[test]
 fn a_frame_held_in_the_wrong_copy_of_a_room_passes_at_its_geometric_twin() {
@@ -68,7 +49,7 @@ fn a_frame_held_in_the_wrong_copy_of_a_room_passes_at_its_geometric_twin() {
         .map
         .load_mesh_from(&root.join("map").join("map.obj"))
         .expect("map");
-    let twice = Arc::new(built_twice(&room));
+    let twice = Arc::new(twin_map(&room, COPY_X_M as f32, |_, g| g * COPY_GAIN));
     let camera = ds.camera().pinhole();
     let tracker = build_config(&config.tracker);
     let mut renderer = CpuRenderer::new(twice.clone()).expect("renderer");

@@ -3,7 +3,9 @@
 //!   faces split into a given number of quads, and [`poses`] inside it, for
 //!   the renderer benchmarks;
 //! - [`textured_room`]: a 6 x 5 x 3 m room of single quads with four
-//!   textures and two boxes (z up), for the GPU/CPU agreement test.
+//!   textures and two boxes (z up), for the GPU/CPU agreement test;
+//! - [`twin_map`]: a mesh built twice, the copy shifted and shaded, for
+//!   the look-alike tests.
 //!
 //! The benchmarks include this file on its own
 //! (`#[path = "../tests/common/room.rs"] mod room;`), so it depends on
@@ -248,4 +250,40 @@ pub fn textured_room() -> Mesh {
     }
     mesh.textures = (0..4).map(|i| texture(i + 1, 128)).collect();
     mesh
+}
+
+/// `mesh` and a copy of it `offset_x_m` along x: two rooms the same to the
+/// last vertex, as the rooms of one design in a building. `shade` gives the
+/// copy's vertex gray from the original's position and gray (a look-alike
+/// copy: the same shell, something painted otherwise, or lit otherwise).
+pub fn twin_map(
+    mesh: &star::map::Mesh,
+    offset_x_m: f32,
+    shade: impl Fn([f32; 3], f32) -> f32,
+) -> star::map::Mesh {
+    let mut twin = mesh.clone();
+    let n_vertices = mesh.positions.len() as u32;
+    let n_indices = mesh.indices.len() as u32;
+    twin.positions.extend(
+        mesh.positions
+            .iter()
+            .map(|p| [p[0] + offset_x_m, p[1], p[2]]),
+    );
+    twin.gray.extend(
+        mesh.positions
+            .iter()
+            .zip(&mesh.gray)
+            .map(|(&p, &g)| shade(p, g)),
+    );
+    if !mesh.uvs.is_empty() {
+        twin.uvs.extend_from_slice(&mesh.uvs);
+    }
+    twin.indices
+        .extend(mesh.indices.iter().map(|i| i + n_vertices));
+    twin.groups
+        .extend(mesh.groups.iter().map(|g| star::map::MeshGroup {
+            first_index: g.first_index + n_indices,
+            ..*g
+        }));
+    twin
 }
