@@ -207,11 +207,6 @@ impl MapOccupancy {
         self.fine.cells.is_empty()
     }
 
-    /// Grid size, cells along x and y.
-    pub fn cells(&self) -> [usize; 2] {
-        [self.fine.nx, self.fine.ny]
-    }
-
     /// Buffers for [`Self::twins`] on this grid.
     pub fn scratch(&self) -> TwinScratch {
         TwinScratch {
@@ -391,26 +386,6 @@ impl MapOccupancy {
         } else {
             free as f32 / rays as f32
         })
-    }
-
-    /// The fraction of `points_world` on steep surfaces where they are that
-    /// land on steep surfaces again moved by `offset_m` (full resolution);
-    /// `None` with fewer than [`MIN_POINTS`] of them.
-    pub fn score_at(&self, points_world: &[Vector3<f64>], offset_m: [f64; 2]) -> Option<f32> {
-        let (fx, fy) = (
-            (offset_m[0] / CELL_M).round() as isize,
-            (offset_m[1] / CELL_M).round() as isize,
-        );
-        let (mut n, mut hits) = (0usize, 0usize);
-        for g in points_world
-            .iter()
-            .filter_map(|p| self.grid_point(p))
-            .filter(|g| self.fine.at(g.x, g.y) & g.bit != 0)
-        {
-            n += 1;
-            hits += usize::from(self.fine.at(g.x + fx, g.y + fy) & g.bit != 0);
-        }
-        (n >= MIN_POINTS).then(|| hits as f32 / n as f32)
     }
 
     /// `p` on the grid; `None` outside it or not finite.
