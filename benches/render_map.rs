@@ -15,7 +15,10 @@
 //! `map/map.obj` as stored; the camera is its `camera.toml`. Both renderers
 //! render with the far limit of that `star.toml`'s `[render] far_m` (else
 //! the default, 30 m), as `star track` would; `STAR_BENCH_FAR_M=X`
-//! overrides it (0: none).
+//! overrides it (0: none). Likewise the level of detail, `[render]
+//! lod_max_px` (default 2 px; `STAR_BENCH_LOD_PX=X` overrides it, 0: full
+//! detail): the default cull is timed with it and without it (full
+//! detail), the other culls at full detail.
 //!
 //! `STAR_BENCH_GPU_BUDGET_MB=X` (MB, 10^6 bytes) also times the wgpu
 //! renderer (cull on) with `[render] gpu_budget_mb = X`: a map larger than
@@ -93,13 +96,17 @@ fn every_frames() -> Option<usize> {
     Some(n)
 }
 
-fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>, Option<f64>) {
+/// A dataset's map, camera, poses, far limit and level of detail (px).
+type Loaded = (Mesh, PinholeCamera, Vec<Pose>, Option<f64>, f32);
+
+fn load(dir: &Path) -> Loaded {
     let config_path = dir.join("star.toml");
-    let (mesh, far_m) = if config_path.exists() {
+    let (mesh, far_m, lod_px) = if config_path.exists() {
         let config = Config::load(&config_path).expect("star.toml");
         (
             config.map.load_mesh().expect("map"),
             config.render.far_limit_m(),
+            config.render.lod_px(),
         )
     } else {
         let config = Config::default();
@@ -109,6 +116,7 @@ fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>, Option<f64>) {
                 .load_mesh_from(&dir.join("map/map.obj"))
                 .expect("map/map.obj"),
             config.render.far_limit_m(),
+            config.render.lod_px(),
         )
     };
     let camera = CameraFile::read(&dir.join("camera.toml"))
@@ -133,7 +141,11 @@ fn load(dir: &Path) -> (Mesh, PinholeCamera, Vec<Pose>, Option<f64>) {
         }
         Err(_) => far_m,
     };
-    (mesh, camera, poses, far_m)
+    let lod_px = match std::env::var("STAR_BENCH_LOD_PX") {
+        Ok(v) => v.parse().expect("STAR_BENCH_LOD_PX: pixels"),
+        Err(_) => lod_px,
+    };
+    (mesh, camera, poses, far_m, lod_px)
 }
 
 /// Median and p95 of `samples_ms` (sorted in place).
@@ -179,11 +191,11 @@ struct Only {
 fn bench_dataset(dir: &Path, only: Only) {
     let rss_before_mb = status_mb("VmRSS:");
     let t = Instant::now();
-    let (mesh, camera, poses, far_m) = load(dir);
+    let (mesh, camera, poses, far_m, lod_px) = load(dir);
     let triangles = mesh.triangle_count();
     let texels: usize = mesh.textures.iter().map(|t| t.texels.len()).sum();
     println!(
-        "{}: {} triangles, {} vertices, {} textures ({:.1} Mtexels), {} poses, {}x{}, far limit {:?} m",
+        "{}: {} triangles, {} vertices, {} textures ({:.1} Mtexels), {} poses, {}x{}, far limit {:?} m, level of detail {lod_px} px",
         dir.display(),
         triangles,
         mesh.positions.len(),
@@ -204,12 +216,13 @@ fn bench_dataset(dir: &Path, only: Only) {
 
     if !only.gpu_only {
         let t = Instant::now();
-        let mut cpu = CpuRenderer::new(Arc::clone(&mesh)).expect("valid mesh");
+        let mut cpu = CpuRenderer::with_lod(Arc::clone(&mesh), lod_px).expect("valid mesh");
         cpu.set_far_m(far_m);
         let built_s = t.elapsed().as_secs_f64();
         println!(
-            "  cpu renderer: {:.0} MB for the chunked mesh and textures; resident memory {:.0} MB",
+            "  cpu renderer: {:.0} MB for the chunked mesh and textures ({} coarse chunks); resident memory {:.0} MB",
             cpu.mesh_bytes() as f64 / 1e6,
+            cpu.coarse_chunks(),
             status_mb("VmRSS:"),
         );
         let split_vertices = ChunkedMesh::build(&mesh).expect("chunks").positions.len();
@@ -238,24 +251,28 @@ fn bench_dataset(dir: &Path, only: Only) {
             binned as f64 / poses.len().max(1) as f64,
             seen_triangles as f64 / poses.len().max(1) as f64,
         );
-        // Frustum and occlusion cull (the default), frustum only, none.
+        // Frustum and occlusion cull (the default) with the level of
+        // detail, then at full detail: that cull, frustum only, none.
         let modes = [
-            (true, true, "frustum + occlusion"),
-            (true, false, "frustum only"),
-            (false, false, "off"),
+            (true, true, lod_px, "frustum + occlusion, level of detail"),
+            (true, true, 0.0, "frustum + occlusion, full detail"),
+            (true, false, 0.0, "frustum only, full detail"),
+            (false, false, 0.0, "off, full detail"),
         ];
         let modes = if only.cpu_default {
             &modes[..1]
         } else {
             &modes[..]
         };
-        for &(cull, occlusion, what) in modes {
+        for &(cull, occlusion, px, what) in modes {
             cpu.set_frustum_cull(cull);
             cpu.set_occlusion_cull(occlusion);
+            cpu.set_lod_max_px(px);
             let (median, p95, n) = time_renders(&mut cpu, &camera, &poses);
             println!(
-                "  cpu ({} threads, cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders",
+                "  cpu ({} threads, cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders; {:.0} k triangles set up in the last",
                 cpu.threads(),
+                cpu.cull_stats().visible_triangles as f64 / 1e3,
             );
         }
         drop(cpu);
@@ -265,7 +282,7 @@ fn bench_dataset(dir: &Path, only: Only) {
     }
 
     let t = Instant::now();
-    match GpuRenderer::new(Arc::clone(&mesh), AdapterPreference::Software) {
+    match GpuRenderer::new_configured(Arc::clone(&mesh), AdapterPreference::Software, 0, lod_px) {
         Ok(mut gpu) => {
             gpu.set_far_m(far_m);
             let built_s = t.elapsed().as_secs_f64();
@@ -410,14 +427,19 @@ fn bench_interleaved(dirs: &[PathBuf], gpu: bool) {
     let mut runs: Vec<Interleaved> = dirs
         .iter()
         .map(|dir| {
-            let (mesh, camera, poses, far_m) = load(dir);
+            let (mesh, camera, poses, far_m, lod_px) = load(dir);
             let renderer: Box<dyn Renderer> = if gpu {
-                let mut r = GpuRenderer::new(Arc::new(mesh), AdapterPreference::Software)
-                    .expect("a wgpu software adapter");
+                let mut r = GpuRenderer::new_configured(
+                    Arc::new(mesh),
+                    AdapterPreference::Software,
+                    0,
+                    lod_px,
+                )
+                .expect("a wgpu software adapter");
                 r.set_far_m(far_m);
                 Box::new(r)
             } else {
-                let mut r = CpuRenderer::new(Arc::new(mesh)).expect("valid mesh");
+                let mut r = CpuRenderer::with_lod(Arc::new(mesh), lod_px).expect("valid mesh");
                 r.set_far_m(far_m);
                 Box::new(r)
             };

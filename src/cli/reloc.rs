@@ -169,8 +169,15 @@ fn build(args: &BuildArgs) -> Result<()> {
     let far_m = config.render.far_limit_m();
     // Part of the checkpoint's key: views drawn with another far limit
     // are not resumed.
-    let renderer_name = format!("cpu far {far_m:?}");
-    let make_renderer = || crate::render::cpu::CpuRenderer::new(mesh.clone());
+    // The level of detail of `[render]` too: the thumbnails are where it
+    // saves the most (a scan's triangles are far below their pixels).
+    let lod_px = config.render.lod_px();
+    let renderer_name = if lod_px > 0.0 {
+        format!("cpu far {far_m:?} lod {lod_px} px")
+    } else {
+        format!("cpu far {far_m:?}")
+    };
+    let make_renderer = || crate::render::cpu::CpuRenderer::with_lod(mesh.clone(), lod_px);
     let mut progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);

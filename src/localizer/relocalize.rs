@@ -35,7 +35,7 @@ use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
 use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
 use crate::reloc::twins::{twin_pose, TwinCheck};
-use crate::reloc::{passes_gate, passes_whole_gate, start_yaws_rad, Candidate, MAX_TOP_K};
+use crate::reloc::{passes_gate, passes_resume_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
     Verdict, Verified, LANDMARK_CANDIDATE,
@@ -113,9 +113,10 @@ impl Localizer {
         // the whole relocalization gate, correlations included (the lost
         // test's thresholds are for noticing a loss, not for trusting a
         // pose again: an occluder dragging the alignment off can keep the
-        // inlier ratio high).
+        // inlier ratio high), read from level 0 even with
+        // `gate_at_map_detail` (`passes_resume_gate`).
         self.lost_s(capture_ns) <= config.resume_window_s
-            && passes_whole_gate(&self.keyframe, &self.pyramid, &self.camera, a, config).is_some()
+            && passes_resume_gate(&self.keyframe, &self.pyramid, &self.camera, a, config).is_some()
     }
 
     /// With a gate (a database, a verified start, or [`Self::use_gate`]),

@@ -53,6 +53,41 @@ pub fn passes_whole_gate(
     a: &Alignment,
     config: &RelocConfig,
 ) -> Option<Correlations> {
+    whole_gate_from(
+        keyframe,
+        frame,
+        camera,
+        a,
+        config,
+        first_gate_level(keyframe, config),
+    )
+}
+
+/// The whole gate as [`passes_whole_gate`], but always from level 0,
+/// whatever `gate_at_map_detail` says: for tracking that resumes on its
+/// own after a short loss. There the pose comes from the tracker's own
+/// prediction, not from a search, and at close range a drifted pose
+/// passed the gate read from level 1 (`aggressive --scanned` seed 1:
+/// docs/building-scale.md), so the map's detail only widens the
+/// relocalization's gate.
+pub fn passes_resume_gate(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    a: &Alignment,
+    config: &RelocConfig,
+) -> Option<Correlations> {
+    whole_gate_from(keyframe, frame, camera, a, config, 0)
+}
+
+fn whole_gate_from(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    a: &Alignment,
+    config: &RelocConfig,
+    first_level: usize,
+) -> Option<Correlations> {
     let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
     (passes_gate(&a.quality, config) && gain_ok)
         .then(|| {
@@ -61,7 +96,7 @@ pub fn passes_whole_gate(
                 frame,
                 camera,
                 &a.camera_from_keyframe,
-                first_gate_level(keyframe, config),
+                first_level,
             )
         })
         .flatten()
@@ -337,14 +372,54 @@ mod tests {
     use crate::track::TrackerConfig;
 
     #[test]
-    fn the_gate_reads_from_level_0_unless_told_to_trust_the_maps_detail() {
+    fn the_gate_reads_from_the_maps_detail_unless_told_not_to() {
         let camera = PinholeCamera::new(160, 128, 120.0, 120.0, 79.5, 63.5);
         let mut keyframe = Keyframe::new(&camera, &TrackerConfig::default());
         keyframe.gate_level = 1; // a map coarser than the camera
         let mut config = RelocConfig::default();
-        assert!(!config.gate_at_map_detail, "off by default");
-        assert_eq!(first_gate_level(&keyframe, &config), 0);
-        config.gate_at_map_detail = true;
+        assert!(config.gate_at_map_detail, "on by default");
         assert_eq!(first_gate_level(&keyframe, &config), 1);
+        config.gate_at_map_detail = false;
+        assert_eq!(first_gate_level(&keyframe, &config), 0);
+    }
+
+    #[test]
+    fn resuming_reads_from_level_0_even_on_a_coarse_map() {
+        // The map holds only the coarse pattern (sampled every 5 cm); the
+        // camera also sees a fine grain: the true view, as a 2 cm scan
+        // looks to a sharp camera.
+        let coarse = |x: usize, y: usize| {
+            let (x, y) = (x as f32, y as f32);
+            128.0 + 50.0 * (x * 0.3).sin() * (y * 0.23).cos()
+        };
+        let grain = |x: usize, y: usize| 40.0 * ((x as f32) * 2.5).sin() * ((y as f32) * 2.3).sin();
+        let (keyframe, frame, camera) =
+            crate::track::correlation::tests::setup_detail(coarse, |x, y, v| v + grain(x, y), 0.05);
+        assert_eq!(keyframe.gate_level, 1);
+        let a = Alignment {
+            camera_from_keyframe: Pose::identity(),
+            gain: 1.0,
+            bias: 0.0,
+            covariance_delta: [[0.0; 6]; 6],
+            quality: AlignQuality {
+                inlier_ratio: 0.95,
+                visible_ratio: 1.0,
+                residual_rms: 5.0,
+                correlation: 0.9,
+                ..AlignQuality::default()
+            },
+            valid: true,
+        };
+        let mut config = RelocConfig::default();
+        assert!(
+            passes_whole_gate(&keyframe, &frame, &camera, &a, &config).is_some(),
+            "relocalization reads the levels the map holds"
+        );
+        assert!(
+            passes_resume_gate(&keyframe, &frame, &camera, &a, &config).is_none(),
+            "resuming reads level 0"
+        );
+        config.gate_at_map_detail = false;
+        assert!(passes_whole_gate(&keyframe, &frame, &camera, &a, &config).is_none());
     }
 }

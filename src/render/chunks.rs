@@ -19,6 +19,7 @@
 use std::ops::Range;
 
 use super::frustum::Frustum;
+use super::lod::{self, LodTable, LodView};
 use crate::map::Mesh;
 use crate::render::RenderError;
 
@@ -39,12 +40,12 @@ pub struct Aabb {
 
 impl Aabb {
     /// The box that contains nothing (grows from the first point added).
-    const EMPTY: Self = Self {
+    pub(super) const EMPTY: Self = Self {
         min_m: [f32::INFINITY; 3],
         max_m: [f32::NEG_INFINITY; 3],
     };
 
-    fn add(&mut self, p: [f32; 3]) {
+    pub(super) fn add(&mut self, p: [f32; 3]) {
         for k in 0..3 {
             self.min_m[k] = self.min_m[k].min(p[k]);
             self.max_m[k] = self.max_m[k].max(p[k]);
@@ -96,6 +97,9 @@ pub struct ChunkedMesh {
     /// How fine the mesh's appearance is, meters ([`Mesh::detail_spacing_m`]):
     /// every render of it says so ([`super::RenderedView::detail_m`]).
     pub detail_m: f32,
+    /// Which chunks are coarse copies of which ([`super::lod`]): the fine
+    /// chunks come first, in the order above, then the coarse copies.
+    pub lod: LodTable,
 }
 
 /// Per-render counts of the frustum test.
@@ -132,9 +136,15 @@ fn too_large(what: &str, count: usize) -> RenderError {
 
 impl ChunkedMesh {
     /// Splits `mesh` (already validated by the renderer: indices in range,
-    /// groups whole triangles) into chunks. Fails only when the copied
-    /// vertices or indices no longer fit `u32`.
+    /// groups whole triangles) into chunks, without levels of detail. Fails
+    /// only when the copied vertices or indices no longer fit `u32`.
     pub fn build(mesh: &Mesh) -> Result<Self, RenderError> {
+        Self::build_with_levels(mesh, false)
+    }
+
+    /// As [`ChunkedMesh::build`], with coarse copies of the untextured
+    /// chunks appended when `levels` ([`super::lod`]).
+    pub fn build_with_levels(mesh: &Mesh, levels: bool) -> Result<Self, RenderError> {
         let triangles = mesh.indices.len() / 3;
         if triangles > u32::MAX as usize / 3 {
             return Err(too_large("triangles", triangles));
@@ -184,6 +194,20 @@ impl ChunkedMesh {
             source_triangle: Vec::with_capacity(triangles),
             chunks: Vec::with_capacity(leaves.len()),
             detail_m: mesh.detail_spacing_m(),
+            lod: LodTable::default(),
+        };
+        // For the levels of detail: the mesh vertex each copied vertex
+        // copies, and whether a mesh vertex lies in more than one chunk.
+        let mut vertex_source: Vec<u32> = Vec::new();
+        let mut first_chunk = if levels {
+            vec![u32::MAX; mesh.positions.len()]
+        } else {
+            Vec::new()
+        };
+        let mut shared = if levels {
+            vec![false; mesh.positions.len()]
+        } else {
+            Vec::new()
         };
         let has_uvs = !mesh.uvs.is_empty();
         // Local number of each mesh vertex in the chunk being built, valid
@@ -207,6 +231,18 @@ impl ChunkedMesh {
                     };
                     if *seen != chunk_number as u32 {
                         *seen = chunk_number as u32;
+                        if levels {
+                            vertex_source.push(v as u32);
+                            if let (Some(first), Some(s)) =
+                                (first_chunk.get_mut(v), shared.get_mut(v))
+                            {
+                                if *first == u32::MAX {
+                                    *first = chunk_number as u32;
+                                } else {
+                                    *s = true;
+                                }
+                            }
+                        }
                         let n = out.positions.len();
                         if n >= u32::MAX as usize {
                             return Err(too_large("vertices", n));
@@ -231,6 +267,11 @@ impl ChunkedMesh {
                 bounds,
             });
         }
+        out.lod = LodTable::fine_only(out.chunks.len());
+        if levels {
+            drop(first_chunk);
+            lod::build_levels(&mut out, mesh, &vertex_source, &shared)?;
+        }
         Ok(out)
     }
 
@@ -240,8 +281,13 @@ impl ChunkedMesh {
     }
 
     /// See [`mark_visible`].
-    pub fn mark_visible(&self, frustum: Option<&Frustum>, visible: &mut Vec<bool>) -> CullStats {
-        mark_visible(&self.chunks, frustum, visible)
+    pub fn mark_visible(
+        &self,
+        lod: Option<&LodView>,
+        frustum: Option<&Frustum>,
+        visible: &mut Vec<bool>,
+    ) -> CullStats {
+        mark_visible(&self.chunks, &self.lod, lod, frustum, visible)
     }
 }
 
@@ -301,24 +347,41 @@ pub fn clusters(mesh: &ChunkedMesh, chunk: &MeshChunk) -> Vec<Cluster> {
 }
 
 /// Sets `visible[i]` for every chunk `i` (`visible` is resized to the chunk
-/// count, without allocating after the first call): whether it passes
-/// `frustum`, or true for every chunk when `frustum` is `None`.
+/// count, without allocating after the first call): for each fine chunk of
+/// `table`, the level `view` chooses ([`LodTable::choose`]; the fine chunk
+/// itself without a view) is marked when it passes `frustum`, or always
+/// when `frustum` is `None`; every other chunk is not. The counts are of
+/// the fine chunks and of what was chosen.
 pub fn mark_visible(
     chunks: &[MeshChunk],
+    table: &LodTable,
+    view: Option<&LodView>,
     frustum: Option<&Frustum>,
     visible: &mut Vec<bool>,
 ) -> CullStats {
     visible.resize(chunks.len(), true);
+    let fine = table.fine_chunks.min(chunks.len());
+    if let Some(coarse) = visible.get_mut(fine..) {
+        coarse.fill(false);
+    }
     let mut stats = CullStats {
-        chunks: chunks.len(),
+        chunks: fine,
         ..CullStats::default()
     };
-    for (chunk, seen) in chunks.iter().zip(visible.iter_mut()) {
+    for (i, chunk) in chunks.iter().enumerate().take(fine) {
         stats.triangles += chunk.triangle_count();
-        *seen = frustum.is_none_or(|f| f.intersects(&chunk.bounds));
-        if *seen {
+        let chosen = table.choose(i, &chunk.bounds, view);
+        let drawn = chunks.get(chosen).unwrap_or(chunk);
+        let seen = frustum.is_none_or(|f| f.intersects(&drawn.bounds));
+        if let Some(v) = visible.get_mut(i) {
+            *v = false;
+        }
+        if let Some(v) = visible.get_mut(chosen) {
+            *v = seen;
+        }
+        if seen {
             stats.visible_chunks += 1;
-            stats.visible_triangles += chunk.triangle_count();
+            stats.visible_triangles += drawn.triangle_count();
         }
     }
     stats
@@ -479,10 +542,10 @@ mod tests {
         let cam = PinholeCamera::new(64, 48, 50.0, 50.0, 31.5, 23.5);
         let f = Frustum::new(&Pose::identity(), &cam, 0.05);
         let mut visible = Vec::new();
-        let all = chunked.mark_visible(None, &mut visible);
+        let all = chunked.mark_visible(None, None, &mut visible);
         assert_eq!(all.visible_chunks, all.chunks);
         assert_eq!(all.visible_triangles, mesh.indices.len() / 3);
-        let stats = chunked.mark_visible(Some(&f), &mut visible);
+        let stats = chunked.mark_visible(None, Some(&f), &mut visible);
         assert_eq!(stats.chunks, chunked.chunks.len());
         assert!(stats.visible_chunks > 0);
         // The plane behind the camera is half the mesh: all of it culled.

@@ -28,6 +28,7 @@ pub mod chunks;
 pub mod cpu;
 pub mod frustum;
 pub mod gpu;
+pub mod lod;
 pub mod select;
 pub(crate) mod tiles;
 

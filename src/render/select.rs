@@ -88,7 +88,21 @@ pub struct RenderConfig {
     /// the first read back between them (`render::gpu` docs). Off: the
     /// frustum and far limit only.
     pub occlusion_cull: bool,
+    /// Level of detail (`render::lod`): an untextured chunk (a scan's
+    /// vertex-colored mesh) is drawn from a coarser copy, its vertices
+    /// pooled in cells of 2, 4 or 8 times its median edge, where the
+    /// coarsest such cell spans at most this many pixels at the chunk's
+    /// nearest point; an outline moves by less than that. 0 turns it off
+    /// (every triangle drawn, and no coarse copies built). Textured chunks
+    /// are always drawn whole.
+    pub lod_max_px: f64,
 }
+
+/// Default of `render.lod_max_px`, pixels.
+pub const DEFAULT_LOD_MAX_PX: f64 = 2.0;
+
+/// Accepted `render.lod_max_px`, pixels (0 turns it off).
+pub const LOD_MAX_PX_RANGE: std::ops::RangeInclusive<f64> = 0.0..=64.0;
 
 impl Default for RenderConfig {
     fn default() -> Self {
@@ -97,6 +111,7 @@ impl Default for RenderConfig {
             far_m: DEFAULT_FAR_M,
             gpu_budget_mb: 0.0,
             occlusion_cull: true,
+            lod_max_px: DEFAULT_LOD_MAX_PX,
         }
     }
 }
@@ -127,7 +142,23 @@ impl RenderConfig {
                     self.gpu_budget_mb
                 ),
             ),
+            (
+                "lod_max_px",
+                LOD_MAX_PX_RANGE.contains(&self.lod_max_px),
+                format!(
+                    "expected 0 (full detail) or a cell size in pixels up to {}, found {}",
+                    LOD_MAX_PX_RANGE.end(),
+                    self.lod_max_px
+                ),
+            ),
         ])
+    }
+
+    /// The level-of-detail cell limit as the renderers take it, pixels (0:
+    /// full detail).
+    pub fn lod_px(&self) -> f32 {
+        // Validated: finite, 0..=64.
+        self.lod_max_px as f32
     }
 
     /// The GPU budget as the wgpu renderer takes it, bytes: 0 when off.
@@ -189,23 +220,26 @@ struct Settings {
     gpu_budget_bytes: u64,
     /// Whether the occlusion cull is off (`render.occlusion_cull = false`).
     no_occlusion_cull: bool,
+    /// Level-of-detail cell limit, pixels; 0: full detail.
+    lod_max_px: f32,
 }
 
 impl Active {
     fn start(stage: Stage, mesh: &Arc<Mesh>, settings: Settings) -> Result<Self, RenderError> {
         match stage {
             Stage::Gpu(which) => {
-                let mut r = GpuRenderer::new_with_budget(
+                let mut r = GpuRenderer::new_configured(
                     Arc::clone(mesh),
                     which,
                     settings.gpu_budget_bytes,
+                    settings.lod_max_px,
                 )?;
                 r.set_far_m(settings.far_m);
                 r.set_occlusion_cull(!settings.no_occlusion_cull);
                 Ok(Active::Gpu(Box::new(r)))
             }
             Stage::Cpu => {
-                let mut r = CpuRenderer::new(Arc::clone(mesh))?;
+                let mut r = CpuRenderer::with_lod(Arc::clone(mesh), settings.lod_max_px)?;
                 r.set_far_m(settings.far_m);
                 r.set_occlusion_cull(!settings.no_occlusion_cull);
                 Ok(Active::Cpu(Box::new(r)))
@@ -281,6 +315,7 @@ impl FallbackRenderer {
             far_m: config.far_limit_m(),
             gpu_budget_bytes: config.gpu_budget_bytes(),
             no_occlusion_cull: !config.occlusion_cull,
+            lod_max_px: config.lod_px(),
         };
         Self::start(config.renderer, mesh, settings)
     }

@@ -328,7 +328,7 @@ fn fit(pairs: impl Iterator<Item = [f32; 2]>, limit: Option<(f64, f64, f64)>) ->
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::imgproc::ImageF32;
     use crate::render::RenderedView;
@@ -355,7 +355,7 @@ mod tests {
     /// [`setup_textured`] from a map whose appearance is sampled every
     /// `detail_m` meters (the plane is 2 m away, 120 px focal length:
     /// 16.7 mm pixels at level 0).
-    fn setup_detail(
+    pub(crate) fn setup_detail(
         tex: impl Fn(usize, usize) -> f32,
         edit: impl Fn(usize, usize, f32) -> f32,
         detail_m: f32,

@@ -108,7 +108,8 @@ impl Bench {
         let bar = indicatif::ProgressBar::new(0);
         // One CPU rasterizer per core: the same database as one renderer
         // on one thread, byte for byte.
-        let make_renderer = || CpuRenderer::new(map.clone());
+        let lod_px = config.render.lod_px();
+        let make_renderer = || CpuRenderer::with_lod(map.clone(), lod_px);
         let db = build_parallel(
             &map,
             &camera,

@@ -64,6 +64,7 @@ use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
 use crate::render::chunks::{ChunkedMesh, CullStats};
 use crate::render::frustum::Frustum;
+use crate::render::lod::LodView;
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
 /// The tiled, multithreaded software rasterizer. See the module docs.
@@ -97,6 +98,8 @@ pub struct CpuRenderer {
     batch: Vec<u32>,
     /// Screen triangles binned in the last render.
     binned_triangles: usize,
+    /// Largest level-of-detail cell on the image, pixels (0: full detail).
+    lod_max_px: f32,
 }
 
 impl std::fmt::Debug for CpuRenderer {
@@ -112,8 +115,22 @@ impl CpuRenderer {
     /// A renderer of `mesh` on rayon's global thread pool. Fails when the
     /// mesh has non-finite values or out-of-range indices.
     pub fn new(mesh: Arc<Mesh>) -> Result<Self, RenderError> {
+        Self::with_lod(mesh, 0.0)
+    }
+
+    /// As [`CpuRenderer::new`], drawing far untextured chunks at a coarser
+    /// level of detail where its cells span at most `lod_max_px` pixels
+    /// (0: full detail, exactly as [`CpuRenderer::new`]; see
+    /// [`crate::render::lod`] and
+    /// [`crate::render::RenderConfig::lod_max_px`]).
+    pub fn with_lod(mesh: Arc<Mesh>, lod_max_px: f32) -> Result<Self, RenderError> {
         validate::validate_mesh(&mesh)?;
-        let chunked = ChunkedMesh::build(&mesh)?;
+        let lod_max_px = if lod_max_px.is_finite() {
+            lod_max_px.max(0.0)
+        } else {
+            0.0
+        };
+        let chunked = ChunkedMesh::build_with_levels(&mesh, lod_max_px > 0.0)?;
         let chunks: Vec<Chunk> = chunked
             .chunks
             .iter()
@@ -145,7 +162,25 @@ impl CpuRenderer {
             in_batch: vec![false; chunked_count],
             batch: Vec::with_capacity(chunked_count),
             binned_triangles: 0,
+            lod_max_px,
         })
+    }
+
+    /// Sets the largest level-of-detail cell on the image, pixels (0: full
+    /// detail). Only a renderer built [`CpuRenderer::with_lod`] a positive
+    /// size has coarse chunks to choose from; for others this changes
+    /// nothing.
+    pub fn set_lod_max_px(&mut self, lod_max_px: f32) {
+        self.lod_max_px = if lod_max_px.is_finite() {
+            lod_max_px.max(0.0)
+        } else {
+            0.0
+        };
+    }
+
+    /// Number of coarse chunks (levels of detail) the renderer holds.
+    pub fn coarse_chunks(&self) -> usize {
+        self.chunked.lod.coarse_chunks()
     }
 
     /// A renderer of `mesh` on its own pool of `threads` threads (at least
@@ -302,9 +337,11 @@ impl Renderer for CpuRenderer {
             in_batch,
             batch,
             binned_triangles,
+            lod_max_px,
             ..
         } = self;
-        *stats = chunked.mark_visible(cull.then_some(&frustum), visible);
+        let lod = LodView::new(world_from_camera, camera, *lod_max_px);
+        *stats = chunked.mark_visible(lod.as_ref(), cull.then_some(&frustum), visible);
         // Sized once per image size; no allocation in steady state.
         tri_order.resize(view.width * view.height, 0);
         let position = world_from_camera.translation.vector;

@@ -12,6 +12,7 @@ use std::ops::Range;
 
 use crate::render::chunks::{self, CullStats, MeshChunk};
 use crate::render::frustum::Frustum;
+use crate::render::lod::{LodTable, LodView};
 
 /// One draw call: an index range and the texture bind group it samples.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -24,17 +25,18 @@ pub struct Draw {
     pub texture: usize,
 }
 
-/// Fills `draws` (cleared first) with the chunks that pass `frustum` (all
-/// of them when `None`) and have a bind group in `chunk_texture`; `visible`
+/// Fills `draws` (cleared first) with the chunks, at the level of detail
+/// `lod` chooses ([`chunks::mark_visible`]), that pass `frustum` (all of
+/// them when `None`) and have a bind group in `chunk_texture`; `visible`
 /// is scratch. Neither buffer allocates once it has held every chunk.
 pub fn select(
-    chunks: &[MeshChunk],
+    (chunks, table): (&[MeshChunk], &LodTable),
     chunk_texture: &[Option<usize>],
-    frustum: Option<&Frustum>,
+    (lod, frustum): (Option<&LodView>, Option<&Frustum>),
     visible: &mut Vec<bool>,
     draws: &mut Vec<Draw>,
 ) -> CullStats {
-    let stats = chunks::mark_visible(chunks, frustum, visible);
+    let stats = chunks::mark_visible(chunks, table, lod, frustum, visible);
     draws.clear();
     for ((chunk, &texture), &visible) in chunks.iter().zip(chunk_texture).zip(visible.iter()) {
         let (Some(texture), true) = (texture, visible) else {
@@ -55,18 +57,19 @@ pub fn select(
     stats
 }
 
-/// Fills `wanted` (cleared first) with the numbers of the chunks that pass
-/// `frustum` (all of them when `None`) and have a bind group in
-/// `chunk_texture`, in index-buffer order; `visible` is scratch. Neither
-/// buffer allocates once it has held every chunk.
+/// Fills `wanted` (cleared first) with the numbers of the chunks, at the
+/// level of detail `lod` chooses, that pass `frustum` (all of them when
+/// `None`) and have a bind group in `chunk_texture`, in index-buffer
+/// order; `visible` is scratch. Neither buffer allocates once it has held
+/// every chunk.
 pub fn visible_chunks(
-    chunks: &[MeshChunk],
+    (chunks, table): (&[MeshChunk], &LodTable),
     chunk_texture: &[Option<usize>],
-    frustum: Option<&Frustum>,
+    (lod, frustum): (Option<&LodView>, Option<&Frustum>),
     visible: &mut Vec<bool>,
     wanted: &mut Vec<u32>,
 ) -> CullStats {
-    let stats = chunks::mark_visible(chunks, frustum, visible);
+    let stats = chunks::mark_visible(chunks, table, lod, frustum, visible);
     wanted.clear();
     for (c, (texture, &visible)) in chunk_texture.iter().zip(visible.iter()).enumerate() {
         if texture.is_some() && visible {
@@ -113,7 +116,14 @@ mod tests {
         let cam = PinholeCamera::new(64, 48, 50.0, 50.0, 31.5, 23.5);
         let frustum = Frustum::new(&Pose::identity(), &cam, 0.05);
         let (mut visible, mut draws) = (Vec::new(), Vec::new());
-        let stats = select(&chunks, &texture, Some(&frustum), &mut visible, &mut draws);
+        let fine = LodTable::fine_only(chunks.len());
+        let stats = select(
+            (&chunks, &fine),
+            &texture,
+            (None, Some(&frustum)),
+            &mut visible,
+            &mut draws,
+        );
         assert_eq!(stats.visible_chunks, 6);
         assert_eq!(stats.visible_triangles, 35);
         let d = |indices: Range<u32>, texture: usize| Draw {
@@ -126,14 +136,26 @@ mod tests {
             vec![d(0..45, 0), d(60..75, 1), d(75..90, 0), d(105..120, 0)]
         );
         // Without the frustum, the chunk behind joins the first run.
-        select(&chunks, &texture, None, &mut visible, &mut draws);
+        select(
+            (&chunks, &fine),
+            &texture,
+            (None, None),
+            &mut visible,
+            &mut draws,
+        );
         assert_eq!(
             draws,
             vec![d(0..60, 0), d(60..75, 1), d(75..90, 0), d(105..120, 0)]
         );
         // For streaming: the chunks themselves, without the undrawn one.
         let mut wanted = Vec::new();
-        let stats = visible_chunks(&chunks, &texture, Some(&frustum), &mut visible, &mut wanted);
+        let stats = visible_chunks(
+            (&chunks, &fine),
+            &texture,
+            (None, Some(&frustum)),
+            &mut visible,
+            &mut wanted,
+        );
         assert_eq!(stats.visible_chunks, 6);
         assert_eq!(wanted, vec![0, 1, 3, 4, 6]);
     }

@@ -38,6 +38,7 @@ use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
 use crate::render::chunks::{self, CullStats};
 use crate::render::frustum::Frustum;
+use crate::render::lod::LodView;
 use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
 /// How long a render may take before it counts as a device failure.
@@ -122,6 +123,19 @@ pub struct GpuRenderer {
     fail_at: Option<u64>,
     /// The mesh's appearance spacing, meters, told with every view.
     detail_m: f32,
+    /// Largest level-of-detail cell on the image, pixels (0: full detail).
+    lod_max_px: f32,
+}
+
+/// How a [`GpuRenderer`] is built.
+#[derive(Debug, Clone, Copy, Default)]
+struct Options {
+    /// Store textures as `R8Unorm` even where `R32Float` filters.
+    force_unorm8: bool,
+    /// Mesh budget, bytes (0: none).
+    gpu_budget_bytes: u64,
+    /// Level-of-detail cells up to this many pixels (0: full detail).
+    lod_max_px: f32,
 }
 
 impl GpuRenderer {
@@ -142,7 +156,25 @@ impl GpuRenderer {
         which: AdapterPreference,
         gpu_budget_bytes: u64,
     ) -> Result<Self, GpuError> {
-        Self::build(mesh, which, adapter::BACKENDS, false, gpu_budget_bytes)
+        Self::new_configured(mesh, which, gpu_budget_bytes, 0.0)
+    }
+
+    /// As [`GpuRenderer::new_with_budget`], drawing far untextured chunks
+    /// at a coarser level of detail where its cells span at most
+    /// `lod_max_px` pixels (0: full detail; see [`crate::render::lod`] and
+    /// [`crate::render::RenderConfig::lod_max_px`]).
+    pub fn new_configured(
+        mesh: Arc<Mesh>,
+        which: AdapterPreference,
+        gpu_budget_bytes: u64,
+        lod_max_px: f32,
+    ) -> Result<Self, GpuError> {
+        let options = Options {
+            force_unorm8: false,
+            gpu_budget_bytes,
+            lod_max_px,
+        };
+        Self::build(mesh, which, adapter::BACKENDS, options)
     }
 
     /// As [`GpuRenderer::new`], restricted to `backends` (e.g. to compare
@@ -152,7 +184,7 @@ impl GpuRenderer {
         which: AdapterPreference,
         backends: wgpu::Backends,
     ) -> Result<Self, GpuError> {
-        Self::build(mesh, which, backends, false, 0)
+        Self::build(mesh, which, backends, Options::default())
     }
 
     /// Test hook: as [`GpuRenderer::new`], but stores textures as `R8Unorm`
@@ -162,15 +194,18 @@ impl GpuRenderer {
         mesh: Arc<Mesh>,
         which: AdapterPreference,
     ) -> Result<Self, GpuError> {
-        Self::build(mesh, which, adapter::BACKENDS, true, 0)
+        let options = Options {
+            force_unorm8: true,
+            ..Options::default()
+        };
+        Self::build(mesh, which, adapter::BACKENDS, options)
     }
 
     fn build(
         mesh: Arc<Mesh>,
         which: AdapterPreference,
         backends: wgpu::Backends,
-        force_unorm8: bool,
-        gpu_budget_bytes: u64,
+        options: Options,
     ) -> Result<Self, GpuError> {
         let mut seen = Vec::new();
         // One backend at a time: GL (and its EGL probing) only when no
@@ -186,7 +221,7 @@ impl GpuRenderer {
                     seen.push(format!("{} ({:?}): {class:?}", info.name, info.backend));
                     continue;
                 }
-                match Self::on_adapter(&candidate, &mesh, force_unorm8, gpu_budget_bytes) {
+                match Self::on_adapter(&candidate, &mesh, options) {
                     Ok(renderer) => {
                         tracing::info!(
                             adapter = %info.name,
@@ -223,9 +258,13 @@ impl GpuRenderer {
     fn on_adapter(
         adapter: &wgpu::Adapter,
         mesh: &Mesh,
-        force_unorm8: bool,
-        gpu_budget_bytes: u64,
+        options: Options,
     ) -> Result<Self, GpuError> {
+        let Options {
+            force_unorm8,
+            gpu_budget_bytes,
+            lod_max_px,
+        } = options;
         let info = adapter.get_info();
         let limits = adapter.limits();
         let texture_format = if force_unorm8 {
@@ -237,7 +276,12 @@ impl GpuRenderer {
             TextureFormat::Float32 => wgpu::Features::FLOAT32_FILTERABLE,
             TextureFormat::Unorm8 => wgpu::Features::empty(),
         };
-        let (chunked, plan) = upload::validate(mesh, &limits, gpu_budget_bytes)?;
+        let lod_max_px = if lod_max_px.is_finite() {
+            lod_max_px.max(0.0)
+        } else {
+            0.0
+        };
+        let (chunked, plan) = upload::validate(mesh, &limits, gpu_budget_bytes, lod_max_px > 0.0)?;
         let detail_m = chunked.detail_m;
         let device_error = |message: String| GpuError::Device {
             adapter: info.name.clone(),
@@ -295,7 +339,8 @@ impl GpuRenderer {
             ?texture_format,
             buffer_mb = gpu_mesh.buffer_bytes as f64 / 1e6,
             texture_mb = gpu_mesh.texture_bytes as f64 / 1e6,
-            chunks = gpu_mesh.chunks.len(),
+            chunks = gpu_mesh.lod.fine_chunks,
+            coarse_chunks = gpu_mesh.lod.coarse_chunks(),
             streams = plan.is_some(),
             budget_mb = gpu_budget_bytes as f64 / 1e6,
             slots = plan.map_or(0, |p| p.slots),
@@ -328,6 +373,7 @@ impl GpuRenderer {
             renders: 0,
             fail_at: None,
             detail_m,
+            lod_max_px,
         })
     }
 
@@ -377,6 +423,17 @@ impl GpuRenderer {
     /// of the projection, and chunks wholly beyond it are not drawn.
     pub fn set_far_m(&mut self, far_m: Option<f64>) {
         self.far_m = far_m.filter(|f| f.is_finite() && *f > NEAR_M);
+    }
+
+    /// Sets the largest level-of-detail cell on the image, pixels (0: full
+    /// detail). Only a renderer built ([`GpuRenderer::new_configured`])
+    /// with a positive size has coarse chunks to choose from.
+    pub fn set_lod_max_px(&mut self, lod_max_px: f32) {
+        self.lod_max_px = if lod_max_px.is_finite() {
+            lod_max_px.max(0.0)
+        } else {
+            0.0
+        };
     }
 
     /// Device memory the renderer has allocated: the mesh (vertex and
@@ -456,6 +513,8 @@ impl GpuRenderer {
         let frustum =
             Frustum::new(world_from_camera, camera, NEAR_M).with_far(world_from_camera, self.far_m);
         let frustum = self.cull.then_some(&frustum);
+        let lod = LodView::new(world_from_camera, camera, self.lod_max_px);
+        let lod = lod.as_ref();
         let frame = match self.frame.take() {
             Some(f) if f.size() == (w, h) => f,
             Some(f) if f.any_busy() => {
@@ -498,6 +557,8 @@ impl GpuRenderer {
                     Some((occ, frustum)) => {
                         self.stats = chunks::mark_visible(
                             &self.mesh.chunks,
+                            &self.mesh.lod,
+                            lod,
                             Some(frustum),
                             &mut self.visible,
                         );
@@ -555,9 +616,9 @@ impl GpuRenderer {
                     }
                     None => {
                         self.stats = draws::select(
-                            &self.mesh.chunks,
+                            (&self.mesh.chunks, &self.mesh.lod),
                             &self.mesh.chunk_texture,
-                            frustum,
+                            (lod, frustum),
                             &mut self.visible,
                             &mut self.draws,
                         );
@@ -571,9 +632,9 @@ impl GpuRenderer {
             }
             Geometry::Streamed(pool) => {
                 self.stats = draws::visible_chunks(
-                    &self.mesh.chunks,
+                    (&self.mesh.chunks, &self.mesh.lod),
                     &self.mesh.chunk_texture,
-                    frustum,
+                    (lod, frustum),
                     &mut self.visible,
                     &mut self.wanted,
                 );

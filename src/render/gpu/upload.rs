@@ -61,6 +61,8 @@ pub struct GpuMesh {
     pub texture_groups: Vec<wgpu::BindGroup>,
     /// The chunks, in index-buffer order (mesh group order).
     pub chunks: Vec<MeshChunk>,
+    /// Which chunks are coarse copies of which ([`crate::render::lod`]).
+    pub lod: crate::render::lod::LodTable,
     /// Per chunk, its bind group in `texture_groups`, or `None` when it is
     /// not drawn (triangles outside every group of a mesh with groups).
     pub chunk_texture: Vec<Option<usize>>,
@@ -113,15 +115,18 @@ fn resident_bytes(chunked: &ChunkedMesh) -> (u64, u64) {
 /// Checks `mesh` with [`Mesh::validate`] (indices in range, attributes,
 /// groups, textures) and splits it into chunks; decides whether its
 /// vertex and index data fit `budget_bytes` (0: no budget) or must stream
-/// (see [`stream::plan`]); fails when the buffers to allocate exceed the
+/// (see [`stream::plan`]), with coarse copies of its untextured chunks
+/// when `levels` ([`crate::render::lod`]); fails when the buffers to allocate exceed the
 /// adapter's `limits`, or the budget cannot hold one chunk.
 pub fn validate(
     mesh: &Mesh,
     limits: &wgpu::Limits,
     budget_bytes: u64,
+    levels: bool,
 ) -> Result<(ChunkedMesh, Option<StreamPlan>), GpuError> {
     mesh.validate()?;
-    let chunked = ChunkedMesh::build(mesh).map_err(|e| GpuError::Chunks(e.to_string()))?;
+    let chunked = ChunkedMesh::build_with_levels(mesh, levels)
+        .map_err(|e| GpuError::Chunks(e.to_string()))?;
     let max = limits.max_texture_dimension_2d;
     for (t, texture) in mesh.textures.iter().enumerate() {
         if texture.width > max || texture.height > max {
@@ -372,6 +377,7 @@ pub fn upload(
         geometry,
         texture_groups,
         chunks: chunked.chunks,
+        lod: chunked.lod,
         chunk_texture,
         occlusion,
         _textures: textures,
@@ -422,10 +428,10 @@ mod tests {
     #[test]
     fn rejects_bad_meshes_without_panicking() {
         let limits = wgpu::Limits::default();
-        assert!(validate(&triangle(), &limits, 0).is_ok());
+        assert!(validate(&triangle(), &limits, 0, false).is_ok());
         let mut bad = triangle();
         bad.indices[2] = 7;
-        let err = validate(&bad, &limits, 0).expect_err("index out of range");
+        let err = validate(&bad, &limits, 0, false).expect_err("index out of range");
         assert!(err.to_string().contains('7'), "{err}");
         let mut big = triangle();
         big.textures = vec![GrayTexture {
@@ -435,7 +441,7 @@ mod tests {
         }];
         big.groups[0].texture = Some(0);
         assert!(matches!(
-            validate(&big, &limits, 0),
+            validate(&big, &limits, 0, false),
             Err(GpuError::TextureTooLarge { .. })
         ));
         let tiny = wgpu::Limits {
@@ -443,7 +449,7 @@ mod tests {
             ..wgpu::Limits::default()
         };
         assert!(matches!(
-            validate(&triangle(), &tiny, 0),
+            validate(&triangle(), &tiny, 0, false),
             Err(GpuError::MeshTooLarge { .. })
         ));
     }
