@@ -177,7 +177,11 @@ fn build(args: &BuildArgs) -> Result<()> {
     } else {
         format!("cpu far {far_m:?}")
     };
-    let make_renderer = || crate::render::cpu::CpuRenderer::with_lod(mesh.clone(), lod_px);
+    // One chunked copy of the map (and its levels of detail) for all the
+    // build's threads.
+    let first_renderer = crate::render::cpu::CpuRenderer::with_lod(mesh.clone(), lod_px)
+        .context("starting the CPU rasterizer on the map")?;
+    let make_renderer = || Ok(first_renderer.share());
     let mut progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);

@@ -197,18 +197,17 @@ impl ChunkedMesh {
             lod: LodTable::default(),
         };
         // For the levels of detail: the mesh vertex each copied vertex
-        // copies, and whether a mesh vertex lies in more than one chunk.
+        // copies, and the first and last chunk using each mesh vertex.
         let mut vertex_source: Vec<u32> = Vec::new();
-        let mut first_chunk = if levels {
-            vec![u32::MAX; mesh.positions.len()]
-        } else {
-            Vec::new()
+        let per_vertex = |fill: u32| {
+            if levels {
+                vec![fill; mesh.positions.len()]
+            } else {
+                Vec::new()
+            }
         };
-        let mut shared = if levels {
-            vec![false; mesh.positions.len()]
-        } else {
-            Vec::new()
-        };
+        let mut first_chunk = per_vertex(u32::MAX);
+        let mut last_chunk = per_vertex(0);
         let has_uvs = !mesh.uvs.is_empty();
         // Local number of each mesh vertex in the chunk being built, valid
         // where `stamp` holds that chunk's number.
@@ -233,14 +232,11 @@ impl ChunkedMesh {
                         *seen = chunk_number as u32;
                         if levels {
                             vertex_source.push(v as u32);
-                            if let (Some(first), Some(s)) =
-                                (first_chunk.get_mut(v), shared.get_mut(v))
-                            {
-                                if *first == u32::MAX {
-                                    *first = chunk_number as u32;
-                                } else {
-                                    *s = true;
-                                }
+                            if let Some(first) = first_chunk.get_mut(v) {
+                                *first = (*first).min(chunk_number as u32);
+                            }
+                            if let Some(last) = last_chunk.get_mut(v) {
+                                *last = chunk_number as u32;
                             }
                         }
                         let n = out.positions.len();
@@ -269,8 +265,12 @@ impl ChunkedMesh {
         }
         out.lod = LodTable::fine_only(out.chunks.len());
         if levels {
-            drop(first_chunk);
-            lod::build_levels(&mut out, mesh, &vertex_source, &shared)?;
+            let origins = lod::VertexOrigins {
+                vertex_source: &vertex_source,
+                first_chunk: &first_chunk,
+                last_chunk: &last_chunk,
+            };
+            lod::build_levels(&mut out, mesh, &origins)?;
         }
         Ok(out)
     }
@@ -347,11 +347,9 @@ pub fn clusters(mesh: &ChunkedMesh, chunk: &MeshChunk) -> Vec<Cluster> {
 }
 
 /// Sets `visible[i]` for every chunk `i` (`visible` is resized to the chunk
-/// count, without allocating after the first call): for each fine chunk of
-/// `table`, the level `view` chooses ([`LodTable::choose`]; the fine chunk
-/// itself without a view) is marked when it passes `frustum`, or always
-/// when `frustum` is `None`; every other chunk is not. The counts are of
-/// the fine chunks and of what was chosen.
+/// count, without allocating after the first call): see [`LodTable::mark`]
+/// (without coarse copies or without a view: each chunk, when it passes
+/// `frustum`, or always when `frustum` is `None`).
 pub fn mark_visible(
     chunks: &[MeshChunk],
     table: &LodTable,
@@ -359,32 +357,7 @@ pub fn mark_visible(
     frustum: Option<&Frustum>,
     visible: &mut Vec<bool>,
 ) -> CullStats {
-    visible.resize(chunks.len(), true);
-    let fine = table.fine_chunks.min(chunks.len());
-    if let Some(coarse) = visible.get_mut(fine..) {
-        coarse.fill(false);
-    }
-    let mut stats = CullStats {
-        chunks: fine,
-        ..CullStats::default()
-    };
-    for (i, chunk) in chunks.iter().enumerate().take(fine) {
-        stats.triangles += chunk.triangle_count();
-        let chosen = table.choose(i, &chunk.bounds, view);
-        let drawn = chunks.get(chosen).unwrap_or(chunk);
-        let seen = frustum.is_none_or(|f| f.intersects(&drawn.bounds));
-        if let Some(v) = visible.get_mut(i) {
-            *v = false;
-        }
-        if let Some(v) = visible.get_mut(chosen) {
-            *v = seen;
-        }
-        if seen {
-            stats.visible_chunks += 1;
-            stats.visible_triangles += drawn.triangle_count();
-        }
-    }
-    stats
+    table.mark(chunks, view, frustum, visible)
 }
 
 /// Splits `order[range]` at the median centroid on the longest axis of the

@@ -1,60 +1,81 @@
-//! Levels of detail of a chunked mesh: coarser copies of its untextured
-//! chunks, drawn instead of the chunk where the camera is too far away to
-//! tell the difference.
+//! Levels of detail of a chunked mesh: coarser copies of groups of its
+//! untextured chunks, drawn instead of them where the camera is too far
+//! away to tell the difference.
 //!
 //! Owns [`LodTable`] (built once with the chunks, [`build_levels`]) and the
-//! per-render choice ([`LodView`], [`LodTable::choose`]). A scanned map (a
+//! per-render choice ([`LodView`], [`LodTable::mark`]). A scanned map (a
 //! TSDF mesh, vertex-colored, 1-2 cm triangles) has millions of triangles
 //! smaller than a pixel wherever the camera looks down a corridor, and
 //! every one costs a vertex transform and a setup; at the database's
 //! 160x128 thumbnails almost all of them do.
 //!
-//! **The coarse copies.** Each untextured chunk is simplified by vertex
-//! clustering (Rossignac and Borrel): its vertices are pooled in cubic
-//! cells of [`LEVELS`] sizes (2, 4 and 8 times the median edge of the
-//! untextured triangles), each cell's vertices become one vertex at their
-//! mean position and mean gray, and the triangles that collapse are
-//! dropped. A vertex the chunk shares with another chunk is never moved,
-//! so a coarse chunk meets its neighbors, fine or coarse, at exactly the
-//! same border: no crack opens between levels. A level is kept for a chunk
-//! only when it has at most [`KEEP_RATIO`] of the triangles of the finer
-//! level kept before it. Coarse chunks are appended after the fine ones in
+//! **The coarse copies.** The chunks of one mesh group are the leaves of a
+//! binary tree of median splits ([`super::chunks`]), each node a contiguous
+//! run of chunks. The nodes 2, 4 and 6 levels above the deepest leaves
+//! (4, 16 and 64 chunks) get one coarse copy each, simplified by vertex
+//! clustering (Rossignac and Borrel): the node's vertices are pooled in
+//! cubic cells of 2, 4 and 8 times the median edge of the untextured
+//! triangles, each cell's vertices become one vertex at their mean position
+//! and mean gray, and the triangles that collapse are dropped. A vertex the
+//! node shares with a chunk outside it is never moved, so a coarse copy
+//! meets its neighbors, fine or coarse, at exactly the same border: no
+//! crack opens between levels. A copy is kept only with at most
+//! [`KEEP_RATIO`] of the node's triangles and at most [`MAX_COARSE_TRIS`].
+//! Coarse chunks are appended after the fine ones in
 //! [`super::chunks::ChunkedMesh::chunks`]; each coarse triangle carries the
 //! mesh number of the first triangle that made it, for the renderers'
 //! depth tie-break. Textured chunks have no coarse copy: their appearance
-//! is in the texture, which a mean vertex cannot keep, and their triangles
-//! are not the scan's fine ones.
+//! is in the texture, which a mean vertex cannot keep.
 //!
-//! **The choice.** A render draws, for each fine chunk, its coarsest level
-//! whose cell, at the chunk box's nearest point to the camera, spans at most
-//! `max_px` pixels (`[render] lod_max_px`); the frustum test is then made
-//! on the chosen copy. The choice depends only on the pose, the camera and
-//! the chunk, never on the culls, so a culled render stays identical to an
+//! **The choice.** A render draws, for each run of chunks, the coarsest
+//! copy whose cell, at the copy's box's nearest point to the camera, spans
+//! at most `max_px` pixels (`[render] lod_max_px`), else the chunks
+//! themselves, node by node down the tree; the frustum test is then made on
+//! what was chosen. The choice depends only on the pose, the camera and the
+//! map, never on the culls, so a culled render stays identical to an
 //! unculled one, and both renderers choose alike. A vertex moves by less
 //! than a cell (its mean stays inside the cell), so an outline moves by
 //! less than `max_px` pixels, and a surface's depth by less than a cell.
 
 use std::collections::HashMap;
+use std::ops::Range;
 
-use super::chunks::{Aabb, ChunkedMesh, MeshChunk, NO_GROUP};
+use super::chunks::{
+    Aabb, ChunkedMesh, CullStats, MeshChunk, CLUSTER_TRIS, MAX_CHUNK_TRIS, NO_GROUP,
+};
+use super::frustum::Frustum;
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
 
 /// Number of coarse levels.
 pub const LEVELS: usize = 3;
 
-/// Cell size of coarse level `l` (0-based) in median edges: 2, 4, 8.
+/// Cell size of coarse level `l` (0-based) in median edges.
 const CELL_EDGES: [f32; LEVELS] = [2.0, 4.0, 8.0];
 
-/// A level is kept for a chunk only with at most this share of the
-/// triangles of the level before it (the fine chunk for the first).
-pub const KEEP_RATIO: f32 = 0.75;
+/// Tree levels above the deepest leaves of the nodes of coarse level `l`.
+const NODE_HEIGHT: [usize; LEVELS] = [2, 4, 6];
 
-/// No coarse copy at this level.
-pub const NONE: u32 = u32::MAX;
+/// A copy is kept only with at most this share of its node's triangles.
+pub const KEEP_RATIO: f32 = 0.5;
+
+/// Most triangles in a coarse copy: 256 clusters (a cluster's number
+/// within its chunk fits `u8`).
+pub const MAX_COARSE_TRIS: usize = 256 * CLUSTER_TRIS;
 
 /// Triangles sampled for the median edge.
 const EDGE_SAMPLES: usize = 100_000;
+
+/// One coarse copy: of which chunks, at which level, where.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LodNode {
+    /// The fine chunks it replaces (a contiguous run).
+    pub chunks: Range<u32>,
+    /// Its level, 0..[`LEVELS`].
+    pub level: u8,
+    /// Its chunk number in [`ChunkedMesh::chunks`].
+    pub coarse: u32,
+}
 
 /// Which chunks are coarse copies of which. See the module docs.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -63,9 +84,8 @@ pub struct LodTable {
     pub fine_chunks: usize,
     /// Cell size of each level, meters (0 when there are no coarse copies).
     pub cell_m: [f32; LEVELS],
-    /// Per fine chunk, the chunk number of its copy at each level, or
-    /// [`NONE`]; empty when no chunk has one.
-    pub coarse: Vec<[u32; LEVELS]>,
+    /// The coarse copies by first chunk, the largest run first.
+    pub nodes: Vec<LodNode>,
 }
 
 /// What one render needs to choose levels: where the camera is and how
@@ -105,6 +125,12 @@ impl LodView {
         }
         d2.sqrt()
     }
+
+    /// Whether a cell of `cell_m` spans at most `max_px` pixels at the
+    /// nearest point of `bounds`.
+    fn fits(&self, cell_m: f32, bounds: &Aabb) -> bool {
+        cell_m * self.focal_px <= self.max_px * self.distance_m(bounds)
+    }
 }
 
 impl LodTable {
@@ -113,40 +139,100 @@ impl LodTable {
         Self {
             fine_chunks,
             cell_m: [0.0; LEVELS],
-            coarse: Vec::new(),
+            nodes: Vec::new(),
         }
     }
 
     /// Number of coarse copies.
     pub fn coarse_chunks(&self) -> usize {
-        self.coarse.iter().flatten().filter(|&&c| c != NONE).count()
+        self.nodes.len()
     }
 
-    /// The chunk to draw for fine chunk `fine` (with box `bounds`): its
-    /// coarsest copy whose cell spans at most `view.max_px` pixels at the
-    /// box's nearest point, else `fine` itself (also without a view).
-    pub fn choose(&self, fine: usize, bounds: &Aabb, view: Option<&LodView>) -> usize {
-        let (Some(view), Some(levels)) = (view, self.coarse.get(fine)) else {
-            return fine;
+    /// Sets `visible[i]` for every chunk `i` of `chunks` (resized to their
+    /// count, without allocating after the first call): for each run of
+    /// fine chunks, the coarsest copy `view` allows, else each chunk
+    /// itself (every fine chunk without a view), marked when it passes
+    /// `frustum` (always when `None`); every other chunk is not. The
+    /// counts are of the fine chunks and of what was chosen.
+    pub fn mark(
+        &self,
+        chunks: &[MeshChunk],
+        view: Option<&LodView>,
+        frustum: Option<&Frustum>,
+        visible: &mut Vec<bool>,
+    ) -> CullStats {
+        visible.resize(chunks.len(), false);
+        visible.fill(false);
+        let fine = self.fine_chunks.min(chunks.len());
+        let mut stats = CullStats {
+            chunks: fine,
+            ..CullStats::default()
         };
-        let distance_m = view.distance_m(bounds);
-        for l in (0..LEVELS).rev() {
-            let chunk = levels[l];
-            if chunk != NONE && self.cell_m[l] * view.focal_px <= view.max_px * distance_m {
-                return chunk as usize;
+        let mut mark = |c: usize, stats: &mut CullStats| {
+            let Some(chunk) = chunks.get(c) else {
+                return;
+            };
+            let seen = frustum.is_none_or(|f| f.intersects(&chunk.bounds));
+            if let Some(v) = visible.get_mut(c) {
+                *v = seen;
+            }
+            if seen {
+                stats.visible_chunks += 1;
+                stats.visible_triangles += chunk.triangle_count();
+            }
+        };
+        let mut next_node = 0;
+        let mut i = 0;
+        while i < fine {
+            while self
+                .nodes
+                .get(next_node)
+                .is_some_and(|n| (n.chunks.start as usize) < i)
+            {
+                next_node += 1;
+            }
+            let chosen = view.and_then(|view| {
+                self.nodes[next_node.min(self.nodes.len())..]
+                    .iter()
+                    .take_while(|n| n.chunks.start as usize == i)
+                    .find(|n| {
+                        let cell_m = self
+                            .cell_m
+                            .get(n.level as usize)
+                            .copied()
+                            .unwrap_or(f32::INFINITY);
+                        chunks
+                            .get(n.coarse as usize)
+                            .is_some_and(|c| view.fits(cell_m, &c.bounds))
+                    })
+            });
+            match chosen {
+                Some(n) => {
+                    mark(n.coarse as usize, &mut stats);
+                    i = (n.chunks.end as usize).max(i + 1);
+                }
+                None => {
+                    mark(i, &mut stats);
+                    i += 1;
+                }
             }
         }
-        fine
+        stats.triangles = chunks
+            .iter()
+            .take(fine)
+            .map(MeshChunk::triangle_count)
+            .sum();
+        stats
     }
 }
 
-/// Whether fine chunk `chunk` of `mesh` may get coarse copies: untextured.
-fn untextured(mesh: &Mesh, chunk: &MeshChunk) -> bool {
-    if chunk.group == NO_GROUP {
+/// Whether chunks of `group` may get coarse copies: untextured.
+fn untextured(mesh: &Mesh, group: u32) -> bool {
+    if group == NO_GROUP {
         return mesh.groups.is_empty();
     }
     mesh.groups
-        .get(chunk.group as usize)
+        .get(group as usize)
         .is_some_and(|g| g.texture.is_none())
 }
 
@@ -156,7 +242,7 @@ fn median_edge_m(chunked: &ChunkedMesh, mesh: &Mesh) -> Option<f32> {
     let tris: usize = chunked
         .chunks
         .iter()
-        .filter(|c| untextured(mesh, c))
+        .filter(|c| untextured(mesh, c.group))
         .map(MeshChunk::triangle_count)
         .sum();
     if tris == 0 {
@@ -165,7 +251,7 @@ fn median_edge_m(chunked: &ChunkedMesh, mesh: &Mesh) -> Option<f32> {
     let stride = tris.div_ceil(EDGE_SAMPLES).max(1);
     let mut edges = Vec::with_capacity(3 * (tris / stride + 1));
     let mut k = 0usize;
-    for chunk in chunked.chunks.iter().filter(|c| untextured(mesh, c)) {
+    for chunk in chunked.chunks.iter().filter(|c| untextured(mesh, c.group)) {
         for t in chunk.triangles.clone() {
             k += 1;
             if k % stride != 0 {
@@ -199,17 +285,53 @@ fn median_edge_m(chunked: &ChunkedMesh, mesh: &Mesh) -> Option<f32> {
     Some(*m)
 }
 
-/// Scratch of one chunk's simplification, reused from chunk to chunk.
+/// The nodes of the split tree of a group of `triangles` triangles whose
+/// leaves are chunks `first..` ([`super::chunks`]: halves by count until at
+/// most [`MAX_CHUNK_TRIS`]), as (chunks, height above the deepest leaf),
+/// in depth-first order, parents first; and the number of leaves.
+fn split_tree(triangles: usize, first: usize) -> (Vec<(Range<usize>, usize)>, usize) {
+    // (triangles, depth) of each leaf, in order, then nodes by leaf runs.
+    fn walk(
+        n: usize,
+        depth: usize,
+        leaves: &mut Vec<usize>,
+        nodes: &mut Vec<(usize, usize, usize)>,
+    ) {
+        if n <= MAX_CHUNK_TRIS {
+            leaves.push(depth);
+            return;
+        }
+        let at = nodes.len();
+        let start = leaves.len();
+        nodes.push((start, 0, depth));
+        walk(n / 2, depth + 1, leaves, nodes);
+        walk(n - n / 2, depth + 1, leaves, nodes);
+        nodes[at].1 = leaves.len();
+    }
+    let (mut leaves, mut nodes) = (Vec::new(), Vec::new());
+    if triangles > 0 {
+        walk(triangles, 0, &mut leaves, &mut nodes);
+    }
+    let deepest = leaves.iter().copied().max().unwrap_or(0);
+    let out = nodes
+        .into_iter()
+        .map(|(a, b, depth)| (first + a..first + b, deepest.saturating_sub(depth)))
+        .collect();
+    (out, leaves.len())
+}
+
+/// Scratch of one node's simplification, reused from node to node.
 #[derive(Default)]
 struct Scratch {
     /// Cell of each pooled vertex -> its cluster.
     cells: HashMap<[i32; 3], u32>,
-    /// Per chunk-local vertex, its cluster.
+    /// Mesh vertex of each fixed vertex -> its cluster.
+    fixed: HashMap<u32, u32>,
+    /// Per node-local vertex, its cluster.
     cluster_of: Vec<u32>,
-    /// Per cluster: summed position, gray and count, and whether it is a
-    /// shared (fixed) vertex.
+    /// Per cluster: summed position, gray and count.
     sum: Vec<([f64; 3], f64, u32)>,
-    /// Per cluster, its vertex number in the output, or [`NONE`].
+    /// Per cluster, its vertex number in the output, or `u32::MAX`.
     emitted: Vec<u32>,
     /// Coarse triangles seen (sorted cluster triples).
     seen: std::collections::HashSet<[u32; 3]>,
@@ -217,155 +339,210 @@ struct Scratch {
     triangles: Vec<([u32; 3], u32)>,
 }
 
+/// Where each copied vertex comes from: `vertex_source[v]`, the mesh
+/// vertex that chunked vertex `v` copies; `first_chunk[m]` and
+/// `last_chunk[m]`, the first and last chunk using mesh vertex `m`.
+pub struct VertexOrigins<'a> {
+    /// Per chunked vertex, its mesh vertex.
+    pub vertex_source: &'a [u32],
+    /// Per mesh vertex, the first chunk that uses it.
+    pub first_chunk: &'a [u32],
+    /// Per mesh vertex, the last chunk that uses it.
+    pub last_chunk: &'a [u32],
+}
+
 /// Appends coarse copies of the untextured chunks of `chunked` (built from
-/// `mesh`) and fills its [`LodTable`]. `vertex_source[v]` is the mesh
-/// vertex that chunked vertex `v` copies; `shared[m]` whether mesh vertex
-/// `m` lies in more than one chunk. Fails only when the copies no longer
-/// fit `u32` indices.
+/// `mesh`, chunks in split-tree order per group) and fills its
+/// [`LodTable`]. Fails only when the copies no longer fit `u32` indices.
 pub fn build_levels(
     chunked: &mut ChunkedMesh,
     mesh: &Mesh,
-    vertex_source: &[u32],
-    shared: &[bool],
+    origins: &VertexOrigins,
 ) -> Result<(), super::RenderError> {
     let fine = chunked.chunks.len();
+    let fine_tris = chunked.source_triangle.len();
     chunked.lod = LodTable::fine_only(fine);
     let Some(edge_m) = median_edge_m(chunked, mesh) else {
         return Ok(());
     };
     let cell_m = CELL_EDGES.map(|k| k * edge_m);
-    let mut coarse = vec![[NONE; LEVELS]; fine];
+    let mut nodes = Vec::new();
     let mut scratch = Scratch::default();
-    for c in 0..fine {
-        let Some(chunk) = chunked.chunks.get(c).cloned() else {
-            break;
-        };
-        if !untextured(mesh, &chunk) {
+    let mut level_tris = [0usize; LEVELS];
+    let mut start = 0;
+    while start < fine {
+        let group = chunked.chunks[start].group;
+        let end = start
+            + chunked.chunks[start..]
+                .iter()
+                .position(|c| c.group != group)
+                .unwrap_or(fine - start);
+        let run = start..end;
+        start = end;
+        if !untextured(mesh, group) {
             continue;
         }
-        let mut kept_tris = chunk.triangle_count();
-        for l in 0..LEVELS {
+        let triangles: usize = chunked.chunks[run.clone()]
+            .iter()
+            .map(MeshChunk::triangle_count)
+            .sum();
+        let (tree, leaves) = split_tree(triangles, run.start);
+        if leaves != run.len() {
+            // Not the tree the chunks were split by: leave the group whole.
+            tracing::warn!(
+                group,
+                leaves,
+                chunks = run.len(),
+                "level of detail: chunk tree mismatch"
+            );
+            continue;
+        }
+        for (chunks, height) in tree {
+            let Some(level) = NODE_HEIGHT.iter().position(|&h| h == height) else {
+                continue;
+            };
+            let node_tris: usize = chunked.chunks[chunks.clone()]
+                .iter()
+                .map(MeshChunk::triangle_count)
+                .sum();
             let made = simplify(
                 chunked,
-                &chunk,
-                cell_m[l],
-                vertex_source,
-                shared,
+                chunks.clone(),
+                cell_m[level],
+                origins,
                 &mut scratch,
             );
-            if made == 0 || made as f32 > KEEP_RATIO * kept_tris as f32 {
+            if made == 0 || made > MAX_COARSE_TRIS || made as f32 > KEEP_RATIO * node_tris as f32 {
                 continue;
             }
             let number = chunked.chunks.len();
-            if number >= NONE as usize {
+            if number >= u32::MAX as usize {
                 return Err(super::RenderError::InvalidMesh {
                     field: "indices",
                     index: number,
                     reason: "too many chunks with levels of detail".to_string(),
                 });
             }
-            emit(chunked, &chunk, &mut scratch)?;
-            coarse[c][l] = number as u32;
-            kept_tris = made;
+            emit(chunked, group, &mut scratch)?;
+            level_tris[level] += made;
+            nodes.push(LodNode {
+                chunks: chunks.start as u32..chunks.end as u32,
+                level: level as u8,
+                coarse: number as u32,
+            });
         }
     }
-    if coarse.iter().flatten().any(|&n| n != NONE) {
+    // By first chunk, the largest run first (parents come before their
+    // children in depth-first order already; sort to be sure).
+    nodes.sort_by_key(|n| (n.chunks.start, std::cmp::Reverse(n.chunks.end)));
+    tracing::info!(
+        fine_triangles = fine_tris,
+        coarse_triangles = ?level_tris,
+        cell_m = ?cell_m,
+        "levels of detail built"
+    );
+    if !nodes.is_empty() {
         chunked.lod = LodTable {
             fine_chunks: fine,
             cell_m,
-            coarse,
+            nodes,
         };
     }
     Ok(())
 }
 
-/// Clusters `chunk`'s vertices in cells of `cell_m` into `scratch` and
-/// lists the coarse triangles that survive; gives their number.
+/// Clusters the vertices of fine chunks `chunks` in cells of `cell_m`
+/// into `s` and lists the coarse triangles that survive; gives their
+/// number.
 fn simplify(
     chunked: &ChunkedMesh,
-    chunk: &MeshChunk,
+    chunks: Range<usize>,
     cell_m: f32,
-    vertex_source: &[u32],
-    shared: &[bool],
+    origins: &VertexOrigins,
     s: &mut Scratch,
 ) -> usize {
     s.cells.clear();
+    s.fixed.clear();
     s.cluster_of.clear();
     s.sum.clear();
     s.seen.clear();
     s.triangles.clear();
-    let v0 = chunk.vertices.start as usize;
-    for v in chunk.vertices.clone() {
-        let v = v as usize;
+    let (Some(first), Some(last)) = (
+        chunked.chunks.get(chunks.start),
+        chunked.chunks.get(chunks.end.saturating_sub(1)),
+    ) else {
+        return 0;
+    };
+    let vertices = first.vertices.start as usize..last.vertices.end as usize;
+    let triangles = first.triangles.start as usize..last.triangles.end as usize;
+    let (a, b) = (chunks.start as u32, chunks.end as u32);
+    let v0 = vertices.start;
+    for v in vertices {
         let p = chunked.positions.get(v).copied().unwrap_or([0.0; 3]);
         let gray = f64::from(chunked.gray.get(v).copied().unwrap_or(0.0));
-        let fixed = vertex_source
-            .get(v)
-            .and_then(|&m| shared.get(m as usize))
-            .copied()
-            .unwrap_or(true);
-        let new_cluster = |s: &mut Scratch| {
-            s.sum.push(([0.0; 3], 0.0, 0));
-            (s.sum.len() - 1) as u32
-        };
-        let cluster = if fixed {
-            new_cluster(s)
+        let m = origins.vertex_source.get(v).copied().unwrap_or(u32::MAX);
+        let inside = origins.first_chunk.get(m as usize).is_some_and(|&c| c >= a)
+            && origins.last_chunk.get(m as usize).is_some_and(|&c| c < b);
+        let existing = if inside {
+            s.cells
+                .get(&p.map(|x| (x / cell_m).floor() as i32))
+                .copied()
         } else {
-            let key = p.map(|x| (x / cell_m).floor() as i32);
-            match s.cells.get(&key) {
-                Some(&k) => k,
-                None => {
-                    let k = new_cluster(s);
-                    s.cells.insert(key, k);
-                    k
+            s.fixed.get(&m).copied()
+        };
+        let cluster = match existing {
+            Some(k) => k,
+            None => {
+                s.sum.push(([0.0; 3], 0.0, 0));
+                let k = (s.sum.len() - 1) as u32;
+                if inside {
+                    s.cells.insert(p.map(|x| (x / cell_m).floor() as i32), k);
+                } else {
+                    s.fixed.insert(m, k);
                 }
+                k
             }
         };
         if let Some(sum) = s.sum.get_mut(cluster as usize) {
-            for k in 0..3 {
-                sum.0[k] += f64::from(p[k]);
+            if inside || sum.2 == 0 {
+                for k in 0..3 {
+                    sum.0[k] += f64::from(p[k]);
+                }
+                sum.1 += gray;
+                sum.2 += 1;
             }
-            sum.1 += gray;
-            sum.2 += 1;
         }
         s.cluster_of.push(cluster);
     }
-    for t in chunk.triangles.clone() {
-        let Some(tri) = chunked.indices.get(3 * t as usize..3 * t as usize + 3) else {
+    for t in triangles {
+        let Some(tri) = chunked.indices.get(3 * t..3 * t + 3) else {
             continue;
         };
         let cluster = |i: u32| {
             s.cluster_of
                 .get((i as usize).wrapping_sub(v0))
                 .copied()
-                .unwrap_or(NONE)
+                .unwrap_or(u32::MAX)
         };
         let k = [cluster(tri[0]), cluster(tri[1]), cluster(tri[2])];
-        if k.contains(&NONE) || k[0] == k[1] || k[1] == k[2] || k[0] == k[2] {
+        if k.contains(&u32::MAX) || k[0] == k[1] || k[1] == k[2] || k[0] == k[2] {
             continue;
         }
         let mut key = k;
         key.sort_unstable();
         if s.seen.insert(key) {
-            let source = chunked
-                .source_triangle
-                .get(t as usize)
-                .copied()
-                .unwrap_or(0);
+            let source = chunked.source_triangle.get(t).copied().unwrap_or(0);
             s.triangles.push((k, source));
         }
     }
     s.triangles.len()
 }
 
-/// Appends the coarse chunk in `scratch` (from [`simplify`] on `chunk`).
-fn emit(
-    chunked: &mut ChunkedMesh,
-    chunk: &MeshChunk,
-    s: &mut Scratch,
-) -> Result<(), super::RenderError> {
+/// Appends the coarse chunk in `s` (from [`simplify`]) of mesh group
+/// `group`.
+fn emit(chunked: &mut ChunkedMesh, group: u32, s: &mut Scratch) -> Result<(), super::RenderError> {
     s.emitted.clear();
-    s.emitted.resize(s.sum.len(), NONE);
+    s.emitted.resize(s.sum.len(), u32::MAX);
     let first_tri = chunked.source_triangle.len() as u32;
     let first_vertex = chunked.positions.len();
     let has_uvs = !chunked.uvs.is_empty();
@@ -375,9 +552,9 @@ fn emit(
             let Some(slot) = s.emitted.get_mut(k as usize) else {
                 continue;
             };
-            if *slot == NONE {
+            if *slot == u32::MAX {
                 let n = chunked.positions.len();
-                if n >= NONE as usize {
+                if n >= u32::MAX as usize {
                     return Err(super::RenderError::InvalidMesh {
                         field: "indices",
                         index: n,
@@ -402,7 +579,7 @@ fn emit(
     chunked.chunks.push(MeshChunk {
         triangles: first_tri..chunked.source_triangle.len() as u32,
         vertices: first_vertex as u32..chunked.positions.len() as u32,
-        group: chunk.group,
+        group,
         bounds,
     });
     Ok(())
@@ -451,8 +628,22 @@ mod tests {
     }
 
     #[test]
+    fn the_tree_is_the_one_the_chunks_were_split_by() {
+        // 10 000 triangles: 5000 | 5000, each 2500 | 2500: four leaves.
+        let (nodes, leaves) = split_tree(10_000, 7);
+        assert_eq!(leaves, 4);
+        assert_eq!(nodes, vec![(7..11, 2), (7..9, 1), (9..11, 1)]);
+        let (nodes, leaves) = split_tree(MAX_CHUNK_TRIS, 0);
+        assert_eq!((nodes.len(), leaves), (0, 1));
+        assert_eq!(split_tree(0, 0), (vec![], 0));
+        let mesh = wall(200, 10.0, 5.0);
+        let c = ChunkedMesh::build(&mesh).unwrap();
+        assert_eq!(split_tree(mesh.triangle_count(), 0).1, c.chunks.len());
+    }
+
+    #[test]
     fn untextured_chunks_get_coarser_copies_with_their_borders_intact() {
-        let mesh = wall(200, 10.0, 5.0); // 80k triangles, 10 cm edges
+        let mesh = wall(400, 10.0, 5.0); // 320k triangles, 5 cm edges
         let plain = ChunkedMesh::build(&mesh).unwrap();
         assert_eq!(plain.lod.coarse_chunks(), 0);
         let c = ChunkedMesh::build_with_levels(&mesh, true).unwrap();
@@ -460,60 +651,61 @@ mod tests {
         assert_eq!(fine, plain.chunks.len());
         // The fine part is untouched.
         assert_eq!(c.chunks[..fine], plain.chunks[..]);
-        assert_eq!(
-            c.indices[..plain.indices.len()],
-            plain.indices[..],
-            "fine indices"
-        );
-        assert!((c.lod.cell_m[0] - 0.2).abs() < 1e-3, "{:?}", c.lod.cell_m);
-        assert!(c.lod.coarse_chunks() >= fine, "{:?}", c.lod);
-        for (f, levels) in c.lod.coarse.iter().enumerate() {
-            let fine_chunk = &c.chunks[f];
-            let mut before = fine_chunk.triangle_count();
-            // The fine chunk's border: vertices also in another chunk.
-            let border: std::collections::HashSet<[u32; 3]> = c.chunks[..fine]
+        assert_eq!(c.indices[..plain.indices.len()], plain.indices[..]);
+        assert!((c.lod.cell_m[0] - 0.1).abs() < 1e-3, "{:?}", c.lod.cell_m);
+        // 128 chunks: 32 nodes of 4, 8 of 16, 2 of 64.
+        assert_eq!(fine, 128);
+        let per_level = |l: u8| c.lod.nodes.iter().filter(|n| n.level == l).count();
+        assert_eq!([per_level(0), per_level(1), per_level(2)], [32, 8, 2]);
+        let bits = |p: &[f32; 3]| p.map(f32::to_bits);
+        for node in &c.lod.nodes {
+            let run = node.chunks.start as usize..node.chunks.end as usize;
+            let chunk = &c.chunks[node.coarse as usize];
+            let fine_tris: usize = c.chunks[run.clone()]
+                .iter()
+                .map(MeshChunk::triangle_count)
+                .sum();
+            assert!(chunk.triangle_count() as f32 <= KEEP_RATIO * fine_tris as f32);
+            // Its border: the vertices its chunks share with other chunks.
+            let outside: std::collections::HashSet<[u32; 3]> = c.chunks[..fine]
                 .iter()
                 .enumerate()
-                .filter(|&(o, _)| o != f)
+                .filter(|(o, _)| !run.contains(o))
                 .flat_map(|(_, o)| {
                     c.positions[o.vertices.start as usize..o.vertices.end as usize].iter()
                 })
-                .map(|p| p.map(f32::to_bits))
+                .map(bits)
                 .collect();
-            let own: std::collections::HashSet<[u32; 3]> = c.positions
-                [fine_chunk.vertices.start as usize..fine_chunk.vertices.end as usize]
+            let inside = || {
+                c.chunks[run.clone()].iter().flat_map(|o| {
+                    c.positions[o.vertices.start as usize..o.vertices.end as usize].iter()
+                })
+            };
+            let border: std::collections::HashSet<[u32; 3]> =
+                inside().map(bits).filter(|p| outside.contains(p)).collect();
+            let coarse: std::collections::HashSet<[u32; 3]> = c.positions
+                [chunk.vertices.start as usize..chunk.vertices.end as usize]
                 .iter()
-                .map(|p| p.map(f32::to_bits))
-                .filter(|p| border.contains(p))
+                .map(bits)
                 .collect();
-            for &n in levels.iter().filter(|&&n| n != NONE) {
-                let chunk = &c.chunks[n as usize];
-                assert_eq!(chunk.group, fine_chunk.group);
-                assert!(chunk.triangle_count() as f32 <= KEEP_RATIO * before as f32);
-                before = chunk.triangle_count();
-                let coarse: std::collections::HashSet<[u32; 3]> = c.positions
-                    [chunk.vertices.start as usize..chunk.vertices.end as usize]
-                    .iter()
-                    .map(|p| p.map(f32::to_bits))
-                    .collect();
-                for p in &c.positions[chunk.vertices.start as usize..chunk.vertices.end as usize] {
-                    for k in 0..3 {
-                        assert!(
-                            fine_chunk.bounds.min_m[k] <= p[k]
-                                && p[k] <= fine_chunk.bounds.max_m[k]
-                        );
-                    }
+            assert!(!border.is_empty() || run.len() == fine);
+            assert!(border.is_subset(&coarse), "a border vertex moved");
+            let mut lo = [f32::INFINITY; 3];
+            let mut hi = [f32::NEG_INFINITY; 3];
+            for p in inside() {
+                for k in 0..3 {
+                    lo[k] = lo[k].min(p[k]);
+                    hi[k] = hi[k].max(p[k]);
                 }
-                // Every border vertex of the fine chunk is still there, exactly.
-                assert!(own.is_subset(&coarse), "a border vertex moved");
-                for t in chunk.triangles.clone() {
-                    for k in 0..3 {
-                        let v = c.indices[3 * t as usize + k];
-                        assert!(chunk.vertices.contains(&v));
-                    }
-                    let src = c.source_triangle[t as usize] as usize;
-                    assert!(src < mesh.triangle_count());
+            }
+            for k in 0..3 {
+                assert!(lo[k] <= chunk.bounds.min_m[k] && chunk.bounds.max_m[k] <= hi[k]);
+            }
+            for t in chunk.triangles.clone() {
+                for k in 0..3 {
+                    assert!(chunk.vertices.contains(&c.indices[3 * t as usize + k]));
                 }
+                assert!((c.source_triangle[t as usize] as usize) < mesh.triangle_count());
             }
         }
     }
@@ -544,42 +736,58 @@ mod tests {
 
     #[test]
     fn the_level_follows_the_cells_size_on_the_image() {
-        let mesh = wall(200, 10.0, 5.0);
+        let mesh = wall(400, 10.0, 5.0);
         let c = ChunkedMesh::build_with_levels(&mesh, true).unwrap();
         let camera = PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5);
-        let (f, levels) = c
-            .lod
-            .coarse
-            .iter()
-            .enumerate()
-            .find(|(_, l)| l.iter().all(|&n| n != NONE))
-            .expect("a chunk with every level");
-        let bounds = c.chunks[f].bounds;
-        assert_eq!(c.lod.choose(f, &bounds, None), f, "no view: full detail");
-        let at = |d: f32| {
-            // A camera `d` m from the box, beside it along -y.
+        let mut visible = Vec::new();
+        // A camera `d` m in front of the wall, looking at it.
+        let drawn = |d: f64, visible: &mut Vec<bool>| {
             let mut pose = looking_along_y(0.0);
-            pose.translation.vector = Vector3::new(
-                f64::from((bounds.min_m[0] + bounds.max_m[0]) / 2.0),
-                f64::from(bounds.min_m[1] - d),
-                f64::from((bounds.min_m[2] + bounds.max_m[2]) / 2.0),
-            );
-            LodView::new(&pose, &camera, 2.0).unwrap()
+            pose.translation.vector = Vector3::new(0.0, 5.0 - d, 0.0);
+            let view = LodView::new(&pose, &camera, 2.0).unwrap();
+            let stats = c.lod.mark(&c.chunks, Some(&view), None, visible);
+            let levels: Vec<usize> = visible
+                .iter()
+                .enumerate()
+                .filter(|(_, &v)| v)
+                .map(|(i, _)| {
+                    c.lod
+                        .nodes
+                        .iter()
+                        .find(|n| n.coarse as usize == i)
+                        .map_or(0, |n| 1 + n.level as usize)
+                })
+                .collect();
+            (stats, levels)
         };
-        // Cells of 0.2, 0.4, 0.8 m: 2 px at 42, 84, 168 m.
-        assert_eq!(c.lod.choose(f, &bounds, Some(&at(10.0))), f);
-        assert_eq!(
-            c.lod.choose(f, &bounds, Some(&at(50.0))),
-            levels[0] as usize
-        );
-        assert_eq!(
-            c.lod.choose(f, &bounds, Some(&at(100.0))),
-            levels[1] as usize
-        );
-        assert_eq!(
-            c.lod.choose(f, &bounds, Some(&at(200.0))),
-            levels[2] as usize
-        );
+        // Cells of 0.1, 0.2, 0.4 m are 2 px at 21, 42, 84 m.
+        let (near, levels) = drawn(5.0, &mut visible);
+        assert!(levels.iter().all(|&l| l == 0), "{levels:?}");
+        assert_eq!(near.visible_triangles, mesh.triangle_count());
+        for (d, level) in [(30.0, 1), (60.0, 2), (200.0, 3)] {
+            let (stats, levels) = drawn(d, &mut visible);
+            assert!(levels.iter().all(|&l| l == level), "{d} m: {levels:?}");
+            assert!(stats.visible_triangles < mesh.triangle_count() / 2);
+            assert_eq!(stats.triangles, mesh.triangle_count());
+            // Every fine chunk is covered exactly once.
+            let mut covered = vec![0; c.lod.fine_chunks];
+            for (i, _) in visible.iter().enumerate().filter(|(_, &v)| v) {
+                let run = c
+                    .lod
+                    .nodes
+                    .iter()
+                    .find(|n| n.coarse as usize == i)
+                    .map_or(i..i + 1, |n| n.chunks.start as usize..n.chunks.end as usize);
+                for f in run {
+                    covered[f] += 1;
+                }
+            }
+            assert!(covered.iter().all(|&n| n == 1), "{d} m");
+        }
+        // Without a view, or a size of 0: full detail.
+        let stats = c.lod.mark(&c.chunks, None, None, &mut visible);
+        assert_eq!(stats.visible_triangles, mesh.triangle_count());
+        assert!(visible[c.lod.fine_chunks..].iter().all(|&v| !v));
         assert!(LodView::new(&looking_along_y(0.0), &camera, 0.0).is_none());
         assert!(LodView::new(&looking_along_y(0.0), &camera, f32::NAN).is_none());
     }

@@ -70,8 +70,9 @@ use crate::render::{check_request, RenderError, RenderedView, Renderer};
 /// The tiled, multithreaded software rasterizer. See the module docs.
 pub struct CpuRenderer {
     mesh: Arc<Mesh>,
-    /// The mesh split into spatial chunks.
-    chunked: ChunkedMesh,
+    /// The mesh split into spatial chunks (shared by the renderers of one
+    /// map: [`CpuRenderer::share`]).
+    chunked: Arc<ChunkedMesh>,
     /// Dedicated thread pool, or `None` for rayon's global pool.
     pool: Option<rayon::ThreadPool>,
     /// Setup scratch, one per chunk of `chunked`.
@@ -130,7 +131,26 @@ impl CpuRenderer {
         } else {
             0.0
         };
-        let chunked = ChunkedMesh::build_with_levels(&mesh, lod_max_px > 0.0)?;
+        let chunked = Arc::new(ChunkedMesh::build_with_levels(&mesh, lod_max_px > 0.0)?);
+        Ok(Self::on_chunks(mesh, chunked, lod_max_px))
+    }
+
+    /// Another renderer of the same map, sharing this one's chunked mesh
+    /// (and its levels of detail) rather than building its own: one per
+    /// thread of a database build holds the map's chunks once. Its own
+    /// settings start at the defaults, but for the level of detail and the
+    /// far limit, which are this one's; on rayon's global pool.
+    pub fn share(&self) -> Self {
+        let mut other = Self::on_chunks(
+            Arc::clone(&self.mesh),
+            Arc::clone(&self.chunked),
+            self.lod_max_px,
+        );
+        other.far_m = self.far_m;
+        other
+    }
+
+    fn on_chunks(mesh: Arc<Mesh>, chunked: Arc<ChunkedMesh>, lod_max_px: f32) -> Self {
         let chunks: Vec<Chunk> = chunked
             .chunks
             .iter()
@@ -147,7 +167,7 @@ impl CpuRenderer {
             .collect();
         let chunked_count = chunked.chunks.len();
         let occlusion = Occlusion::new(chunks.iter().map(Chunk::cluster_count));
-        Ok(Self {
+        Self {
             visible: vec![true; chunked.chunks.len()],
             mesh,
             chunked,
@@ -163,7 +183,7 @@ impl CpuRenderer {
             batch: Vec::with_capacity(chunked_count),
             binned_triangles: 0,
             lod_max_px,
-        })
+        }
     }
 
     /// Sets the largest level-of-detail cell on the image, pixels (0: full
