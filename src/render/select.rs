@@ -88,13 +88,13 @@ pub struct RenderConfig {
     /// the first read back between them (`render::gpu` docs). Off: the
     /// frustum and far limit only.
     pub occlusion_cull: bool,
-    /// Level of detail (`render::lod`): an untextured chunk (a scan's
-    /// vertex-colored mesh) is drawn from a coarser copy, its vertices
-    /// pooled in cells of 2, 4 or 8 times its median edge, where the
-    /// coarsest such cell spans at most this many pixels at the chunk's
-    /// nearest point; an outline moves by less than that. 0 turns it off
-    /// (every triangle drawn, and no coarse copies built). Textured chunks
-    /// are always drawn whole.
+    /// Level of detail (`render::lod`): runs of 4, 16 and 64 untextured
+    /// chunks (a scan's vertex-colored mesh) also have coarser copies, their
+    /// vertices pooled in cells of 2, 4 and 8 times the median edge and the
+    /// run's border kept exact; a render draws the coarsest copy whose cell
+    /// spans at most this many pixels at the copy's nearest point, so an
+    /// outline moves by less than that. 0 turns it off (every triangle
+    /// drawn, and no copies built). Textured chunks are always drawn whole.
     pub lod_max_px: f64,
 }
 
@@ -493,6 +493,35 @@ mod tests {
         }
         let parsed: RenderConfig = toml::from_str("gpu_budget_mb = 256").expect("an integer");
         assert_eq!(parsed.gpu_budget_bytes(), 256_000_000);
+    }
+
+    #[test]
+    fn level_of_detail_defaults_to_2_px_and_is_validated() {
+        let c = RenderConfig::default();
+        assert_eq!((c.lod_max_px, c.lod_px()), (DEFAULT_LOD_MAX_PX, 2.0));
+        let off: RenderConfig = toml::from_str("lod_max_px = 0").expect("an integer");
+        off.validate().expect("0 turns it off");
+        assert_eq!(off.lod_px(), 0.0);
+        for bad in [-1.0, f64::NAN, f64::INFINITY, 65.0] {
+            let err = RenderConfig {
+                lod_max_px: bad,
+                ..RenderConfig::default()
+            }
+            .validate()
+            .expect_err("out of range");
+            assert!(err.to_string().contains("lod_max_px"), "{err}");
+        }
+        // It reaches the renderer chain's settings.
+        let chain = FallbackRenderer::configured(
+            &RenderConfig {
+                renderer: RendererKind::Cpu,
+                lod_max_px: 3.5,
+                ..RenderConfig::default()
+            },
+            Arc::new(Mesh::default()),
+        )
+        .expect("the CPU rasterizer starts on an empty mesh");
+        assert_eq!(chain.settings.lod_max_px, 3.5);
     }
 
     #[test]

@@ -54,6 +54,18 @@ impl Bench {
     /// Runs the query in the frame buffers under `prior` (none: over the
     /// whole map); `None` when the frame has too little contrast to
     /// describe.
+    /// Renders (untimed) the keyframe at `last`, the last known pose, as
+    /// the service's render thread last drew the tracking keyframe there
+    /// before the frame was lost: a renderer that reuses what its previous
+    /// view saw (the CPU rasterizer's first batch, wgpu's first pass)
+    /// starts a window search's candidate renders from that, as it does in
+    /// the service, and not from whatever the previous query left.
+    pub(super) fn draw_last_keyframe(&mut self, last: &Pose) {
+        if let Err(e) = self.candidate_r.render(last, &self.pinhole, &mut self.kview) {
+            tracing::debug!(error = %e, "the last keyframe could not be rendered");
+        }
+    }
+
     pub(super) fn recover(
         &mut self,
         query: &QueryFrame,
