@@ -61,7 +61,10 @@ impl Bench {
     /// starts a window search's candidate renders from that, as it does in
     /// the service, and not from whatever the previous query left.
     pub(super) fn draw_last_keyframe(&mut self, last: &Pose) {
-        if let Err(e) = self.candidate_r.render(last, &self.pinhole, &mut self.kview) {
+        if let Err(e) = self
+            .candidate_r
+            .render(last, &self.pinhole, &mut self.kview)
+        {
             tracing::debug!(error = %e, "the last keyframe could not be rendered");
         }
     }
