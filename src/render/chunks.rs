@@ -13,8 +13,11 @@
 //! which the CPU rasterizer uses to break depth ties exactly as in mesh
 //! order.
 //!
-//! Per render, each chunk's box is tested against the view [`Frustum`]
-//! ([`mark_visible`]).
+//! With levels of detail ([`super::lod`]), coarse copies of runs of
+//! untextured chunks follow the fine chunks.
+//!
+//! Per render, each chunk's box (or, at a level of detail, its copy's) is
+//! tested against the view [`Frustum`] ([`mark_visible`]).
 
 use std::ops::Range;
 

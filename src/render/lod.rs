@@ -66,6 +66,16 @@ pub const MAX_COARSE_TRIS: usize = 256 * CLUSTER_TRIS;
 /// Triangles sampled for the median edge.
 const EDGE_SAMPLES: usize = 100_000;
 
+/// A level-of-detail cell limit as the renderers keep it, pixels: `px`
+/// when a finite number of at least 0, else 0 (full detail).
+pub fn cell_limit_px(px: f32) -> f32 {
+    if px.is_finite() {
+        px.max(0.0)
+    } else {
+        0.0
+    }
+}
+
 /// One coarse copy: of which chunks, at which level, where.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct LodNode {
@@ -790,6 +800,10 @@ mod tests {
         assert!(visible[c.lod.fine_chunks..].iter().all(|&v| !v));
         assert!(LodView::new(&looking_along_y(0.0), &camera, 0.0).is_none());
         assert!(LodView::new(&looking_along_y(0.0), &camera, f32::NAN).is_none());
+        for (px, kept) in [(2.5, 2.5), (0.0, 0.0), (-1.0, 0.0), (f32::NAN, 0.0)] {
+            assert_eq!(cell_limit_px(px), kept, "{px}");
+        }
+        assert_eq!(cell_limit_px(f32::INFINITY), 0.0);
     }
 
     /// Renders `mesh` from `pose` with the level of detail at `max_px`.

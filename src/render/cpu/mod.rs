@@ -126,11 +126,7 @@ impl CpuRenderer {
     /// [`crate::render::RenderConfig::lod_max_px`]).
     pub fn with_lod(mesh: Arc<Mesh>, lod_max_px: f32) -> Result<Self, RenderError> {
         validate::validate_mesh(&mesh)?;
-        let lod_max_px = if lod_max_px.is_finite() {
-            lod_max_px.max(0.0)
-        } else {
-            0.0
-        };
+        let lod_max_px = crate::render::lod::cell_limit_px(lod_max_px);
         let chunked = Arc::new(ChunkedMesh::build_with_levels(&mesh, lod_max_px > 0.0)?);
         Ok(Self::on_chunks(mesh, chunked, lod_max_px))
     }
@@ -191,11 +187,7 @@ impl CpuRenderer {
     /// size has coarse chunks to choose from; for others this changes
     /// nothing.
     pub fn set_lod_max_px(&mut self, lod_max_px: f32) {
-        self.lod_max_px = if lod_max_px.is_finite() {
-            lod_max_px.max(0.0)
-        } else {
-            0.0
-        };
+        self.lod_max_px = crate::render::lod::cell_limit_px(lod_max_px);
     }
 
     /// Number of coarse chunks (levels of detail) the renderer holds.

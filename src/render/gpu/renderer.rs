@@ -276,11 +276,7 @@ impl GpuRenderer {
             TextureFormat::Float32 => wgpu::Features::FLOAT32_FILTERABLE,
             TextureFormat::Unorm8 => wgpu::Features::empty(),
         };
-        let lod_max_px = if lod_max_px.is_finite() {
-            lod_max_px.max(0.0)
-        } else {
-            0.0
-        };
+        let lod_max_px = crate::render::lod::cell_limit_px(lod_max_px);
         let (chunked, plan) = upload::validate(mesh, &limits, gpu_budget_bytes, lod_max_px > 0.0)?;
         let detail_m = chunked.detail_m;
         let device_error = |message: String| GpuError::Device {
@@ -429,11 +425,7 @@ impl GpuRenderer {
     /// detail). Only a renderer built ([`GpuRenderer::new_configured`])
     /// with a positive size has coarse chunks to choose from.
     pub fn set_lod_max_px(&mut self, lod_max_px: f32) {
-        self.lod_max_px = if lod_max_px.is_finite() {
-            lod_max_px.max(0.0)
-        } else {
-            0.0
-        };
+        self.lod_max_px = crate::render::lod::cell_limit_px(lod_max_px);
     }
 
     /// Device memory the renderer has allocated: the mesh (vertex and
