@@ -31,7 +31,10 @@ from pymavlink import mavutil  # noqa: E402
 mavutil.set_dialect("common")
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
-STAR = pathlib.Path(os.environ.get("STAR_BIN", REPO / "target" / "release" / "star"))
+# The release binary: STAR_BIN, else where cargo put it (CARGO_TARGET_DIR, as
+# scripts/test.sh leaves it in the environment), else target/release/star.
+_TARGET = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
+STAR = pathlib.Path(os.environ.get("STAR_BIN", _TARGET / "release" / "star"))
 SEED = 3
 FRAMES = 150
 FPS = 50.0
