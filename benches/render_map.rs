@@ -1,5 +1,6 @@
 //! Milliseconds per 640x512 keyframe of the CPU rasterizer and the wgpu
-//! renderer (software adapter: lavapipe/llvmpipe; render plus readback) on
+//! renderer (software adapter: lavapipe/llvmpipe, or a hardware GPU with
+//! `STAR_BENCH_ADAPTER=hardware`; render plus readback) on
 //! the map of a dataset, at 50 poses evenly strided through its
 //! `groundtruth.txt` (every 10th of 500; each rendered `ROUNDS` times): median and p95, with the
 //! mesh size and the share of triangles in chunks that pass the frustum
@@ -282,7 +283,7 @@ fn bench_dataset(dir: &Path, only: Only) {
     }
 
     let t = Instant::now();
-    match GpuRenderer::new_configured(Arc::clone(&mesh), AdapterPreference::Software, 0, lod_px) {
+    match GpuRenderer::new_configured(Arc::clone(&mesh), adapter(), 0, lod_px) {
         Ok(mut gpu) => {
             gpu.set_far_m(far_m);
             let built_s = t.elapsed().as_secs_f64();
@@ -334,7 +335,8 @@ fn bench_dataset(dir: &Path, only: Only) {
                     String::new()
                 };
                 println!(
-                    "  wgpu software (cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders{occlusion_counts}",
+                    "  wgpu {} (cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders{occlusion_counts}",
+                    adapter_label(),
                 );
             }
             drop(gpu);
@@ -342,7 +344,7 @@ fn bench_dataset(dir: &Path, only: Only) {
                 bench_gpu_budget(&mesh, &camera, &poses, far_m, budget_mb);
             }
         }
-        Err(e) => println!("  wgpu software: no adapter, skipped ({e})"),
+        Err(e) => println!("  wgpu {}: no adapter, skipped ({e})", adapter_label()),
     }
 }
 
@@ -357,7 +359,25 @@ fn gpu_budget_mb() -> Option<f64> {
     Some(mb)
 }
 
-/// The wgpu software renderer (cull on) with a GPU budget of `budget_mb`.
+/// The adapter class the wgpu renderer is timed on: software (lavapipe,
+/// llvmpipe) unless `STAR_BENCH_ADAPTER=hardware` asks for a hardware GPU.
+fn adapter() -> AdapterPreference {
+    match std::env::var("STAR_BENCH_ADAPTER").as_deref() {
+        Ok("hardware") => AdapterPreference::Hardware,
+        Ok("software") | Err(_) => AdapterPreference::Software,
+        Ok(other) => panic!("STAR_BENCH_ADAPTER={other}: expected hardware or software"),
+    }
+}
+
+/// [`adapter`]'s class in words.
+fn adapter_label() -> &'static str {
+    match adapter() {
+        AdapterPreference::Hardware => "hardware",
+        AdapterPreference::Software => "software",
+    }
+}
+
+/// The wgpu renderer (cull on) with a GPU budget of `budget_mb`.
 fn bench_gpu_budget(
     mesh: &Arc<Mesh>,
     camera: &PinholeCamera,
@@ -366,14 +386,13 @@ fn bench_gpu_budget(
     budget_mb: f64,
 ) {
     let budget_bytes = (budget_mb * 1e6) as u64;
-    let mut gpu = match GpuRenderer::new_with_budget(
-        Arc::clone(mesh),
-        AdapterPreference::Software,
-        budget_bytes,
-    ) {
+    let mut gpu = match GpuRenderer::new_with_budget(Arc::clone(mesh), adapter(), budget_bytes) {
         Ok(gpu) => gpu,
         Err(e) => {
-            println!("  wgpu software, budget {budget_mb} MB: skipped ({e})");
+            println!(
+                "  wgpu {}, budget {budget_mb} MB: skipped ({e})",
+                adapter_label()
+            );
             return;
         }
     };
@@ -389,8 +408,9 @@ fn bench_gpu_budget(
     let per = |a: u64, b: u64| (a - b) as f64 / renders;
     let memory = gpu.memory();
     println!(
-        "  wgpu software (cull on, gpu_budget_mb {budget_mb}: {}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders; \
+        "  wgpu {} (cull on, gpu_budget_mb {budget_mb}: {}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders; \
          per render {:.1} chunk uploads, {:.1} evictions, {:.2} passes; device memory {:.0} MB (mesh buffers {:.1} MB)",
+        adapter_label(),
         if after.slots == 0 {
             "the mesh fits, resident".to_string()
         } else {
@@ -429,13 +449,8 @@ fn bench_interleaved(dirs: &[PathBuf], gpu: bool) {
         .map(|dir| {
             let (mesh, camera, poses, far_m, lod_px) = load(dir);
             let renderer: Box<dyn Renderer> = if gpu {
-                let mut r = GpuRenderer::new_configured(
-                    Arc::new(mesh),
-                    AdapterPreference::Software,
-                    0,
-                    lod_px,
-                )
-                .expect("a wgpu software adapter");
+                let mut r = GpuRenderer::new_configured(Arc::new(mesh), adapter(), 0, lod_px)
+                    .expect("a wgpu adapter of STAR_BENCH_ADAPTER's class");
                 r.set_far_m(far_m);
                 Box::new(r)
             } else {
