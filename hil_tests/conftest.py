@@ -33,7 +33,7 @@ mavutil.set_dialect("common")
 REPO = pathlib.Path(__file__).resolve().parent.parent
 # The release binary: STAR_BIN, else where cargo put it (CARGO_TARGET_DIR, as
 # scripts/test.sh leaves it in the environment), else target/release/star.
-_TARGET = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
+_TARGET = REPO / os.environ.get("CARGO_TARGET_DIR", "target")  # relative: to the repo
 STAR = pathlib.Path(os.environ.get("STAR_BIN", _TARGET / "release" / "star"))
 SEED = 3
 FRAMES = 150
