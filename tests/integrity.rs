@@ -52,7 +52,7 @@ fn plain(fx: &Fixture) -> Dataset {
 #[test]
 fn cold_start_and_wrong_hints_cost_time_never_a_wrong_pose() {
     let fx = fixture();
-    let ds = plain(&fx);
+    let ds = plain(fx);
 
     // A cold start: no pose at all; the first frames are searched in the
     // database. The figure targets 2 s median; one start must be well within.
@@ -60,7 +60,7 @@ fn cold_start_and_wrong_hints_cost_time_never_a_wrong_pose() {
         start: StartMode::Cold,
         ..OfflineOptions::default()
     };
-    let report = run_with(&fx, &ds, options, true);
+    let report = run_with(fx, &ds, options, true);
     let i = integrity(&report, "cold start");
     let first_s = i.first_pose_after_s.expect("cold start: a pose was found");
     assert!(first_s <= 2.0, "cold start: first pose after {first_s} s");
@@ -72,7 +72,7 @@ fn cold_start_and_wrong_hints_cost_time_never_a_wrong_pose() {
         world_from_camera_start: Some(fx.gt.poses[0]),
         ..OfflineOptions::default()
     };
-    let report = run_with(&fx, &ds, options, false);
+    let report = run_with(fx, &ds, options, false);
     let i = integrity(&report, "right hint, no database");
     assert!(i.first_pose_after_s.expect("confirmed") <= 2.0 / RATE_HZ + 1e-9);
 
@@ -95,7 +95,7 @@ fn cold_start_and_wrong_hints_cost_time_never_a_wrong_pose() {
             ..OfflineOptions::default()
         };
         let what = format!("hint {offset_m} m off, database");
-        let report = run_with(&fx, &ds, with_db.clone(), true);
+        let report = run_with(fx, &ds, with_db.clone(), true);
         let i = integrity(&report, &what);
         let first_s = i
             .first_pose_after_s
@@ -103,7 +103,7 @@ fn cold_start_and_wrong_hints_cost_time_never_a_wrong_pose() {
         assert!(first_s <= 2.0, "{what}: first pose after {first_s} s");
 
         let what = format!("hint {offset_m} m off, no database");
-        let report = run_with(&fx, &ds, with_db, false);
+        let report = run_with(fx, &ds, with_db, false);
         integrity(&report, &what);
     }
 }
@@ -118,15 +118,15 @@ fn a_covered_lens_sends_nothing_and_tracking_recovers() {
         (6 + ((x * 7919 + y * 104_729) % 7)) as u8
     });
     let fault_end = FAULT_START + 50;
-    let ds = assembled(&fx, &tmp.path().join("covered"), |i| {
+    let ds = assembled(fx, &tmp.path().join("covered"), |i| {
         let image = if (FAULT_START..fault_end).contains(&i) {
             covered.clone()
         } else {
-            frame_path(&fx, i)
+            frame_path(fx, i)
         };
         (image, fx.gt.poses[i])
     });
-    let report = run_with(&fx, &ds, OfflineOptions::default(), true);
+    let report = run_with(fx, &ds, OfflineOptions::default(), true);
     integrity(&report, "covered lens");
     let tracked: Vec<bool> = report.tracked.iter().map(|t| t.1).collect();
     assert!(
@@ -162,14 +162,14 @@ fn frames_of_a_look_alike_room_send_nothing() {
     write_sequence(&other, &options, &mut |_| {}).expect("other sequence");
     let other_ds = Dataset::open(&other).expect("other dataset");
     let elsewhere = Pose::translation(1000.0, 0.0, 0.0);
-    let ds = assembled(&fx, &tmp.path().join("elsewhere"), |i| {
+    let ds = assembled(fx, &tmp.path().join("elsewhere"), |i| {
         if i >= FAULT_START {
             (other.join(&other_ds.frames[i].path), elsewhere)
         } else {
-            (frame_path(&fx, i), fx.gt.poses[i])
+            (frame_path(fx, i), fx.gt.poses[i])
         }
     });
-    let report = run_with(&fx, &ds, OfflineOptions::default(), true);
+    let report = run_with(fx, &ds, OfflineOptions::default(), true);
     integrity(&report, "look-alike room");
     let sent_elsewhere = report.tracked[FAULT_START + 2..]
         .iter()
@@ -202,7 +202,7 @@ fn a_view_that_jumps_is_not_sent() {
         "the fixture's jump is {moved_m} m: past the jump limit, within the old 0.3 m"
     );
     let tmp = tempfile::tempdir().expect("tmp");
-    let ds = common::reloc_fixture::spliced(&fx, &tmp.path().join("ahead"), |i| {
+    let ds = common::reloc_fixture::spliced(fx, &tmp.path().join("ahead"), |i| {
         if i < FAULT_START {
             Some(i)
         } else {
@@ -211,7 +211,7 @@ fn a_view_that_jumps_is_not_sent() {
     });
     for database in [true, false] {
         let what = format!("a view jumping {moved_m:.3} m, database: {database}");
-        let report = run_with(&fx, &ds, OfflineOptions::default(), database);
+        let report = run_with(fx, &ds, OfflineOptions::default(), database);
         integrity(&report, &what);
         let tracked: Vec<bool> = report.tracked.iter().map(|t| t.1).collect();
         assert!(
@@ -260,7 +260,7 @@ fn run_in_twin_map_from(
     use std::sync::Arc;
 
     let fx = fixture();
-    let ds = plain(&fx);
+    let ds = plain(fx);
     let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
     // Far enough along that neither room is seen from the other (through a
     // doorway) within the renderer's far limit, a whole number of grid

@@ -156,27 +156,27 @@ fn check_landmarks(fx: &Fixture) {
 #[test]
 fn recovers_after_blackout_and_teleport() {
     let fx = fixture();
-    check_ranking(&fx);
-    check_landmarks(&fx);
+    check_ranking(fx);
+    check_landmarks(fx);
     let tmp = tempfile::tempdir().expect("tmp");
 
     // (a) 1 s blackout: 50 black frames from FAULT_START.
     let fault_end = FAULT_START + 50;
-    let ds = spliced(&fx, &tmp.path().join("blackout"), |i| {
+    let ds = spliced(fx, &tmp.path().join("blackout"), |i| {
         (!(FAULT_START..fault_end).contains(&i)).then_some(i)
     });
-    let report = run(&fx, &ds);
+    let report = run(fx, &ds);
     check(&report, &ds, "blackout", fault_end);
 
     // (b) teleport: at FAULT_START the images jump 80 frames (1.6 s, about
     // 0.8 m) ahead along the trajectory; the fault is that one jump.
-    let ds = spliced(&fx, &tmp.path().join("teleport"), |i| {
+    let ds = spliced(fx, &tmp.path().join("teleport"), |i| {
         Some(if i < FAULT_START {
             i
         } else {
             (i + 80).min(FRAMES - 1)
         })
     });
-    let report = run(&fx, &ds);
+    let report = run(fx, &ds);
     check(&report, &ds, "teleport", FAULT_START);
 }

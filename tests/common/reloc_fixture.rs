@@ -34,8 +34,40 @@ pub struct Fixture {
     pub region: ([f32; 3], [f32; 3]),
 }
 
-pub fn fixture() -> Fixture {
-    fixture_with_seed(3)
+/// The fixture of seed 3, built once per test binary and shared by its
+/// tests, which only read it (each test built its own before, and
+/// `integrity.rs`'s look-alike room three: half a minute of CI each time).
+/// Its folder is removed when the process exits.
+pub fn fixture() -> &'static Fixture {
+    static SHARED: std::sync::OnceLock<Fixture> = std::sync::OnceLock::new();
+    SHARED.get_or_init(|| {
+        let fx = fixture_with_seed(3);
+        remove_at_exit(fx._tmp.path());
+        fx
+    })
+}
+
+/// Folders to remove when the process exits: a `static` is never
+/// dropped, so the shared fixture's `TempDir` would stay behind.
+static AT_EXIT: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+extern "C" fn remove_folders() {
+    if let Ok(dirs) = AT_EXIT.lock() {
+        for dir in dirs.iter() {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+}
+
+fn remove_at_exit(dir: &Path) {
+    let mut dirs = AT_EXIT.lock().expect("at-exit list");
+    if dirs.is_empty() {
+        // SAFETY: `remove_folders` is a plain function that only touches
+        // the file system and a static; registering it has no other effect.
+        let registered = unsafe { libc::atexit(remove_folders) };
+        assert_eq!(registered, 0, "atexit");
+    }
+    dirs.push(dir.to_path_buf());
 }
 
 /// The fixture for sequence seed `seed`.
