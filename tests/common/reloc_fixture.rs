@@ -36,7 +36,8 @@ pub struct Fixture {
 
 /// The fixture of seed 3, built once per test binary and shared by its
 /// tests, which only read it (each test built its own before, and
-/// `integrity.rs`'s look-alike room three: half a minute of CI each time).
+/// `integrity.rs`'s look-alike room three; sharing took a minute off
+/// `integrity.rs`: docs/ci.md).
 /// Its folder is removed when the process exits.
 pub fn fixture() -> &'static Fixture {
     static SHARED: std::sync::OnceLock<Fixture> = std::sync::OnceLock::new();
