@@ -12,11 +12,20 @@
 //!   [`NEAR_EXACT_MAX`] landmarks, each corner is compared with every one
 //!   gathered (exact within reach); beyond, through the vocabulary as over
 //!   the whole map (with more probes), the landmarks out of reach skipped.
+//!   Within each leaf the landmarks are ordered by a coarser floor-plan
+//!   block, so that a probed leaf is read only over the blocks that meet
+//!   the reach (one run of blocks per block row), not whole.
 //! - Over the whole map ([`LandmarkIndex::best_two_everywhere`]): each
 //!   corner descends the vocabulary to its [`Probes::words`] nearest words
 //!   and, under them, its [`Probes::leaves`] nearest leaves, and is
 //!   compared with the landmarks of those leaves only (an inverted index:
 //!   approximate, the nearest landmark can lie in a leaf not probed).
+//! - Both vocabulary searches read the probed leaves leaf-major: all the
+//!   corners' probes first, then each probed leaf once, in memory order,
+//!   for every corner that probes it. Corner after corner, the leaves
+//!   were scattered reads, each a cache miss; in order they stream. Of
+//!   equal distances the lower landmark index wins, so the result does
+//!   not depend on the order of reading.
 //!
 //! All scratch is sized at construction: nothing allocates per query.
 
@@ -30,6 +39,11 @@ use super::vocabulary::{Vocabulary, MAX_WORDS};
 const CELL_M: f32 = 1.0;
 /// Most cells of the floor-plan grid.
 const MAX_CELLS: usize = 1 << 22;
+/// Edge of the blocks that order the landmarks within a leaf, meters
+/// (larger where leaves x blocks would pass [`MAX_LEAF_BLOCKS`]).
+const BLOCK_M: f32 = 2.0;
+/// Most entries of the leaf-by-block table (4 bytes each).
+const MAX_LEAF_BLOCKS: usize = 1 << 22;
 /// Near a known position, up to this many landmarks within reach are each
 /// compared with every corner (exact); beyond, the vocabulary is searched
 /// with [`NEAR_PROBES`], skipping the landmarks out of reach.
@@ -53,6 +67,9 @@ pub struct Probes {
 
 /// Most leaves probed per corner.
 pub const MAX_PROBED_LEAVES: usize = 64;
+/// Queries per search the scratch is sized for at construction (a frame's
+/// corners; more grow it once).
+const PREALLOCATED_QUERIES: usize = 1024;
 
 impl Default for Probes {
     fn default() -> Self {
@@ -70,8 +87,10 @@ pub type BestTwo = (u32, u32, u32, u32);
 /// The landmarks laid out for matching. See the module docs.
 #[derive(Debug, Clone)]
 pub struct LandmarkIndex {
-    /// Descriptors in database order (leaf after leaf).
+    /// Descriptors leaf after leaf as the database stores them, within a
+    /// leaf ordered by block: position `p` holds landmark `original[p]`.
     descriptors: Vec<Descriptor>,
+    original: Vec<u32>,
     vocabulary: Vocabulary,
     /// First leaf of each word; first landmark of each leaf (and the end).
     word_first_leaf: Vec<u32>,
@@ -83,7 +102,19 @@ pub struct LandmarkIndex {
     nx: usize,
     ny: usize,
     cell_start: Vec<u32>,
+    /// Positions (in `descriptors`) of each cell's landmarks.
     cell_landmarks: Vec<u32>,
+    /// Block grid over the same origin: edge, size; per leaf, the
+    /// position where each of its blocks starts (`n_blocks + 1` each).
+    block_m: f32,
+    block_nx: usize,
+    block_ny: usize,
+    leaf_block_start: Vec<u32>,
+    /// Scratch of the near search: the runs of blocks within reach
+    /// (first block, end block), one per block row.
+    near_runs: Vec<(u32, u32)>,
+    /// Scratch of the vocabulary search: (probed leaf, query) pairs.
+    probe_pairs: Vec<(u32, u32)>,
     /// Scratch of the near search: the gathered descriptors and indices.
     near_descriptors: Vec<Descriptor>,
     near_indices: Vec<u32>,
@@ -100,6 +131,12 @@ impl LandmarkIndex {
     /// inconsistent vocabulary is replaced by one leaf holding them all,
     /// which makes the whole-map search brute force).
     pub fn new(landmarks: &[Landmark], vocabulary: &Vocabulary) -> Self {
+        Self::with_block(landmarks, vocabulary, BLOCK_M)
+    }
+
+    /// [`Self::new`] with the blocks' edge given (`f32::INFINITY`: one
+    /// block, a probed leaf read whole).
+    fn with_block(landmarks: &[Landmark], vocabulary: &Vocabulary, block_m: f32) -> Self {
         let n = landmarks.len();
         let vocabulary = if vocabulary.check(n as u64).is_ok() && !vocabulary.is_empty() {
             vocabulary.clone()
@@ -145,6 +182,38 @@ impl LandmarkIndex {
             let cy = (((l.world_m[1] - lo[1]) / cell_m) as usize).min(ny - 1);
             cy * nx + cx
         };
+        let n_leaves = vocabulary.leaves.len();
+        let mut block_m = block_m.max(cell_m);
+        let (block_nx, block_ny) = loop {
+            let bx = ((hi[0] - lo[0]) / block_m) as usize + 1;
+            let by = ((hi[1] - lo[1]) / block_m) as usize + 1;
+            if n_leaves * (bx * by + 1) <= MAX_LEAF_BLOCKS || bx * by == 1 {
+                break (bx, by);
+            }
+            block_m *= 1.5;
+        };
+        let n_blocks = block_nx * block_ny;
+        let block_of = |l: &Landmark| {
+            let bx = (((l.world_m[0] - lo[0]) / block_m) as usize).min(block_nx - 1);
+            let by = (((l.world_m[1] - lo[1]) / block_m) as usize).min(block_ny - 1);
+            by * block_nx + bx
+        };
+        // Within each leaf, the landmarks ordered by block (stable).
+        let mut original: Vec<u32> = (0..n as u32).collect();
+        let mut leaf_block_start = vec![0u32; n_leaves * (n_blocks + 1)];
+        for l in 0..n_leaves {
+            let (a, b) = (leaf_start[l] as usize, leaf_start[l + 1] as usize);
+            let slice = &mut original[a..b];
+            slice.sort_by_key(|&i| block_of(&landmarks[i as usize]));
+            let row = &mut leaf_block_start[l * (n_blocks + 1)..(l + 1) * (n_blocks + 1)];
+            let mut p = a;
+            for (block, start) in row.iter_mut().enumerate() {
+                while p < b && block_of(&landmarks[original[p] as usize]) < block {
+                    p += 1;
+                }
+                *start = p as u32;
+            }
+        }
         let mut cell_start = vec![0u32; nx * ny + 1];
         for l in landmarks {
             cell_start[cell_of(l) + 1] += 1;
@@ -154,13 +223,17 @@ impl LandmarkIndex {
         }
         let mut fill = cell_start.clone();
         let mut cell_landmarks = vec![0u32; n];
-        for (i, l) in landmarks.iter().enumerate() {
-            let c = cell_of(l);
-            cell_landmarks[fill[c] as usize] = i as u32;
+        for (p, &i) in original.iter().enumerate() {
+            let c = cell_of(&landmarks[i as usize]);
+            cell_landmarks[fill[c] as usize] = p as u32;
             fill[c] += 1;
         }
         Self {
-            descriptors: landmarks.iter().map(|l| l.descriptor).collect(),
+            descriptors: original
+                .iter()
+                .map(|&i| landmarks[i as usize].descriptor)
+                .collect(),
+            original,
             vocabulary,
             word_first_leaf,
             leaf_start,
@@ -170,6 +243,12 @@ impl LandmarkIndex {
             ny,
             cell_start,
             cell_landmarks,
+            block_m,
+            block_nx,
+            block_ny,
+            leaf_block_start,
+            near_runs: Vec::with_capacity(block_ny),
+            probe_pairs: Vec::with_capacity(PREALLOCATED_QUERIES * MAX_PROBED_LEAVES),
             near_descriptors: Vec::with_capacity(n),
             near_indices: Vec::with_capacity(n),
             near_mark: vec![0; n],
@@ -213,6 +292,19 @@ impl LandmarkIndex {
     /// measured against (not counted in [`Self::comparisons`]).
     pub fn best_two_all(&self, queries: &[Descriptor], out: &mut [BestTwo]) {
         best_two_batch(queries, &self.descriptors, out);
+        for o in out.iter_mut() {
+            o.1 = self.original_of(Some(o.1));
+            o.3 = self.original_of(Some(o.3));
+        }
+    }
+
+    /// The database index of the landmark at `position` (`u32::MAX` for
+    /// none).
+    fn original_of(&self, position: Option<u32>) -> u32 {
+        position
+            .and_then(|p| self.original.get(p as usize))
+            .copied()
+            .unwrap_or(u32::MAX)
     }
 
     /// Best two among the landmarks in the cells within `reach_m` of
@@ -272,6 +364,27 @@ impl LandmarkIndex {
             for &i in &self.near_indices {
                 self.near_mark[i as usize] = self.epoch;
             }
+            // The runs of blocks that meet the reach, one per block row.
+            // A gathered cell's nearest point is within reach, so its
+            // landmarks lie within reach plus a cell's diagonal.
+            self.near_runs.clear();
+            let block = self.block_m;
+            let reach_cells_m = reach_m + cell * std::f32::consts::SQRT_2;
+            let bfy = (center_m[1] - self.origin_m[1]) / block;
+            for row in 0..self.block_ny {
+                let gy = (bfy - bfy.clamp(row as f32, row as f32 + 1.0)) * block;
+                if gy.abs() > reach_cells_m {
+                    continue;
+                }
+                let half_m = (reach_cells_m * reach_cells_m - gy * gy).max(0.0).sqrt();
+                let first = (((center_m[0] - half_m - self.origin_m[0]) / block).floor())
+                    .clamp(0.0, (self.block_nx - 1) as f32) as usize;
+                let last = (((center_m[0] + half_m - self.origin_m[0]) / block).floor())
+                    .clamp(0.0, (self.block_nx - 1) as f32) as usize;
+                let base = row * self.block_nx;
+                self.near_runs
+                    .push(((base + first) as u32, (base + last + 1) as u32));
+            }
             let probes = self.near_probes;
             self.vocabulary_search(&queries[..n], &mut out[..n], probes, Some(self.epoch));
             return gathered;
@@ -282,16 +395,8 @@ impl LandmarkIndex {
         }
         best_two_batch(&queries[..n], &self.near_descriptors, &mut out[..n]);
         for o in out[..n].iter_mut() {
-            o.1 = self
-                .near_indices
-                .get(o.1 as usize)
-                .copied()
-                .unwrap_or(u32::MAX);
-            o.3 = self
-                .near_indices
-                .get(o.3 as usize)
-                .copied()
-                .unwrap_or(u32::MAX);
+            o.1 = self.original_of(self.near_indices.get(o.1 as usize).copied());
+            o.3 = self.original_of(self.near_indices.get(o.3 as usize).copied());
         }
         self.comparisons = (n * gathered) as u64;
         gathered
@@ -339,6 +444,11 @@ impl LandmarkIndex {
         self.vocabulary_search_scan(queries, out, probes, near);
     }
 
+    /// Each query descends the vocabulary to its probed leaves; the
+    /// (leaf, query) pairs are then sorted by leaf and every probed leaf
+    /// is read once, in memory order, for all the queries that probe it.
+    /// Read query after query, the leaves are scattered through the
+    /// landmarks and each costs a cache miss; in order they stream.
     #[inline(always)]
     fn vocabulary_search_scan(
         &mut self,
@@ -347,9 +457,23 @@ impl LandmarkIndex {
         probes: Probes,
         near: Option<u32>,
     ) {
-        let v = &self.vocabulary;
+        let Self {
+            descriptors,
+            original,
+            vocabulary: v,
+            word_first_leaf,
+            leaf_start,
+            block_nx,
+            block_ny,
+            leaf_block_start,
+            near_runs,
+            near_mark,
+            probe_pairs,
+            ..
+        } = self;
         let mut comparisons = 0u64;
-        for (q, o) in queries.iter().zip(out.iter_mut()) {
+        probe_pairs.clear();
+        for (qi, q) in queries.iter().enumerate() {
             let mut words = [(u32::MAX, 0u32); MAX_WORDS];
             let n_words = nearest_k(
                 v.words.iter().map(|w| q.hamming(w)),
@@ -360,8 +484,8 @@ impl LandmarkIndex {
             let mut n_leaves = 0;
             for &(_, w) in &words[..n_words] {
                 let (a, b) = (
-                    self.word_first_leaf[w as usize] as usize,
-                    self.word_first_leaf[w as usize + 1] as usize,
+                    word_first_leaf[w as usize] as usize,
+                    word_first_leaf[w as usize + 1] as usize,
                 );
                 comparisons += (b - a) as u64;
                 for l in a..b {
@@ -369,30 +493,45 @@ impl LandmarkIndex {
                     n_leaves = insert(&mut leaves[..probes.leaves], n_leaves, (d, l as u32));
                 }
             }
-            let mut best: BestTwo = (u32::MAX, u32::MAX, u32::MAX, u32::MAX);
-            for &(_, l) in &leaves[..n_leaves] {
-                let (a, b) = (
-                    self.leaf_start[l as usize] as usize,
-                    self.leaf_start[l as usize + 1] as usize,
-                );
-                if let Some(epoch) = near {
-                    for i in a..b {
-                        if self.near_mark[i] == epoch {
-                            comparisons += 1;
-                            best = merge(best, q.hamming(&self.descriptors[i]), i as u32);
+            probe_pairs.extend(leaves[..n_leaves].iter().map(|&(_, l)| (l, qi as u32)));
+        }
+        probe_pairs.sort_unstable();
+        for o in out.iter_mut() {
+            *o = (u32::MAX, u32::MAX, u32::MAX, u32::MAX);
+        }
+        let n_blocks = *block_nx * *block_ny;
+        for group in probe_pairs.chunk_by(|x, y| x.0 == y.0) {
+            let l = group[0].0 as usize;
+            let (a, b) = (leaf_start[l] as usize, leaf_start[l + 1] as usize);
+            let Some(epoch) = near else {
+                comparisons += ((b - a) * group.len()) as u64;
+                for &(_, qi) in group {
+                    let (q, o) = (&queries[qi as usize], &mut out[qi as usize]);
+                    let (d0, i0, d1, i1) = best_two(q, &descriptors[a..b]);
+                    for (d, i) in [(d0, i0), (d1, i1)] {
+                        if i != u32::MAX {
+                            *o = merge(*o, d, original[a + i as usize]);
                         }
                     }
-                    continue;
                 }
-                comparisons += (b - a) as u64;
-                let (d0, i0, d1, i1) = best_two(q, &self.descriptors[a..b]);
-                for (d, i) in [(d0, i0), (d1, i1)] {
-                    if i != u32::MAX {
-                        best = merge(best, d, a as u32 + i);
+                continue;
+            };
+            let row = l * (n_blocks + 1);
+            for &(first, end) in near_runs.iter() {
+                let a = leaf_block_start[row + first as usize] as usize;
+                let b = leaf_block_start[row + end as usize] as usize;
+                for i in a..b {
+                    if near_mark[i] != epoch {
+                        continue;
+                    }
+                    comparisons += group.len() as u64;
+                    let d_i = &descriptors[i];
+                    for &(_, qi) in group {
+                        let o = &mut out[qi as usize];
+                        *o = merge(*o, queries[qi as usize].hamming(d_i), original[i]);
                     }
                 }
             }
-            *o = best;
         }
         self.comparisons = comparisons;
     }
@@ -426,13 +565,14 @@ fn insert(slots: &mut [(u32, u32)], n: usize, item: (u32, u32)) -> usize {
     (n + 1).min(k)
 }
 
-/// `best` with the match (`d`, `i`) taken in.
+/// `best` with the match (`d`, `i`) taken in; of equal distances the
+/// lower index, so that the order of reading does not change the result.
 #[inline(always)]
 fn merge(best: BestTwo, d: u32, i: u32) -> BestTwo {
     let (b0, i0, b1, i1) = best;
-    if d < b0 {
+    if (d, i) < (b0, i0) {
         (d, i, b0, i0)
-    } else if d < b1 {
+    } else if (d, i) < (b1, i1) {
         (b0, i0, d, i)
     } else {
         (b0, i0, b1, i1)
@@ -558,6 +698,55 @@ mod tests {
                 assert!(d <= reach + 1.5, "{d}");
             }
         }
+    }
+
+    #[test]
+    fn reading_only_the_blocks_within_reach_finds_what_reading_whole_leaves_finds() {
+        let (lm, vocabulary) = landmarks(40_000);
+        let mut blocked = LandmarkIndex::new(&lm, &vocabulary);
+        let mut whole = LandmarkIndex::with_block(&lm, &vocabulary, f32::INFINITY);
+        assert!(blocked.block_nx * blocked.block_ny > 1);
+        assert_eq!(whole.block_nx * whole.block_ny, 1);
+        let mut rng = SplitMix64::new(7);
+        // Noisy copies of landmarks anywhere, and random descriptors.
+        let queries: Vec<Descriptor> = (0..300)
+            .map(|k| {
+                if k % 3 == 0 {
+                    return Descriptor(std::array::from_fn(|_| rng.next_u64()));
+                }
+                let mut d = lm[rng.below(lm.len())].descriptor;
+                for _ in 0..20 {
+                    let b = rng.below(256);
+                    d.0[b / 64] ^= 1 << (b % 64);
+                }
+                d
+            })
+            .collect();
+        let mut a = vec![(0, 0, 0, 0); queries.len()];
+        let mut b = vec![(0, 0, 0, 0); queries.len()];
+        // Centers inside, at the edge and outside the map; reaches that
+        // take the vocabulary path and the exact one.
+        for (center, reach) in [
+            ([10.0, 100.0], 70.0),
+            ([0.0, 0.0], 40.0),
+            ([19.6, 319.6], 45.0),
+            ([-30.0, 150.0], 50.0),
+            ([10.0, 10.0], 3.0),
+        ] {
+            let ga = blocked.best_two_near(&queries, center, reach, &mut a);
+            let gb = whole.best_two_near(&queries, center, reach, &mut b);
+            assert_eq!(ga, gb);
+            assert_eq!(a, b, "center {center:?}, reach {reach}");
+            if ga > NEAR_EXACT_MAX {
+                assert!(blocked.comparisons() == whole.comparisons());
+            }
+        }
+        blocked.best_two_everywhere(&queries, &mut a);
+        whole.best_two_everywhere(&queries, &mut b);
+        assert_eq!(a, b);
+        blocked.best_two_all(&queries, &mut a);
+        whole.best_two_all(&queries, &mut b);
+        assert_eq!(a, b);
     }
 
     #[test]
