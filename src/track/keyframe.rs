@@ -107,6 +107,10 @@ struct PrepScratch {
     depth_min3: ImageF32,
     depth_max3: ImageF32,
     hist: Vec<u32>,
+    /// Per pixel, 1 where its gradient passes its block's threshold.
+    mask: Vec<u8>,
+    /// A row of [`count_cells`]' scratch.
+    any_row: Vec<u8>,
     /// Selection threshold of each block, row-major.
     thresholds: Vec<f32>,
     depths: Vec<f32>,
@@ -176,6 +180,8 @@ impl Keyframe {
                 hist: vec![0; HIST_BINS],
                 thresholds: vec![0.0; w.div_ceil(MIN_BLOCK_PX) * h.div_ceil(MIN_BLOCK_PX)],
                 depths: Vec::with_capacity(config.max_points_per_level(0)),
+                mask: vec![0; w * h],
+                any_row: vec![0; w],
             },
         }
     }
@@ -231,6 +237,7 @@ impl Keyframe {
                 [&mut s.depth_min3, &mut s.depth_max3],
                 &mut s.hist,
                 &mut s.thresholds,
+                [&mut s.mask, &mut s.any_row],
                 &mut level.points,
             );
         }
@@ -283,6 +290,7 @@ fn select_level(
     [min3, max3]: [&mut ImageF32; 2],
     hist: &mut [u32],
     thresholds: &mut [f32],
+    [mask, any_row]: [&mut [u8]; 2],
     out: &mut Vec<KeyPoint>,
 ) {
     let (w, h) = (gray.width(), gray.height());
@@ -339,6 +347,7 @@ fn select_level(
             out[k] = if valid { magnitude } else { 0.0 };
         }
     }
+    let gradm: &[f32] = gradm;
     // Block-adaptive threshold: block median of valid gradients + offset,
     // computed once per block.
     let block = (config.block_size_px as usize >> level).max(MIN_BLOCK_PX);
@@ -352,9 +361,23 @@ fn select_level(
         let (bw, bh) = (block.min(w - bx), block.min(h - by));
         *t = block_median(gradm, w, bx, by, bw, bh, hist) + offset;
     }
+    let thresholds: &[f32] = thresholds;
+    // Which pixels pass their block's threshold, once: the bisection below
+    // counts cells over these bytes, five times or so, instead of finding
+    // each cell's strongest gradient each time.
+    let mask = &mut mask[..w * h];
+    for (y, row) in mask.chunks_exact_mut(w).enumerate() {
+        let grow = &gradm[y * w..(y + 1) * w];
+        let trow = &thresholds[(y / block) * blocks_x..(y / block + 1) * blocks_x];
+        for ((m, gv), &t) in row.chunks_mut(block).zip(grow.chunks(block)).zip(trow) {
+            for (m, &gv) in m.iter_mut().zip(gv) {
+                *m = u8::from(gv > t);
+            }
+        }
+    }
     // The smallest cell (2..=16 px) whose selection fits the budget: the
     // count falls as the cell grows, so bisect.
-    let fits = |cell: usize| select_cells(gradm, w, h, block, cell, thresholds, None) <= max_points;
+    let mut fits = |cell: usize| count_cells(mask, w, h, block, cell, any_row) <= max_points;
     let cell = if fits(2) {
         2
     } else {
@@ -388,9 +411,48 @@ fn select_level(
     }
 }
 
+/// How many `cell x cell` cells (cut at block edges, as [`select_cells`]
+/// cuts them) hold a pixel of `mask` (`w x h`, one byte per pixel, 1 where
+/// it passes its block's threshold): the count [`select_cells`] gives,
+/// without finding each cell's strongest pixel. `any_row` (`w` bytes) is
+/// scratch: the rows of a row of cells OR-ed together.
+fn count_cells(
+    mask: &[u8],
+    w: usize,
+    h: usize,
+    block: usize,
+    cell: usize,
+    any_row: &mut [u8],
+) -> usize {
+    let any_row = &mut any_row[..w];
+    let mut count = 0;
+    let mut by = 0;
+    while by < h {
+        let y_end = (by + block).min(h);
+        let mut cy = by;
+        while cy < y_end {
+            let cy_end = (cy + cell).min(y_end);
+            any_row.copy_from_slice(&mask[cy * w..(cy + 1) * w]);
+            for y in cy + 1..cy_end {
+                for (a, &m) in any_row.iter_mut().zip(&mask[y * w..(y + 1) * w]) {
+                    *a |= m;
+                }
+            }
+            for block_row in any_row.chunks(block) {
+                for c in block_row.chunks(cell) {
+                    count += usize::from(c.iter().any(|&m| m != 0));
+                }
+            }
+            cy = cy_end;
+        }
+        by = y_end;
+    }
+    count
+}
+
 /// Picks the strongest pixel above its block's threshold (`thresholds`,
 /// row-major by block) in each `cell x cell` cell; returns the count, and
-/// pushes them when `out` is given.
+/// pushes them (up to `out`'s capacity) when `out` is given.
 fn select_cells(
     gradm: &[f32],
     w: usize,
@@ -499,5 +561,47 @@ mod gate_level_tests {
         assert_eq!(gate_level(0.05, 0.0, 420.0), 0);
         assert_eq!(gate_level(f32::NAN, 2.5, 420.0), 0);
         assert_eq!(gate_level(0.05, 2.5, f32::NAN), 0);
+    }
+}
+
+#[cfg(test)]
+mod selection_tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+
+    /// The bisection counts cells over the threshold mask; the count must
+    /// be what the selection itself finds, for every cell size, with
+    /// blocks cut at the image's edges.
+    #[test]
+    fn cells_counted_over_the_mask_are_the_cells_selected() {
+        let mut rng = SplitMix64::new(3);
+        for (w, h, block) in [(64usize, 48usize, 16usize), (71, 53, 16), (40, 37, 8)] {
+            let gradm: Vec<f32> = (0..w * h)
+                .map(|_| {
+                    if rng.below(10) < 8 {
+                        0.0
+                    } else {
+                        rng.below(40) as f32
+                    }
+                })
+                .collect();
+            let (blocks_x, block_rows) = (w.div_ceil(block), h.div_ceil(block));
+            let thresholds: Vec<f32> = (0..blocks_x * block_rows)
+                .map(|_| 10.0 + rng.below(25) as f32)
+                .collect();
+            let mask: Vec<u8> = (0..w * h)
+                .map(|i| {
+                    let t = thresholds[(i / w / block) * blocks_x + (i % w) / block];
+                    u8::from(gradm[i] > t)
+                })
+                .collect();
+            let mut any_row = vec![0u8; w];
+            for cell in 2..=16 {
+                let selected = select_cells(&gradm, w, h, block, cell, &thresholds, None);
+                let counted = count_cells(&mask, w, h, block, cell, &mut any_row);
+                assert_eq!(counted, selected, "{w}x{h}, block {block}, cell {cell}");
+                assert!(selected > 0);
+            }
+        }
     }
 }
