@@ -240,7 +240,11 @@ impl Bench {
             db.entries.len(),
             db.landmarks.len()
         );
-        let reloc = Relocalizer::new(db.clone(), &config.reloc, &camera)?.with_map(&mesh);
+        let mut reloc = Relocalizer::new(db.clone(), &config.reloc, &camera)?.with_map(&mesh);
+        if let Some(probes) = probes_from_env() {
+            println!("  whole-map landmark probes from STAR_BENCH_PROBES: {probes:?}");
+            reloc.landmarks_mut().set_probes(probes);
+        }
         let queries = Queries::Dataset {
             dataset,
             truth,
