@@ -24,8 +24,9 @@
 //!   corners' probes first, then each probed leaf once, in memory order,
 //!   for every corner that probes it. Corner after corner, the leaves
 //!   were scattered reads, each a cache miss; in order they stream. Of
-//!   equal distances the lower landmark index wins, so the result does
-//!   not depend on the order of reading.
+//!   equal distances found in different leaves the lower landmark index
+//!   wins, so the order in which the leaves are read does not change the
+//!   result.
 //!
 //! All scratch is sized at construction: nothing allocates per query.
 
@@ -566,7 +567,7 @@ fn insert(slots: &mut [(u32, u32)], n: usize, item: (u32, u32)) -> usize {
 }
 
 /// `best` with the match (`d`, `i`) taken in; of equal distances the
-/// lower index, so that the order of reading does not change the result.
+/// lower index, so that the order of merging does not change the result.
 #[inline(always)]
 fn merge(best: BestTwo, d: u32, i: u32) -> BestTwo {
     let (b0, i0, b1, i1) = best;
