@@ -166,10 +166,7 @@ impl Bench {
         let warp = DistortionWarp::new(&camera)?;
         let render_camera = *warp.render_camera();
         let sensor = SensorModel::new(preset.photometric, &camera, seed);
-        let mut reloc = Relocalizer::new(db.clone(), rc, &camera)?.with_map(&map);
-        if let Some(probes) = probes_from_env() {
-            reloc.landmarks_mut().set_probes(probes);
-        }
+        let reloc = Relocalizer::new(db.clone(), rc, &camera)?.with_map(&map);
         // World heights: the configured ones above the map's floor.
         let z_range_m = crate::reloc::above_floor(&map, rc)?
             .heights_m
@@ -240,11 +237,7 @@ impl Bench {
             db.entries.len(),
             db.landmarks.len()
         );
-        let mut reloc = Relocalizer::new(db.clone(), &config.reloc, &camera)?.with_map(&mesh);
-        if let Some(probes) = probes_from_env() {
-            println!("  whole-map landmark probes from STAR_BENCH_PROBES: {probes:?}");
-            reloc.landmarks_mut().set_probes(probes);
-        }
+        let reloc = Relocalizer::new(db.clone(), &config.reloc, &camera)?.with_map(&mesh);
         let queries = Queries::Dataset {
             dataset,
             truth,
@@ -257,10 +250,14 @@ impl Bench {
         config: Config,
         camera: PinholeCamera,
         db: RelocDatabase,
-        reloc: Relocalizer,
+        mut reloc: Relocalizer,
         candidate_r: Box<dyn Renderer>,
         queries: Queries,
     ) -> Result<Self> {
+        if let Some(probes) = probes_from_env() {
+            println!("  whole-map landmark probes from STAR_BENCH_PROBES: {probes:?}");
+            reloc.landmarks_mut().set_probes(probes);
+        }
         let pinhole = camera.pinhole();
         let tracker = crate::track::build_config(&config.tracker);
         let renders_per_candidate = 1 + config.reloc.refine_renders as usize;
