@@ -54,7 +54,7 @@ fn a_frame_held_in_the_wrong_copy_of_a_room_passes_at_its_geometric_twin() {
     let tracker = build_config(&config.tracker);
     let mut renderer = CpuRenderer::new(twice.clone()).expect("renderer");
     let mut view = RenderedView::for_camera(&camera);
-    let mut aligner = Aligner::new(&tracker);
+    let mut aligners = [Aligner::new(&tracker), Aligner::new(&tracker)];
     let mut pyramid = Pyramid::new(
         camera.width as usize,
         camera.height as usize,
@@ -101,7 +101,7 @@ fn a_frame_held_in_the_wrong_copy_of_a_room_passes_at_its_geometric_twin() {
             Some(kf)
         };
         let (passed, _) = try_candidate(
-            &mut aligner,
+            &mut aligners,
             &pyramid,
             &camera,
             twins.loose(),

@@ -198,8 +198,10 @@ pub struct Localizer {
     camera: PinholeCamera,
     policy: KeyframeConfig,
     aligner: Aligner,
-    /// Aligns on every pyramid level, the extra coarse one included.
-    reloc_aligner: Aligner,
+    /// Align on every pyramid level, the extra coarse one included: two,
+    /// for the two halves of a verification's starts
+    /// ([`crate::reloc::verify_candidate`]).
+    reloc_aligners: [Aligner; 2],
     pyramid: Pyramid,
     worker: RenderWorker,
     keyframe: Box<Keyframe>,
@@ -282,7 +284,7 @@ impl Localizer {
             camera: *camera,
             policy: policy.clone(),
             aligner: Aligner::new(tracker),
-            reloc_aligner: Aligner::new(&build),
+            reloc_aligners: [Aligner::new(&build), Aligner::new(&build)],
             pyramid: Pyramid::new(
                 camera.width as usize,
                 camera.height as usize,

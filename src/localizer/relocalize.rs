@@ -84,7 +84,7 @@ impl Localizer {
         let config = gate_config(&self.reloc, &self.start_gate)?;
         let yaws = start_yaws_rad(config, 0.0);
         match verify_candidate(
-            &mut self.reloc_aligner,
+            &mut self.reloc_aligners,
             &self.keyframe,
             &self.pyramid,
             &self.camera,
@@ -312,7 +312,7 @@ impl Localizer {
             let first = n;
             n += gather(
                 &mut reloc,
-                (&mut self.reloc_aligner, &self.pyramid),
+                (&mut self.reloc_aligners[0], &self.pyramid),
                 source,
                 landmark,
                 &query,
@@ -374,7 +374,7 @@ impl Localizer {
         for source in steps {
             n += gather(
                 &mut reloc,
-                (&mut self.reloc_aligner, &self.pyramid),
+                (&mut self.reloc_aligners[0], &self.pyramid),
                 source,
                 landmark,
                 &query,
@@ -566,7 +566,7 @@ impl Localizer {
             }
         };
         let found = try_candidate(
-            &mut self.reloc_aligner,
+            &mut self.reloc_aligners,
             &self.pyramid,
             &self.camera,
             config,

@@ -167,8 +167,14 @@ const FINISHED_STARTS: usize = 2;
 /// spacings of the keyframe; else the most plausible one to refine from;
 /// else `Rejected`. A single start (`&[0.0]`, a keyframe rendered at the
 /// estimate) skips the coarse search.
+///
+/// The starts are independent: the coarse ones are shared between the two
+/// `aligners` (every other start each), and so are the finished ones, on
+/// two threads of the rayon pool ([`rayon::join`]). The result is the
+/// sequential one: ties go to the earlier start either way. A single start
+/// runs on the first aligner alone.
 pub fn verify_candidate(
-    aligner: &mut Aligner,
+    aligners: &mut [Aligner; 2],
     keyframe: &Keyframe,
     frame: &Pyramid,
     camera: &PinholeCamera,
@@ -181,84 +187,70 @@ pub fn verify_candidate(
         .rev()
         .find(|&l| keyframe.levels[l].points.len() >= 100)
         .unwrap_or(0);
-    let score_level = coarsest.saturating_sub(1);
-    let half_m = 0.5 * config.grid_spacing_m;
-    let half_height_m = 0.5 * config.height_spacing_m();
-    let vertical: &[f64] = if half_height_m > 0.0 && start_yaws_rad.len() > 1 {
-        &[0.0, 1.0, -1.0]
-    } else {
-        &[0.0]
-    };
-    // Best coarse starts, by correlation: (score, camera_from_keyframe).
-    let mut top = [(f32::NEG_INFINITY, Pose::identity()); FINISHED_STARTS];
     let search = start_yaws_rad.len() > 1;
-    for (i, &yaw) in start_yaws_rad.iter().enumerate() {
-        if i > 0 && start_yaws_rad[..i].contains(&yaw) {
-            continue;
+    let top = if search {
+        let starts = CoarseStarts::new(start_yaws_rad, config);
+        let [first, second] = &mut *aligners;
+        let (even, odd) = rayon::join(
+            || starts.best(first, keyframe, frame, camera, coarsest, 0),
+            || starts.best(second, keyframe, frame, camera, coarsest, 1),
+        );
+        merge_best(&even, &odd)
+    } else {
+        let mut top = [Scored::none(); FINISHED_STARTS];
+        if let Some(&yaw) = start_yaws_rad.first() {
+            top[0] = Scored {
+                score: 0.0,
+                start: 0,
+                camera_from_keyframe: Pose::from_parts(
+                    Translation3::identity(),
+                    UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw),
+                )
+                .inverse(),
+            };
         }
-        let offsets: &[(f64, f64)] = if search {
-            &START_OFFSETS
-        } else {
-            &START_OFFSETS[..1]
-        };
-        for (&(dx, dz), dy) in offsets
-            .iter()
-            .flat_map(|o| vertical.iter().map(move |&dy| (o, dy)))
-        {
-            // Camera y points down: turning right (z toward +x) is a
-            // positive rotation about y.
-            let keyframe_from_camera = Pose::from_parts(
-                Translation3::new(dx * half_m, dy * half_height_m, dz * half_m),
-                UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw),
-            );
-            let start = keyframe_from_camera.inverse();
-            if !search {
-                top[0] = (0.0, start);
-                continue;
-            }
-            let a = aligner.align_to_level(keyframe, frame, camera, start, coarsest);
-            if !a.valid {
-                continue;
-            }
-            let score = correlation(
-                keyframe,
-                frame,
-                camera,
-                &a.camera_from_keyframe,
-                score_level,
-            )
-            .unwrap_or(f32::NEG_INFINITY);
-            if let Some(slot) = top.iter().position(|(s, _)| score > *s) {
-                top.copy_within(slot..FINISHED_STARTS - 1, slot + 1);
-                top[slot] = (score, a.camera_from_keyframe);
-            }
-        }
-    }
+        top
+    };
+    // Finish the best starts at full resolution: each aligned and gated on
+    // its own aligner, then judged in order.
+    let [first, second] = &mut *aligners;
+    let finish = |aligner: &mut Aligner, s: &Scored| {
+        (s.score != f32::NEG_INFINITY).then(|| {
+            let a = aligner.align(keyframe, frame, camera, s.camera_from_keyframe);
+            let world_from_camera = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
+            let finite = world_from_camera
+                .translation
+                .vector
+                .iter()
+                .chain(world_from_camera.rotation.coords.iter())
+                .all(|v| v.is_finite());
+            let moved_m = a.camera_from_keyframe.translation.vector.norm();
+            let usable = a.valid && finite && moved_m <= 2.0 * config.grid_spacing_m;
+            // Full-resolution detail (the alignment's own level-0 figure),
+            // level 1 and coarse structure (level 2) must all correlate: a
+            // look-alike place elsewhere in the map matched the texture at
+            // 0.73 but the layout only at 0.52, another 0.9 m off reached
+            // 0.6 only at level 0's 0.59, where correct poses measured at
+            // least 0.58.
+            let accepted = usable
+                .then(|| passes_whole_gate(keyframe, frame, camera, &a, config))
+                .flatten();
+            (a, world_from_camera, usable, accepted)
+        })
+    };
+    let finished = if top[1].score == f32::NEG_INFINITY {
+        [finish(first, &top[0]), None]
+    } else {
+        let (a, b) = rayon::join(|| finish(first, &top[0]), || finish(second, &top[1]));
+        [a, b]
+    };
     let mut best: Option<Verified> = None;
     let mut refine: Option<(f32, Pose)> = None;
-    for &(score, start) in &top {
-        if score == f32::NEG_INFINITY {
+    for (a, world_from_camera, usable, accepted) in finished.into_iter().flatten() {
+        if !usable {
             continue;
         }
-        let a = aligner.align(keyframe, frame, camera, start);
-        let world_from_camera = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
-        let finite = world_from_camera
-            .translation
-            .vector
-            .iter()
-            .chain(world_from_camera.rotation.coords.iter())
-            .all(|v| v.is_finite());
-        let moved_m = a.camera_from_keyframe.translation.vector.norm();
         let q = &a.quality;
-        if !(a.valid && finite) || moved_m > 2.0 * config.grid_spacing_m {
-            continue;
-        }
-        // Full-resolution detail (the alignment's own level-0 figure),
-        // level 1 and coarse structure (level 2) must all correlate: a
-        // look-alike place elsewhere in the map matched the texture at 0.73
-        // but the layout only at 0.52, another 0.9 m off reached 0.6 only
-        // at level 0's 0.59, where correct poses measured at least 0.58.
-        let accepted = passes_whole_gate(keyframe, frame, camera, &a, config);
         tracing::debug!(
             inliers = q.inlier_ratio,
             visible = q.visible_ratio,
@@ -303,6 +295,154 @@ pub fn verify_candidate(
     }
 }
 
+/// A coarse start and its score: the correlation one level finer than
+/// the coarse alignment (`NEG_INFINITY`: none).
+#[derive(Debug, Clone, Copy)]
+struct Scored {
+    score: f32,
+    /// Its place in the order of [`CoarseStarts`], which breaks ties.
+    start: usize,
+    /// The coarse alignment, the finished alignment's start.
+    camera_from_keyframe: Pose,
+}
+
+impl Scored {
+    fn none() -> Self {
+        Self {
+            score: f32::NEG_INFINITY,
+            start: usize::MAX,
+            camera_from_keyframe: Pose::identity(),
+        }
+    }
+
+    /// Whether `self` ranks before `other`: the higher score, and on a tie
+    /// the earlier start (as inserting in order, strictly better first).
+    fn before(&self, other: &Self) -> bool {
+        self.score > other.score || (self.score == other.score && self.start < other.start)
+    }
+}
+
+/// Inserts `s` into the ranked `top` when it beats one of them (a score of
+/// `NEG_INFINITY` or NaN never does).
+fn insert(top: &mut [Scored; FINISHED_STARTS], s: Scored) {
+    if !(s.score > f32::NEG_INFINITY) {
+        return;
+    }
+    if let Some(slot) = top.iter().position(|t| s.before(t)) {
+        top.copy_within(slot..FINISHED_STARTS - 1, slot + 1);
+        top[slot] = s;
+    }
+}
+
+/// The best of two rankings of disjoint starts, as one ranking of all.
+fn merge_best(
+    a: &[Scored; FINISHED_STARTS],
+    b: &[Scored; FINISHED_STARTS],
+) -> [Scored; FINISHED_STARTS] {
+    let mut top = *a;
+    for &s in b {
+        insert(&mut top, s);
+    }
+    top
+}
+
+/// The coarse starts of one verification, in order: for each distinct
+/// yaw, each offset of [`START_OFFSETS`], each vertical step.
+struct CoarseStarts<'a> {
+    yaws_rad: &'a [f64],
+    vertical: &'static [f64],
+    half_m: f64,
+    half_height_m: f64,
+}
+
+impl<'a> CoarseStarts<'a> {
+    fn new(yaws_rad: &'a [f64], config: &RelocConfig) -> Self {
+        let half_height_m = 0.5 * config.height_spacing_m();
+        Self {
+            yaws_rad,
+            vertical: if half_height_m > 0.0 {
+                &[0.0, 1.0, -1.0]
+            } else {
+                &[0.0]
+            },
+            half_m: 0.5 * config.grid_spacing_m,
+            half_height_m,
+        }
+    }
+
+    /// Every start as keyframe_from_camera, in order (a repeated yaw is
+    /// left out).
+    fn iter(&self) -> impl Iterator<Item = Pose> + '_ {
+        self.yaws_rad
+            .iter()
+            .enumerate()
+            .filter(|&(i, yaw)| !self.yaws_rad[..i].contains(yaw))
+            .flat_map(move |(_, &yaw)| {
+                START_OFFSETS.iter().flat_map(move |&(dx, dz)| {
+                    self.vertical.iter().map(move |&dy| {
+                        // Camera y points down: turning right (z toward +x)
+                        // is a positive rotation about y.
+                        Pose::from_parts(
+                            Translation3::new(
+                                dx * self.half_m,
+                                dy * self.half_height_m,
+                                dz * self.half_m,
+                            ),
+                            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw),
+                        )
+                    })
+                })
+            })
+    }
+
+    /// The best [`FINISHED_STARTS`] of every other start from `parity` (0 or
+    /// 1): each aligned on `coarsest` and scored one level finer.
+    fn best(
+        &self,
+        aligner: &mut Aligner,
+        keyframe: &Keyframe,
+        frame: &Pyramid,
+        camera: &PinholeCamera,
+        coarsest: usize,
+        parity: usize,
+    ) -> [Scored; FINISHED_STARTS] {
+        let score_level = coarsest.saturating_sub(1);
+        let mut top = [Scored::none(); FINISHED_STARTS];
+        for (i, keyframe_from_camera) in self.iter().enumerate() {
+            if i % 2 != parity {
+                continue;
+            }
+            let a = aligner.align_to_level(
+                keyframe,
+                frame,
+                camera,
+                keyframe_from_camera.inverse(),
+                coarsest,
+            );
+            if !a.valid {
+                continue;
+            }
+            let score = correlation(
+                keyframe,
+                frame,
+                camera,
+                &a.camera_from_keyframe,
+                score_level,
+            )
+            .unwrap_or(f32::NEG_INFINITY);
+            insert(
+                &mut top,
+                Scored {
+                    score,
+                    start: i,
+                    camera_from_keyframe: a.camera_from_keyframe,
+                },
+            );
+        }
+        top
+    }
+}
+
 /// Verifies one database candidate: renders it (`render` gives a prepared
 /// keyframe at a world_from_keyframe pose, `None` on failure) and aligns the
 /// frame against it. A pose is accepted only from a keyframe rendered at
@@ -321,7 +461,7 @@ pub fn verify_candidate(
 /// spacings from the candidate.
 #[allow(clippy::too_many_arguments)]
 pub fn try_candidate(
-    aligner: &mut Aligner,
+    aligners: &mut [Aligner; 2],
     frame: &Pyramid,
     camera: &PinholeCamera,
     config: &RelocConfig,
@@ -348,7 +488,7 @@ pub fn try_candidate(
         }
         None => &[0.0],
     };
-    let mut verdict = verify_candidate(aligner, &keyframe, frame, camera, config, yaws);
+    let mut verdict = verify_candidate(aligners, &keyframe, frame, camera, config, yaws);
     let mut renders = 0;
     loop {
         let next = match verdict {
@@ -362,7 +502,7 @@ pub fn try_candidate(
         let pose = next.filter(|_| renders < config.refine_renders)?;
         keyframe = render(&pose)?;
         renders += 1;
-        verdict = verify_candidate(aligner, &keyframe, frame, camera, config, &[0.0]);
+        verdict = verify_candidate(aligners, &keyframe, frame, camera, config, &[0.0]);
     }
 }
 
@@ -370,6 +510,92 @@ pub fn try_candidate(
 mod tests {
     use super::*;
     use crate::track::TrackerConfig;
+
+    /// A start scored `score` at place `start` of the order.
+    fn scored(score: f32, start: usize) -> Scored {
+        Scored {
+            score,
+            start,
+            camera_from_keyframe: Pose::identity(),
+        }
+    }
+
+    #[test]
+    fn ranking_two_halves_of_the_starts_is_ranking_them_all_in_order() {
+        // Scores from a few values, so that ties are common; some starts
+        // failed (NEG_INFINITY) or scored NaN.
+        let values = [0.3, 0.5, 0.5, 0.7, f32::NEG_INFINITY, f32::NAN, 0.7, 0.1];
+        for n in 0..40usize {
+            for seed in 0..5usize {
+                let scores: Vec<f32> = (0..n)
+                    .map(|i| values[(i * 7 + seed * 3 + i * i) % values.len()])
+                    .collect();
+                // The reference: a stable sort by score, best first, of the
+                // starts that scored.
+                let mut by_score: Vec<usize> =
+                    (0..n).filter(|&i| scores[i] > f32::NEG_INFINITY).collect();
+                by_score.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]));
+                let expected: Vec<usize> = by_score.into_iter().take(FINISHED_STARTS).collect();
+                // In order, on one aligner.
+                let mut sequential = [Scored::none(); FINISHED_STARTS];
+                for (i, &sc) in scores.iter().enumerate() {
+                    insert(&mut sequential, scored(sc, i));
+                }
+                // Every other start on each of two, then merged.
+                let mut halves = [[Scored::none(); FINISHED_STARTS]; 2];
+                for (i, &sc) in scores.iter().enumerate() {
+                    insert(&mut halves[i % 2], scored(sc, i));
+                }
+                let merged = merge_best(&halves[0], &halves[1]);
+                for top in [&sequential, &merged] {
+                    let got: Vec<usize> = top
+                        .iter()
+                        .filter(|s| s.score > f32::NEG_INFINITY)
+                        .map(|s| s.start)
+                        .collect();
+                    assert_eq!(got, expected, "n {n}, seed {seed}, scores {scores:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_coarse_starts_are_every_yaw_offset_and_height_once() {
+        let config = RelocConfig {
+            grid_spacing_m: 0.5,
+            heights_m: vec![1.2, 1.6],
+            ..RelocConfig::default()
+        };
+        let yaws = start_yaws_rad(&config, 0.0);
+        // The search's shift repeats the first of the fixed yaws (0).
+        assert_eq!(yaws[0], yaws[1]);
+        let starts: Vec<Pose> = CoarseStarts::new(&yaws, &config).iter().collect();
+        assert_eq!(starts.len(), 3 * START_OFFSETS.len() * 3);
+        assert_eq!(starts[0], Pose::identity());
+        for (i, a) in starts.iter().enumerate() {
+            for b in &starts[..i] {
+                let apart_m = (a.translation.vector - b.translation.vector).norm();
+                let apart_rad = a.rotation.angle_to(&b.rotation);
+                assert!(
+                    apart_m > 0.05 || apart_rad > 0.05,
+                    "start {i} repeats another"
+                );
+            }
+        }
+        // Half the grid spacing across, half the height spacing up.
+        let max_x = starts.iter().map(|p| p.translation.x).fold(0.0, f64::max);
+        let max_y = starts.iter().map(|p| p.translation.y).fold(0.0, f64::max);
+        assert!((max_x - 0.25).abs() < 1e-12 && (max_y - 0.2).abs() < 1e-12);
+        // One height: no vertical steps.
+        let flat = RelocConfig {
+            heights_m: vec![1.4],
+            ..config
+        };
+        assert_eq!(
+            CoarseStarts::new(&yaws, &flat).iter().count(),
+            3 * START_OFFSETS.len()
+        );
+    }
 
     #[test]
     fn the_gate_reads_from_the_maps_detail_unless_told_not_to() {

@@ -52,7 +52,7 @@ impl Bench {
                 Some(())
             };
             let found = attempt(
-                &mut self.aligner,
+                &mut self.aligners,
                 &self.pyramid,
                 &self.camera,
                 &self.config.reloc,
@@ -94,9 +94,7 @@ impl Bench {
                 .is_ok()
             {
                 kf.prepare(&self.kview, query.truth, 0, &self.tracker);
-                let a = self
-                    .aligner
-                    .align(&kf, &self.pyramid, &self.camera, Pose::identity());
+                let a = self.aligners[0].align(&kf, &self.pyramid, &self.camera, Pose::identity());
                 let q = a.quality;
                 let corr = |level| {
                     crate::track::correlations(

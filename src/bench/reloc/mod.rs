@@ -34,7 +34,13 @@
 //! `STAR_BENCH_PROBES=W,L` sets the whole-map landmark search's probes
 //! (words, leaves); `STAR_BENCH_LANDMARK_SCALES=4,16,40` adds the landmark
 //! matching figures on the landmarks replicated into look-alike rooms
-//! ([`scale`]).
+//! ([`scale`]). The landmark search's recall (the share of corners whose
+//! nearest landmark over the whole map it finds) compares each query with
+//! every landmark after the query's timing ends; `STAR_BENCH_NO_RECALL=1`
+//! leaves it out (it triples the run time, and its scan leaves the next
+//! query's renders a cold cache). `--log star::bench=debug` prints one
+//! line per query: its recovery time, renders, rivals verified, and
+//! whether a landmark pose came and was the one accepted.
 
 mod diagnose;
 mod query;

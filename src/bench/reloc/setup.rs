@@ -76,11 +76,17 @@ pub(super) struct Bench {
     pub(super) spare: Vec<Box<Keyframe>>,
     #[allow(clippy::vec_box)]
     pub(super) returned: Vec<Box<Keyframe>>,
-    pub(super) aligner: Aligner,
+    pub(super) aligners: [Aligner; 2],
     pub(super) pyramid: Pyramid,
     /// Whether an accepted pose's rivals at other places are verified
     /// ([`crate::reloc::rivals`]; off with `STAR_BENCH_NO_RIVALS`).
     pub(super) check_rivals: bool,
+    /// Whether each query's landmark search is compared with brute force
+    /// over every landmark, after the query (the recall figure; off with
+    /// `STAR_BENCH_NO_RECALL`: a scan of the whole landmark table, which
+    /// triples the bench's run time and leaves the next query's renders
+    /// with a cold cache).
+    pub(super) landmark_recall: bool,
 }
 
 impl Bench {
@@ -268,7 +274,7 @@ impl Bench {
             kview: RenderedView::for_camera(&pinhole),
             frame: ImageU8::new(0, 0, 0),
             returned: Vec::with_capacity(renders_per_candidate),
-            aligner: Aligner::new(&tracker),
+            aligners: [Aligner::new(&tracker), Aligner::new(&tracker)],
             pyramid: Pyramid::new(
                 camera.width as usize,
                 camera.height as usize,
@@ -284,6 +290,7 @@ impl Bench {
             tracker,
             spare,
             check_rivals: std::env::var_os("STAR_BENCH_NO_RIVALS").is_none(),
+            landmark_recall: std::env::var_os("STAR_BENCH_NO_RECALL").is_none(),
         })
     }
 

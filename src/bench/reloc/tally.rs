@@ -276,11 +276,18 @@ impl Tally {
         );
         let (cmed, cp99) = median_p99(&self.comparisons);
         let (bmed, _) = median_p99(&self.brute_force);
+        let recall = if self.recall_of == 0 {
+            "the recall against brute force not measured".to_string()
+        } else {
+            format!(
+                "the nearest landmark found for {}/{} corners whose nearest over the whole map is within the match bound ({:.1} %)",
+                self.recall_found,
+                self.recall_of,
+                100.0 * self.recall_found as f64 / self.recall_of as f64
+            )
+        };
         println!(
-            "    landmark matching: {cmed:.0} descriptor comparisons per query median, p99 {cp99:.0} (brute force: {bmed:.0}); the nearest landmark found for {}/{} corners whose nearest over the whole map is within the match bound ({:.1} %)",
-            self.recall_found,
-            self.recall_of,
-            100.0 * self.recall_found as f64 / self.recall_of.max(1) as f64
+            "    landmark matching: {cmed:.0} descriptor comparisons per query median, p99 {cp99:.0} (brute force: {bmed:.0}); {recall}"
         );
         if std::env::var_os("STAR_BENCH_VERBOSE").is_some() {
             let wrong: Vec<String> = self
