@@ -40,6 +40,16 @@ pub struct KeyframeConfig {
     /// its correlation unless the alignment failed to follow (a view that
     /// jumped, an unmapped object dragging it).
     pub lost_correlation_drop: f32,
+    /// Tracking is lost when the local contrast correlation (the lowest of
+    /// pyramid levels 0-2, as `[reloc] track_min_local_correlation` reads
+    /// it) falls below this fraction of its running mean over the last
+    /// frames tracked (once the mean covers 10 of them); 0 turns the test
+    /// off. Measured on `aggressive --scanned` seed 1 (docs/benchmarks.md):
+    /// a drift against a keyframe not yet replaced fell to 0.46-0.71 of the
+    /// mean at its first wrong frame, while 5 615 right frames stayed at
+    /// 0.74 or more. Only with a relocalization gate (a database or a
+    /// verified start).
+    pub lost_local_correlation_drop: f32,
 }
 
 impl Default for KeyframeConfig {
@@ -56,6 +66,7 @@ impl Default for KeyframeConfig {
             lost_max_jump_deg: 4.0,
             lost_min_correlation: 0.2,
             lost_correlation_drop: 0.6,
+            lost_local_correlation_drop: 0.7,
         }
     }
 }
@@ -66,7 +77,7 @@ impl KeyframeConfig {
         let k = self;
         let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
         let positive = |v: f32| v.is_finite() && v > 0.0;
-        let checks: [(&str, bool, f32); 11] = [
+        let checks: [(&str, bool, f32); 12] = [
             ("min_visible", unit(k.min_visible), k.min_visible),
             (
                 "max_baseline_ratio",
@@ -117,6 +128,11 @@ impl KeyframeConfig {
                 "lost_correlation_drop",
                 unit(k.lost_correlation_drop),
                 k.lost_correlation_drop,
+            ),
+            (
+                "lost_local_correlation_drop",
+                unit(k.lost_local_correlation_drop),
+                k.lost_local_correlation_drop,
             ),
         ];
         match checks.into_iter().find(|(_, ok, _)| !ok) {

@@ -224,6 +224,12 @@ pub struct Localizer {
     /// last loss (`None` right after one): the reference of the lost
     /// test's correlation drop.
     correlation_mean: Option<f32>,
+    /// Running mean of the local contrast correlation over the frames
+    /// tracked (`lost_local_correlation_drop`), and the last frame's.
+    local_mean: Option<f32>,
+    last_local: f32,
+    /// Frames in `local_mean` since it (re)started.
+    local_frames: u32,
     state: TrackState,
     reset_counter: u8,
     stats: LoopStats,
@@ -302,6 +308,9 @@ impl Localizer {
             render_latency_s: 0.0,
             tracked_run: 0,
             correlation_mean: None,
+            local_mean: None,
+            last_local: f32::NAN,
+            local_frames: 0,
             state: TrackState::Tracking,
             reset_counter: 0,
             stats: LoopStats {
@@ -525,6 +534,8 @@ impl Localizer {
             }
             self.tracked_run = 0;
             self.correlation_mean = None;
+            self.local_mean = None;
+            self.local_frames = 0;
             let attempts = self.stats.reloc_attempts;
             if self.reloc.is_some() && self.reloc_due(capture_ns) {
                 self.relocalize(pixels, stride, capture_ns);
@@ -539,6 +550,12 @@ impl Localizer {
             self.velocity = step / dt_s;
         }
         self.tracked_run = self.tracked_run.saturating_add(1);
+        if self.last_local.is_finite() {
+            self.local_frames = self.local_frames.saturating_add(1);
+            self.local_mean = Some(self.local_mean.map_or(self.last_local, |mean| {
+                mean + CORRELATION_MEAN_WEIGHT * (self.last_local - mean)
+            }));
+        }
         self.correlation_mean = Some(self.correlation_mean.map_or(q.correlation, |mean| {
             mean + CORRELATION_MEAN_WEIGHT * (q.correlation - mean)
         }));
@@ -621,6 +638,13 @@ impl Localizer {
 /// Weight of each tracked frame in the running mean of the correlation
 /// (about the last ten frames count).
 const CORRELATION_MEAN_WEIGHT: f32 = 0.1;
+
+/// Frames the local contrast's running mean must cover before
+/// `lost_local_correlation_drop` reads it: right after a start or a resume
+/// the first frame sits on its keyframe's pose, and its local contrast is
+/// the highest the next frames will see (`realistic` seed 12: 0.78, then
+/// 0.51 two frames later).
+const LOCAL_MEAN_MIN_FRAMES: u32 = 10;
 
 /// Weight of each keyframe in the running mean of the render latency.
 const RENDER_LATENCY_WEIGHT: f64 = 0.3;

@@ -159,10 +159,24 @@ impl Localizer {
             .iter()
             .flatten()
             .fold(ncc.map_or(f32::NAN, |(_, l)| l), |m, &(_, l)| m.min(l));
-        tracing::trace!(ncc = ncc.map(|c| c.0), local, "tracking correlation");
-        let ok = ncc.is_some_and(|(all, _)| {
-            all >= config.track_min_correlation && !(local < config.track_min_local_correlation)
-        });
+        tracing::trace!(
+            ncc = ncc.map(|c| c.0),
+            local,
+            local_mean = self.local_mean,
+            "tracking correlation"
+        );
+        self.last_local = local;
+        // A drop against its own running mean (off at 0): a drift against
+        // a stale keyframe loses local contrast before anything else.
+        let dropped = local_dropped(
+            self.policy.lost_local_correlation_drop,
+            (self.local_mean, self.local_frames),
+            local,
+        );
+        let ok = !dropped
+            && ncc.is_some_and(|(all, _)| {
+                all >= config.track_min_correlation && !(local < config.track_min_local_correlation)
+            });
         if !ok && self.state == TrackState::Tracking {
             tracing::debug!(
                 ncc = ncc.map(|c| c.0),
@@ -759,6 +773,17 @@ fn gather(
     }
 }
 
+/// Whether a frame's local contrast correlation `local` fell below `drop`
+/// times its running mean (`mean` over `frames` tracked frames):
+/// `[keyframe] lost_local_correlation_drop`, off at 0, and silent until the
+/// mean covers [`super::LOCAL_MEAN_MIN_FRAMES`]. A `NaN` local correlation
+/// (no level measured) is no drop.
+fn local_dropped(drop: f32, (mean, frames): (Option<f32>, u32), local: f32) -> bool {
+    drop > 0.0
+        && frames >= super::LOCAL_MEAN_MIN_FRAMES
+        && mean.is_some_and(|mean| local < drop * mean)
+}
+
 /// The gate settings: the database's, else those given to
 /// [`Localizer::verify_start`]; `None` when neither was set.
 fn gate_config<'a>(
@@ -769,4 +794,26 @@ fn gate_config<'a>(
         .as_deref()
         .map(Relocalizer::config)
         .or(start_gate.as_ref())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn local_contrast_drops_only_against_a_settled_mean() {
+        let settled = super::super::LOCAL_MEAN_MIN_FRAMES;
+        // The drift of `aggressive --scanned` seed 1: 0.37 against a mean
+        // of 0.73.
+        assert!(local_dropped(0.7, (Some(0.73), settled), 0.37));
+        // A right frame at 0.74 of its mean stays.
+        assert!(!local_dropped(0.7, (Some(0.73), settled), 0.74 * 0.73));
+        // Off at 0; no mean yet; a mean over too few frames (the first
+        // frames after a start sit on their keyframe's pose).
+        assert!(!local_dropped(0.0, (Some(0.73), settled), 0.1));
+        assert!(!local_dropped(0.7, (None, settled), 0.1));
+        assert!(!local_dropped(0.7, (Some(0.78), settled - 1), 0.5));
+        // No level measured: no drop.
+        assert!(!local_dropped(0.7, (Some(0.73), settled), f32::NAN));
+    }
 }
