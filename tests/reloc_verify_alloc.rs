@@ -66,33 +66,19 @@ fn verifying_a_candidate_on_two_aligners_allocates_nothing() {
     keyframe.prepare(&view, candidate, 1, &tracker);
     let mut aligners = [Aligner::new(&tracker), Aligner::new(&tracker)];
     let yaws = start_yaws_rad(&config, 0.0);
-    // The pose to accept or to refine from.
-    let pose = |v: Verdict| match v {
-        Verdict::Accepted(v) => Some(v.world_from_camera),
-        Verdict::Refine(p) => Some(p),
-        Verdict::Rejected => None,
-    };
-    let first = pose(verify_candidate(
-        &mut aligners,
-        &keyframe,
-        &pyramid,
-        &camera,
-        &config,
-        &yaws,
-    ));
+    // The pose it gives, to accept or to refine from.
+    let mut verify =
+        || match verify_candidate(&mut aligners, &keyframe, &pyramid, &camera, &config, &yaws) {
+            Verdict::Accepted(v) => Some(v.world_from_camera),
+            Verdict::Refine(p) => Some(p),
+            Verdict::Rejected => None,
+        };
+    let first = verify();
 
     let mut same = 0;
     start_counting_all_threads();
     for _ in 0..20 {
-        let again = pose(verify_candidate(
-            &mut aligners,
-            &keyframe,
-            &pyramid,
-            &camera,
-            &config,
-            &yaws,
-        ));
-        same += usize::from(again == first);
+        same += usize::from(verify() == first);
     }
     let allocations = stop_counting_all_threads();
     assert!(
