@@ -81,7 +81,12 @@ impl Localizer {
         if self.verify_left == 0 {
             return None;
         }
-        let config = gate_config(&self.reloc, &self.start_gate)?;
+        // The relocalization's own gate, as the candidate it verifies had.
+        let config = self
+            .reloc
+            .as_deref()
+            .map(Relocalizer::gate)
+            .or(self.start_gate.as_ref())?;
         let yaws = start_yaws_rad(config, 0.0);
         match verify_candidate(
             &mut self.reloc_aligners,
@@ -352,7 +357,7 @@ impl Localizer {
                 };
                 *slot = c;
                 n_tried += 1;
-                let (found, refused) = self.try_and_record(reloc.config(), &candidate, capture_ns);
+                let (found, refused) = self.try_and_record(reloc.gate(), &candidate, capture_ns);
                 let Some((v, kf)) = found else {
                     if refused {
                         break 'steps;
@@ -418,7 +423,7 @@ impl Localizer {
             let Some(rival) = candidates.get(i).copied() else {
                 continue;
             };
-            let (found, refused) = self.try_and_record(reloc.config(), &rival, capture_ns);
+            let (found, refused) = self.try_and_record(reloc.gate(), &rival, capture_ns);
             let Some((r, r_kf)) = found else {
                 if refused {
                     // A rival that could not be rendered was not ruled out.
@@ -625,7 +630,7 @@ impl Localizer {
         held: &Verified,
         capture_ns: u64,
     ) -> Option<Pose> {
-        let config = reloc.config();
+        let config = reloc.gate();
         let world_from_camera = &held.world_from_camera;
         for i in 0..self.map_symmetries.len() {
             let symmetry = self.map_symmetries[i];

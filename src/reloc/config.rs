@@ -94,6 +94,17 @@ pub struct RelocConfig {
     /// the map pulls it down); the local-contrast figure below does the rejecting
     /// this one used to do alone at 0.6.
     pub min_correlation: f32,
+    /// Acceptance gate of relocalization on maps checked for geometric
+    /// twins (`geometric_twins`; by default the untextured maps, a scan's
+    /// vertex colors with its light baked in): the plain correlation's floor
+    /// there, in place of `min_correlation` when lower. On such a map the
+    /// plain figure tells nothing: on 4 scanned rooms, 2 447 alignments more
+    /// than 30 cm off reached 0.78 while true poses under another light
+    /// read 0.27-0.46; local contrast kept them apart (wrong at most 0.20,
+    /// true 0.57-0.91), and look-alike places are the twins' to refuse
+    /// (docs/building-scale.md). Tracking's own resuming keeps
+    /// `min_correlation`.
+    pub twin_checked_min_correlation: f32,
     /// Acceptance gate: smallest correlation of local contrast over the
     /// same levels, trimmed of the points that do not fit
     /// ([`crate::track::Correlations::local`]: each intensity divided by
@@ -213,6 +224,7 @@ impl Default for RelocConfig {
             min_visible_ratio: 0.5,
             max_residual_gray: 12.0,
             min_correlation: 0.5,
+            twin_checked_min_correlation: 0.2,
             min_local_correlation: 0.7,
             min_gain: 0.25,
             max_gain: 4.0,
@@ -282,7 +294,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 30] = [
+        let checks: [(&'static str, bool, String); 31] = [
             (
                 "yaw_steps",
                 (1..=360).contains(&self.yaw_steps),
@@ -373,6 +385,15 @@ impl RelocConfig {
                 "min_correlation",
                 self.min_correlation.is_finite() && (-1.0..=1.0).contains(&self.min_correlation),
                 format!("expected -1..=1, found {}", self.min_correlation),
+            ),
+            (
+                "twin_checked_min_correlation",
+                self.twin_checked_min_correlation.is_finite()
+                    && (-1.0..=1.0).contains(&self.twin_checked_min_correlation),
+                format!(
+                    "expected -1..=1, found {}",
+                    self.twin_checked_min_correlation
+                ),
             ),
             (
                 "bounds_margin_m",

@@ -108,6 +108,9 @@ pub struct Relocalizer {
     /// The map's geometry, for the twins of a held pose
     /// ([`Self::with_map`]; none until then).
     twins: super::twins::GeometricTwins,
+    /// Relocalization's gate: `config`, with the plain correlation's
+    /// floor of a map checked for twins ([`super::twins::relocalization_gate`]).
+    gate: RelocConfig,
 }
 
 impl Relocalizer {
@@ -138,6 +141,7 @@ impl Relocalizer {
             )),
             candidates: heapless::Vec::new(),
             twins: super::twins::GeometricTwins::none(config),
+            gate: config.clone(),
         })
     }
 
@@ -149,6 +153,7 @@ impl Relocalizer {
     pub fn with_map(mut self, mesh: &crate::map::Mesh) -> Self {
         let started = std::time::Instant::now();
         self.twins = super::twins::GeometricTwins::new(mesh, &self.config);
+        self.gate = super::twins::relocalization_gate(&self.config, self.twins.has_map());
         if self.twins.has_map() {
             tracing::info!(
                 ms = started.elapsed().as_secs_f64() * 1e3,
@@ -162,6 +167,7 @@ impl Relocalizer {
     /// ([`super::twins::GeometricTwins::new`]), as [`Self::with_map`] would.
     pub fn with_twins(mut self, twins: super::twins::GeometricTwins) -> Self {
         self.twins = twins;
+        self.gate = super::twins::relocalization_gate(&self.config, self.twins.has_map());
         self
     }
 
@@ -183,6 +189,13 @@ impl Relocalizer {
     /// The `[reloc]` settings in use.
     pub fn config(&self) -> &RelocConfig {
         &self.config
+    }
+
+    /// The settings a relocalization candidate is verified with: `config`,
+    /// with the plain correlation's floor lowered on a map checked for
+    /// geometric twins ([`super::twins::relocalization_gate`]).
+    pub fn gate(&self) -> &RelocConfig {
+        &self.gate
     }
 
     /// Descriptors of a camera frame at every query shift; `None` when it

@@ -89,7 +89,7 @@ impl GeometricTwins {
         } else {
             MapOccupancy::none()
         };
-        Self::with_occupancy(occupancy, config)
+        Self::with_occupancy(occupancy, &relocalization_gate(config, checked))
     }
 
     /// No map: every pose is [`TwinCheck::Unique`].
@@ -166,6 +166,25 @@ pub fn twin_pose(held: &Pose, twin: &Twin) -> Pose {
     Translation3::new(twin.offset_m[0], twin.offset_m[1], 0.0) * held
 }
 
+/// Relocalization's gate under `config` on a map whose held poses are
+/// checked at their geometric twins (`twins_checked`, as
+/// [`GeometricTwins::has_map`]): the plain correlation's floor is
+/// `twin_checked_min_correlation` there when lower than `min_correlation`
+/// (see that setting), else `config` unchanged. Tracking's resuming gate
+/// is never this one.
+pub fn relocalization_gate(config: &RelocConfig, twins_checked: bool) -> RelocConfig {
+    RelocConfig {
+        min_correlation: if twins_checked {
+            config
+                .min_correlation
+                .min(config.twin_checked_min_correlation)
+        } else {
+            config.min_correlation
+        },
+        ..config.clone()
+    }
+}
+
 /// The gate a twin is checked through: from the map's detail, with both
 /// correlation thresholds [`LOOSE_MARGIN`] lower.
 pub fn loose_gate(config: &RelocConfig) -> RelocConfig {
@@ -194,6 +213,30 @@ mod tests {
         assert_eq!(loose.min_gain, strict.min_gain);
         assert_eq!(loose.min_inlier_ratio, strict.min_inlier_ratio);
         assert_eq!(loose.refine_renders, strict.refine_renders);
+    }
+
+    #[test]
+    fn only_a_twin_checked_map_lowers_the_plain_floor() {
+        let config = RelocConfig::default();
+        let checked = relocalization_gate(&config, true);
+        assert_eq!(checked.min_correlation, config.twin_checked_min_correlation);
+        assert!(checked.min_correlation < config.min_correlation);
+        assert_eq!(checked.min_local_correlation, config.min_local_correlation);
+        assert_eq!(checked.min_inlier_ratio, config.min_inlier_ratio);
+        let unchecked = relocalization_gate(&config, false);
+        assert_eq!(unchecked.min_correlation, config.min_correlation);
+        // A floor set above the plain one does not raise it.
+        let high = RelocConfig {
+            twin_checked_min_correlation: 0.9,
+            ..config.clone()
+        };
+        assert_eq!(
+            relocalization_gate(&high, true).min_correlation,
+            config.min_correlation
+        );
+        // The twins' looser gate is looser than the gate it loosens.
+        let twins = GeometricTwins::none(&checked);
+        assert!(twins.loose().min_correlation < checked.min_correlation);
     }
 
     #[test]

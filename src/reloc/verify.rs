@@ -89,7 +89,7 @@ fn whole_gate_from(
     first_level: usize,
 ) -> Option<Correlations> {
     let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
-    (passes_gate(&a.quality, config) && gain_ok)
+    let c = (passes_gate(&a.quality, config) && gain_ok)
         .then(|| {
             min_correlations_from(
                 keyframe,
@@ -99,8 +99,37 @@ fn whole_gate_from(
                 first_level,
             )
         })
-        .flatten()
-        .filter(|c| c.all >= config.min_correlation && c.local >= config.min_local_correlation)
+        .flatten();
+    let passes = c.is_some_and(|c| {
+        c.all >= config.min_correlation && c.local >= config.min_local_correlation
+    });
+    if tracing::enabled!(target: "star::reloc::gate", tracing::Level::TRACE) {
+        let world_from_camera = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
+        let t = world_from_camera.translation.vector;
+        let c = c.unwrap_or(Correlations {
+            all: f32::NAN,
+            trimmed: f32::NAN,
+            kept: f32::NAN,
+            local: f32::NAN,
+            local_kept: f32::NAN,
+        });
+        tracing::trace!(
+            target: "star::reloc::gate",
+            x_m = t.x,
+            y_m = t.y,
+            z_m = t.z,
+            inliers = a.quality.inlier_ratio,
+            visible = a.quality.visible_ratio,
+            residual = a.quality.residual_rms,
+            gain = a.gain,
+            all = c.all,
+            trimmed = c.trimmed,
+            local = c.local,
+            passes,
+            "gate"
+        );
+    }
+    c.filter(|_| passes)
 }
 
 /// The first pyramid level the gate reads: the keyframe's

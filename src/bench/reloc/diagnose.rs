@@ -55,7 +55,7 @@ impl Bench {
                 &mut self.aligners,
                 &self.pyramid,
                 &self.camera,
-                &self.config.reloc,
+                self.reloc.gate(),
                 (&e.world_from_camera, Some(0.0)),
                 (&mut self.spare, &mut self.returned),
                 &mut render,

@@ -250,6 +250,9 @@ impl Bench {
             landmark_pose = landmark.is_some(),
             accepted = verdict.is_some(),
             from_landmarks = verdict_from_landmarks,
+            truth_x_m = query.position_m.x,
+            truth_y_m = query.position_m.y,
+            truth_z_m = query.position_m.z,
             "query"
         );
         if let Some(first) = candidates.first() {
@@ -333,7 +336,7 @@ impl Bench {
         tally: &mut Tally,
     ) -> Option<Verified> {
         let gate = match gate {
-            Gate::Strict => &self.config.reloc,
+            Gate::Strict => self.reloc.gate(),
             Gate::Loose => self.reloc.twins_mut().loose(),
         };
         let (candidate_r, pinhole, kview, tracker) = (
