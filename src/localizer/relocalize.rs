@@ -109,7 +109,9 @@ impl Localizer {
             return true;
         };
         if self.verify_left > 0 {
-            return passes_gate(&a.quality, config);
+            // Verifying a relocalization: through its own gate.
+            let gate = self.reloc.as_deref().map_or(config, Relocalizer::gate);
+            return passes_gate(&a.quality, gate);
         }
         if self.state == TrackState::Tracking {
             return true;

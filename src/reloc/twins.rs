@@ -168,9 +168,10 @@ pub fn twin_pose(held: &Pose, twin: &Twin) -> Pose {
 
 /// Relocalization's gate under `config` on a map whose held poses are
 /// checked at their geometric twins (`twins_checked`, as
-/// [`GeometricTwins::has_map`]): the plain correlation's floor is
-/// `twin_checked_min_correlation` there when lower than `min_correlation`
-/// (see that setting), else `config` unchanged. Tracking's resuming gate
+/// [`GeometricTwins::has_map`]): the plain correlation's and the inlier
+/// ratio's floors are `twin_checked_min_correlation` and
+/// `twin_checked_min_inlier_ratio` there when lower than `min_correlation`
+/// and `min_inlier_ratio` (see those settings), else `config` unchanged. Tracking's resuming gate
 /// is never this one.
 pub fn relocalization_gate(config: &RelocConfig, twins_checked: bool) -> RelocConfig {
     RelocConfig {
@@ -180,6 +181,13 @@ pub fn relocalization_gate(config: &RelocConfig, twins_checked: bool) -> RelocCo
                 .min(config.twin_checked_min_correlation)
         } else {
             config.min_correlation
+        },
+        min_inlier_ratio: if twins_checked {
+            config
+                .min_inlier_ratio
+                .min(config.twin_checked_min_inlier_ratio)
+        } else {
+            config.min_inlier_ratio
         },
         ..config.clone()
     }
@@ -222,9 +230,15 @@ mod tests {
         assert_eq!(checked.min_correlation, config.twin_checked_min_correlation);
         assert!(checked.min_correlation < config.min_correlation);
         assert_eq!(checked.min_local_correlation, config.min_local_correlation);
-        assert_eq!(checked.min_inlier_ratio, config.min_inlier_ratio);
+        assert_eq!(
+            checked.min_inlier_ratio,
+            config.twin_checked_min_inlier_ratio
+        );
+        assert!(checked.min_inlier_ratio < config.min_inlier_ratio);
+        assert_eq!(checked.min_gain, config.min_gain);
         let unchecked = relocalization_gate(&config, false);
         assert_eq!(unchecked.min_correlation, config.min_correlation);
+        assert_eq!(unchecked.min_inlier_ratio, config.min_inlier_ratio);
         // A floor set above the plain one does not raise it.
         let high = RelocConfig {
             twin_checked_min_correlation: 0.9,
