@@ -101,8 +101,9 @@ pub struct RelocConfig {
     /// plain figure tells nothing: on 4 scanned rooms, 2 447 alignments more
     /// than 30 cm off reached 0.78 while true poses under another light
     /// read 0.27-0.46; local contrast kept them apart (wrong at most 0.20,
-    /// true 0.57-0.91), and look-alike places are the twins' to refuse
-    /// (docs/building-scale.md). Tracking's own resuming keeps
+    /// true 0.57-0.91). Look-alike places pass either figure (on the
+    /// scanned floor, plain 0.59-0.82 and local up to 0.83); the rival rule
+    /// and the twins refuse them (docs/building-scale.md). Tracking's own resuming keeps
     /// `min_correlation`.
     pub twin_checked_min_correlation: f32,
     /// Acceptance gate of relocalization on maps checked for geometric
