@@ -103,8 +103,8 @@ pub struct RelocConfig {
     /// read 0.27-0.46; local contrast kept them apart (wrong at most 0.20,
     /// true 0.57-0.91). Look-alike places pass either figure (on the
     /// scanned floor, plain 0.59-0.82 and local up to 0.83); the rival rule
-    /// and the twins refuse them (docs/building-scale.md). Tracking's own resuming keeps
-    /// `min_correlation`.
+    /// and the twins refuse them (docs/building-scale.md). Tracking's own
+    /// resuming keeps `min_correlation`.
     pub twin_checked_min_correlation: f32,
     /// Acceptance gate of relocalization on maps checked for geometric
     /// twins: the inlier ratio's floor there, in place of

@@ -108,8 +108,8 @@ pub struct Relocalizer {
     /// The map's geometry, for the twins of a held pose
     /// ([`Self::with_map`]; none until then).
     twins: super::twins::GeometricTwins,
-    /// Relocalization's gate: `config`, with the plain correlation's
-    /// floor of a map checked for twins ([`super::twins::relocalization_gate`]).
+    /// Relocalization's gate: `config`, with the lower floors of a map
+    /// checked for twins ([`super::twins::relocalization_gate`]).
     gate: RelocConfig,
 }
 
@@ -192,8 +192,9 @@ impl Relocalizer {
     }
 
     /// The settings a relocalization candidate is verified with: `config`,
-    /// with the plain correlation's floor lowered on a map checked for
-    /// geometric twins ([`super::twins::relocalization_gate`]).
+    /// with the plain correlation's and the inlier ratio's floors lowered
+    /// on a map checked for geometric twins
+    /// ([`super::twins::relocalization_gate`]).
     pub fn gate(&self) -> &RelocConfig {
         &self.gate
     }

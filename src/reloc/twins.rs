@@ -171,8 +171,8 @@ pub fn twin_pose(held: &Pose, twin: &Twin) -> Pose {
 /// [`GeometricTwins::has_map`]): the plain correlation's and the inlier
 /// ratio's floors are `twin_checked_min_correlation` and
 /// `twin_checked_min_inlier_ratio` there when lower than `min_correlation`
-/// and `min_inlier_ratio` (see those settings), else `config` unchanged. Tracking's resuming gate
-/// is never this one.
+/// and `min_inlier_ratio` (see those settings), else `config` unchanged.
+/// Tracking's resuming gate is never this one.
 pub fn relocalization_gate(config: &RelocConfig, twins_checked: bool) -> RelocConfig {
     RelocConfig {
         min_correlation: if twins_checked {
@@ -224,7 +224,7 @@ mod tests {
     }
 
     #[test]
-    fn only_a_twin_checked_map_lowers_the_plain_floor() {
+    fn only_a_twin_checked_map_lowers_the_gates_floors() {
         let config = RelocConfig::default();
         let checked = relocalization_gate(&config, true);
         assert_eq!(checked.min_correlation, config.twin_checked_min_correlation);
