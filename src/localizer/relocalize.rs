@@ -82,11 +82,7 @@ impl Localizer {
             return None;
         }
         // The relocalization's own gate, as the candidate it verifies had.
-        let config = self
-            .reloc
-            .as_deref()
-            .map(Relocalizer::gate)
-            .or(self.start_gate.as_ref())?;
+        let config = relocalization_gate_config(&self.reloc, &self.start_gate)?;
         let yaws = start_yaws_rad(config, 0.0);
         match verify_candidate(
             &mut self.reloc_aligners,
@@ -110,7 +106,7 @@ impl Localizer {
         };
         if self.verify_left > 0 {
             // Verifying a relocalization: through its own gate.
-            let gate = self.reloc.as_deref().map_or(config, Relocalizer::gate);
+            let gate = relocalization_gate_config(&self.reloc, &self.start_gate).unwrap_or(config);
             return passes_gate(&a.quality, gate);
         }
         if self.state == TrackState::Tracking {
@@ -800,6 +796,20 @@ fn gate_config<'a>(
     reloc
         .as_deref()
         .map(Relocalizer::config)
+        .or(start_gate.as_ref())
+}
+
+/// As [`gate_config`], but the database's relocalization gate
+/// ([`Relocalizer::gate`]: lower floors on a map checked for twins) in place
+/// of its `[reloc]` settings: for the candidates of a relocalization and
+/// the frames that verify one.
+fn relocalization_gate_config<'a>(
+    reloc: &'a Option<Box<Relocalizer>>,
+    start_gate: &'a Option<RelocConfig>,
+) -> Option<&'a RelocConfig> {
+    reloc
+        .as_deref()
+        .map(Relocalizer::gate)
         .or(start_gate.as_ref())
 }
 
