@@ -34,6 +34,9 @@
 //!   - [`twins`]: the places where a held pose's view stands again in
 //!     the map's geometry, checked before a pose the prior cannot vouch
 //!     for is accepted.
+//!   - [`local_contrast`]: the locally normalized images a candidate can
+//!     be aligned on where the map's light is not the flight's (`star
+//!     bench reloc` only, so far).
 //!   - [`verify`]: the strict acceptance gate a rendered candidate passes
 //!     (its correlation test is [`crate::track::correlation`]).
 //! - [`config`]: the `[reloc]` section.
@@ -50,6 +53,7 @@ pub mod file;
 pub mod grid;
 pub mod landmark_index;
 pub mod landmarks;
+pub mod local_contrast;
 pub mod pnp;
 pub mod prior;
 pub mod region;

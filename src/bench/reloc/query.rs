@@ -40,8 +40,7 @@ impl Bench {
                 dataset
                     .load_frame_into(i, &mut self.frame, scratch)
                     .with_context(|| format!("reading frame {i} of {}", dataset.root.display()))?;
-                self.pyramid
-                    .fill_from_u8(self.frame.data(), self.frame.width());
+                fill_pyramids(&self.frame, &mut self.pyramid, &mut self.contrast);
                 let truth = truth.poses[i];
                 return Ok(Some(QueryFrame {
                     truth,
@@ -81,11 +80,28 @@ impl Bench {
             rng.range(0.0, 60.0),
             &mut self.frame,
         );
-        self.pyramid
-            .fill_from_u8(self.frame.data(), self.frame.width());
+        fill_pyramids(&self.frame, &mut self.pyramid, &mut self.contrast);
         Ok(Some(QueryFrame {
             truth,
             position_m: p,
         }))
+    }
+}
+
+/// Builds the frame's pyramid, and its locally normalized one when
+/// candidates are aligned on local contrast.
+fn fill_pyramids(
+    frame: &crate::imgproc::ImageU8,
+    pyramid: &mut crate::track::Pyramid,
+    contrast: &mut Option<(
+        crate::reloc::local_contrast::LocalContrast,
+        crate::track::Pyramid,
+    )>,
+) {
+    pyramid.fill_from_u8(frame.data(), frame.width());
+    if let Some((c, normalized_pyramid)) = contrast {
+        if let Some(normalized) = c.frame(frame.data()) {
+            normalized_pyramid.fill_from_u8(normalized, frame.width());
+        }
     }
 }

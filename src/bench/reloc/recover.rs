@@ -345,11 +345,20 @@ impl Bench {
             &mut self.kview,
             &self.tracker,
         );
+        // On local contrast: the frame's normalized pyramid, and each
+        // candidate's view normalized before its keyframe is prepared.
+        let (mut contrast, pyramid) = match &mut self.contrast {
+            Some((c, p)) => (Some(c), &*p),
+            None => (None, &self.pyramid),
+        };
         let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
             let t_render = Instant::now();
             candidate_r
                 .render(world_from_keyframe, pinhole, kview)
                 .ok()?;
+            if let Some(c) = contrast.as_mut() {
+                c.view(kview);
+            }
             tally.renders += 1;
             let t_prepare = Instant::now();
             kf.prepare(kview, *world_from_keyframe, u64::from(index), tracker);
@@ -359,7 +368,7 @@ impl Bench {
         };
         attempt(
             &mut self.aligners,
-            &self.pyramid,
+            pyramid,
             &self.camera,
             gate,
             start,
