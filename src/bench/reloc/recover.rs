@@ -328,12 +328,40 @@ impl Bench {
     /// Renders and verifies `world_from_candidate` (with the yaw the search
     /// matched at; `None`: a precise pose) through `gate`; `index` names its
     /// keyframes.
+    ///
+    /// On local contrast (`STAR_BENCH_NORMALIZE_PX`) the candidate is
+    /// aligned on the normalized images, and the pose it converges to is
+    /// then judged on the images as they are: aligned again from there
+    /// (one start) against a plain render, through the same gate. So the
+    /// gate, the rivals and the twins keep the brightness that tells
+    /// look-alike places apart (`STAR_BENCH_NORMALIZE_GATE=normalized`
+    /// judges on the normalized images instead).
     fn try_at(
         &mut self,
         gate: Gate,
         start: (&Pose, Option<f64>),
         index: u32,
         tally: &mut Tally,
+    ) -> Option<Verified> {
+        if self.contrast.is_none() {
+            return self.try_on(gate, start, index, tally, false);
+        }
+        let v = self.try_on(gate, start, index, tally, true)?;
+        if std::env::var("STAR_BENCH_NORMALIZE_GATE").as_deref() == Ok("normalized") {
+            return Some(v);
+        }
+        self.try_on(gate, (&v.world_from_camera, None), index, tally, false)
+    }
+
+    /// [`Self::try_at`] on one kind of image: the normalized ones when
+    /// `normalized` (and candidates are aligned on local contrast).
+    fn try_on(
+        &mut self,
+        gate: Gate,
+        start: (&Pose, Option<f64>),
+        index: u32,
+        tally: &mut Tally,
+        normalized: bool,
     ) -> Option<Verified> {
         let gate = match gate {
             Gate::Strict => self.reloc.gate(),
@@ -348,8 +376,8 @@ impl Bench {
         // On local contrast: the frame's normalized pyramid, and each
         // candidate's view normalized before its keyframe is prepared.
         let (mut contrast, pyramid) = match &mut self.contrast {
-            Some((c, p)) => (Some(c), &*p),
-            None => (None, &self.pyramid),
+            Some((c, p)) if normalized => (Some(c), &*p),
+            _ => (None, &self.pyramid),
         };
         let mut render = |world_from_keyframe: &Pose, kf: &mut Keyframe| {
             let t_render = Instant::now();
