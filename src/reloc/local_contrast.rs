@@ -65,11 +65,6 @@ impl LocalContrast {
         }
     }
 
-    /// Window radius, pixels.
-    pub fn radius_px(&self) -> usize {
-        self.radius_px
-    }
-
     /// The normalized copy of `frame` (`width x height`, row-major, tightly
     /// packed); `None` when its size is not the one of [`Self::new`].
     pub fn frame(&mut self, frame: &[u8]) -> Option<&[u8]> {

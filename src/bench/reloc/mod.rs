@@ -35,10 +35,10 @@
 //! aligns and gates each candidate on locally normalized images, the
 //! frame's and the render's ([`crate::reloc::local_contrast`]; the service
 //! does not yet); `STAR_BENCH_NORMALIZE_GATE=plain` judges the pose it
-//! converges to on the plain images. `STAR_BENCH_PROBES=W,L` sets the whole-map landmark search's probes
-//! (words, leaves); `STAR_BENCH_LANDMARK_SCALES=4,16,40` adds the landmark
-//! matching figures on the landmarks replicated into look-alike rooms
-//! ([`scale`]). The landmark search's recall (the share of corners whose
+//! converges to on the plain images. `STAR_BENCH_PROBES=W,L` sets the
+//! whole-map landmark search's probes (words, leaves);
+//! `STAR_BENCH_LANDMARK_SCALES=4,16,40` adds the landmark matching figures
+//! on the landmarks replicated into look-alike rooms ([`scale`]). The landmark search's recall (the share of corners whose
 //! nearest landmark over the whole map it finds) compares each query with
 //! every landmark after the query's timing ends; `STAR_BENCH_NO_RECALL=1`
 //! leaves it out (it triples the run time, and its scan leaves the next

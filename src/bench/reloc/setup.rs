@@ -276,7 +276,12 @@ impl Bench {
             .collect();
         let contrast = contrast_from_env()?.map(|(radius_px, floor_gray)| {
             println!(
-                "  candidates aligned on local contrast (STAR_BENCH_NORMALIZE_PX): windows of radius {radius_px} px, standard deviation floor {floor_gray} gray"
+                "  candidates aligned on local contrast (STAR_BENCH_NORMALIZE_PX): windows of radius {radius_px} px, standard deviation floor {floor_gray} gray; judged on the {} images",
+                if std::env::var("STAR_BENCH_NORMALIZE_GATE").as_deref() == Ok("plain") {
+                    "plain"
+                } else {
+                    "normalized"
+                }
             );
             (
                 LocalContrast::new(
