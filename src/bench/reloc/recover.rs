@@ -348,7 +348,7 @@ impl Bench {
             return self.try_on(gate, start, index, tally, false);
         }
         let v = self.try_on(gate, start, index, tally, true)?;
-        if std::env::var("STAR_BENCH_NORMALIZE_GATE").as_deref() != Ok("plain") {
+        if !self.judge_plain {
             return Some(v);
         }
         self.try_on(gate, (&v.world_from_camera, None), index, tally, false)

@@ -82,6 +82,9 @@ pub(super) struct Bench {
     /// `STAR_BENCH_NORMALIZE_PX`: candidates are aligned on locally
     /// normalized images ([`LocalContrast`]); the frame's such pyramid.
     pub(super) contrast: Option<(LocalContrast, Pyramid)>,
+    /// `STAR_BENCH_NORMALIZE_GATE=plain`: a pose found on local contrast
+    /// is judged on the plain images.
+    pub(super) judge_plain: bool,
     /// Whether an accepted pose's rivals at other places are verified
     /// ([`crate::reloc::rivals`]; off with `STAR_BENCH_NO_RIVALS`).
     pub(super) check_rivals: bool,
@@ -274,14 +277,11 @@ impl Bench {
         let spare: Vec<Box<Keyframe>> = (0..renders_per_candidate)
             .map(|_| Box::new(Keyframe::new(&pinhole, &tracker)))
             .collect();
+        let judge_plain = std::env::var("STAR_BENCH_NORMALIZE_GATE").as_deref() == Ok("plain");
         let contrast = contrast_from_env()?.map(|(radius_px, floor_gray)| {
             println!(
                 "  candidates aligned on local contrast (STAR_BENCH_NORMALIZE_PX): windows of radius {radius_px} px, standard deviation floor {floor_gray} gray; judged on the {} images",
-                if std::env::var("STAR_BENCH_NORMALIZE_GATE").as_deref() == Ok("plain") {
-                    "plain"
-                } else {
-                    "normalized"
-                }
+                if judge_plain { "plain" } else { "normalized" }
             );
             (
                 LocalContrast::new(
@@ -299,6 +299,7 @@ impl Bench {
         });
         Ok(Self {
             contrast,
+            judge_plain,
             kview: RenderedView::for_camera(&pinhole),
             frame: ImageU8::new(0, 0, 0),
             returned: Vec::with_capacity(renders_per_candidate),
