@@ -14,7 +14,7 @@
 //! order.
 //!
 //! With levels of detail ([`super::lod`]), coarse copies of runs of
-//! untextured chunks follow the fine chunks.
+//! chunks follow the fine chunks.
 //!
 //! Per render, each chunk's box (or, at a level of detail, its copy's) is
 //! tested against the view [`Frustum`] ([`mark_visible`]).
@@ -145,8 +145,8 @@ impl ChunkedMesh {
         Self::build_with_levels(mesh, false)
     }
 
-    /// As [`ChunkedMesh::build`], with coarse copies of the untextured
-    /// chunks appended when `levels` ([`super::lod`]).
+    /// As [`ChunkedMesh::build`], with coarse copies of runs of chunks
+    /// appended when `levels` ([`super::lod`]).
     pub fn build_with_levels(mesh: &Mesh, levels: bool) -> Result<Self, RenderError> {
         let triangles = mesh.indices.len() / 3;
         if triangles > u32::MAX as usize / 3 {

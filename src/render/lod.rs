@@ -1,41 +1,58 @@
 //! Levels of detail of a chunked mesh: coarser copies of groups of its
-//! untextured chunks, drawn instead of them where the camera is too far
-//! away to tell the difference.
+//! chunks, drawn instead of them where the camera cannot tell the
+//! difference.
 //!
 //! Owns [`LodTable`] (built once with the chunks, [`build_levels`]) and the
 //! per-render choice ([`LodView`], [`LodTable::mark`]). A scanned map (a
 //! TSDF mesh, vertex-colored, 1-2 cm triangles) has millions of triangles
 //! smaller than a pixel wherever the camera looks down a corridor, and
 //! every one costs a vertex transform and a setup; at the database's
-//! 160x128 thumbnails almost all of them do.
+//! 160x128 thumbnails almost all of them do. A textured map cut into small
+//! cells (the `building` preset's 3.7 cm) has as many, on surfaces that are
+//! flat and mapped affinely, where far fewer triangles draw the same image.
 //!
 //! **The coarse copies.** The chunks of one mesh group are the leaves of a
 //! binary tree of median splits ([`super::chunks`]), each node a contiguous
 //! run of chunks. The nodes 2, 4 and 6 levels above the deepest leaves
 //! (4, 16 and 64 chunks) get one coarse copy each, simplified by vertex
 //! clustering (Rossignac and Borrel): the node's vertices are pooled in
-//! cubic cells of 2, 4 and 8 times the median edge of the untextured
-//! triangles, each cell's vertices become one vertex at their mean position
-//! and mean gray, and the triangles that collapse are dropped. A vertex the
-//! node shares with a chunk outside it is never moved, so a coarse copy
-//! meets its neighbors, fine or coarse, at exactly the same border: no
-//! crack opens between levels. A copy is kept only with at most
-//! [`KEEP_RATIO`] of the node's triangles and at most [`MAX_COARSE_TRIS`].
-//! Coarse chunks are appended after the fine ones in
+//! cubic cells of 2, 4 and 8 times the median edge (of the vertex-colored
+//! triangles, or of the textured ones), each cell's vertices become one
+//! vertex at their mean position, mean gray and mean texture coordinates,
+//! and the triangles that collapse are dropped. A vertex the node shares
+//! with a chunk outside it is never moved, so a coarse copy meets its
+//! neighbors, fine or coarse, at exactly the same border: no crack opens
+//! between levels. In a textured copy the vertices on an open edge (a
+//! wall's outline, a doorway's edge) stay too, and only vertices whose
+//! normals face the same way share a cell, so faces that meet without
+//! sharing vertices are not pooled together. A copy is kept only with at
+//! most [`KEEP_RATIO`] of the node's triangles and at most
+//! [`MAX_COARSE_TRIS`]. Coarse chunks are appended after the fine ones in
 //! [`super::chunks::ChunkedMesh::chunks`]; each coarse triangle carries the
 //! mesh number of the first triangle that made it, for the renderers'
-//! depth tie-break. Textured chunks have no coarse copy: their appearance
-//! is in the texture, which a mean vertex cannot keep.
+//! depth tie-break.
+//!
+//! **Each copy's error** ([`LodNode::error_m`]), meters on the surface. A
+//! vertex-colored copy's appearance is in its vertices, averaged over a
+//! cell: its error is the cell. A textured copy's appearance is in the
+//! texture, which a flat surface with an affine mapping keeps exactly
+//! whatever its triangles: its error is measured ([`textured_error_m`]:
+//! each fine vertex's distance from the coarse triangles at its cell, and
+//! the shift of the texture there), and is its cell where the shading
+//! (the vertex gray that modulates the texture) changed by more than
+//! [`GRAY_TOLERANCE`].
 //!
 //! **The choice.** A render draws, for each run of chunks, the coarsest
-//! copy whose cell, at the copy's box's nearest point to the camera, spans
+//! copy whose error, at the copy's box's nearest point to the camera, spans
 //! at most `max_px` pixels (`[render] lod_max_px`), else the chunks
 //! themselves, node by node down the tree; the frustum test is then made on
 //! what was chosen. The choice depends only on the pose, the camera and the
 //! map, never on the culls, so a culled render stays identical to an
-//! unculled one, and both renderers choose alike. A vertex moves by less
-//! than a cell (its mean stays inside the cell), so an outline moves by
-//! less than `max_px` pixels, and a surface's depth by less than a cell.
+//! unculled one, and both renderers choose alike. A vertex-colored copy's
+//! vertex moves by less than a cell (its mean stays inside the cell), so an
+//! outline moves by less than `max_px` pixels, and a surface's depth by
+//! less than a cell. A textured copy of error 0 is drawn at every
+//! distance.
 
 use std::collections::HashMap;
 use std::ops::Range;
@@ -76,8 +93,9 @@ pub fn cell_limit_px(px: f32) -> f32 {
     }
 }
 
-/// One coarse copy: of which chunks, at which level, where.
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// One coarse copy: of which chunks, at which level, where, and how far
+/// from them it may stray.
+#[derive(Debug, Clone, PartialEq)]
 pub struct LodNode {
     /// The fine chunks it replaces (a contiguous run).
     pub chunks: Range<u32>,
@@ -85,6 +103,10 @@ pub struct LodNode {
     pub level: u8,
     /// Its chunk number in [`ChunkedMesh::chunks`].
     pub coarse: u32,
+    /// How far the copy's image may stray from the chunks', meters on the
+    /// surface: the level's cell for an untextured copy, the measured
+    /// error for a textured one ([`textured_error_m`]).
+    pub error_m: f32,
 }
 
 /// Which chunks are coarse copies of which. See the module docs.
@@ -136,10 +158,10 @@ impl LodView {
         d2.sqrt()
     }
 
-    /// Whether a cell of `cell_m` spans at most `max_px` pixels at the
+    /// Whether an error of `error_m` spans at most `max_px` pixels at the
     /// nearest point of `bounds`.
-    fn fits(&self, cell_m: f32, bounds: &Aabb) -> bool {
-        cell_m * self.focal_px <= self.max_px * self.distance_m(bounds)
+    fn fits(&self, error_m: f32, bounds: &Aabb) -> bool {
+        error_m * self.focal_px <= self.max_px * self.distance_m(bounds)
     }
 }
 
@@ -206,14 +228,9 @@ impl LodTable {
                     .iter()
                     .take_while(|n| n.chunks.start as usize == i)
                     .find(|n| {
-                        let cell_m = self
-                            .cell_m
-                            .get(n.level as usize)
-                            .copied()
-                            .unwrap_or(f32::INFINITY);
                         chunks
                             .get(n.coarse as usize)
-                            .is_some_and(|c| view.fits(cell_m, &c.bounds))
+                            .is_some_and(|c| view.fits(n.error_m, &c.bounds))
                     })
             });
             match chosen {
@@ -236,7 +253,8 @@ impl LodTable {
     }
 }
 
-/// Whether chunks of `group` may get coarse copies: untextured.
+/// Whether the chunks of `group` are untextured (their appearance is in
+/// their vertices' gray).
 fn untextured(mesh: &Mesh, group: u32) -> bool {
     if group == NO_GROUP {
         return mesh.groups.is_empty();
@@ -246,13 +264,30 @@ fn untextured(mesh: &Mesh, group: u32) -> bool {
         .is_some_and(|g| g.texture.is_none())
 }
 
-/// Median edge length of the untextured triangles of `chunked` (sampled),
-/// meters; `None` when there are none.
-fn median_edge_m(chunked: &ChunkedMesh, mesh: &Mesh) -> Option<f32> {
+/// Whether the chunks of `group` sample a texture.
+fn textured(mesh: &Mesh, group: u32) -> bool {
+    group != NO_GROUP
+        && mesh
+            .groups
+            .get(group as usize)
+            .is_some_and(|g| g.texture.is_some())
+}
+
+/// Median edge length of the untextured (`want_textured` false) or
+/// textured triangles of `chunked` (sampled), meters; `None` when there
+/// are none.
+fn median_edge_m(chunked: &ChunkedMesh, mesh: &Mesh, want_textured: bool) -> Option<f32> {
+    let of_kind = |c: &&MeshChunk| {
+        if want_textured {
+            textured(mesh, c.group)
+        } else {
+            untextured(mesh, c.group)
+        }
+    };
     let tris: usize = chunked
         .chunks
         .iter()
-        .filter(|c| untextured(mesh, c.group))
+        .filter(of_kind)
         .map(MeshChunk::triangle_count)
         .sum();
     if tris == 0 {
@@ -261,7 +296,7 @@ fn median_edge_m(chunked: &ChunkedMesh, mesh: &Mesh) -> Option<f32> {
     let stride = tris.div_ceil(EDGE_SAMPLES).max(1);
     let mut edges = Vec::with_capacity(3 * (tris / stride + 1));
     let mut k = 0usize;
-    for chunk in chunked.chunks.iter().filter(|c| untextured(mesh, c.group)) {
+    for chunk in chunked.chunks.iter().filter(of_kind) {
         for t in chunk.triangles.clone() {
             k += 1;
             if k % stride != 0 {
@@ -293,6 +328,57 @@ fn median_edge_m(chunked: &ChunkedMesh, mesh: &Mesh) -> Option<f32> {
     let mid = edges.len() / 2;
     let (_, m, _) = edges.select_nth_unstable_by(mid, f32::total_cmp);
     Some(*m)
+}
+
+/// Marks in `open` (one flag per mesh vertex) the mesh vertices on an open
+/// edge of fine chunks `chunks`: an edge only one of their triangles has
+/// (a wall's outline, a doorway's edge, the seam where two faces meet
+/// without sharing vertices). `edges` is scratch.
+fn mark_open_edges(
+    chunked: &ChunkedMesh,
+    chunks: Range<usize>,
+    origins: &VertexOrigins,
+    open: &mut [bool],
+    edges: &mut Vec<u64>,
+) {
+    edges.clear();
+    let source = |i: u32| {
+        origins
+            .vertex_source
+            .get(i as usize)
+            .copied()
+            .unwrap_or(u32::MAX)
+    };
+    for chunk in chunked.chunks.get(chunks).unwrap_or(&[]) {
+        let Some(indices) = chunked
+            .indices
+            .get(chunk.index_range().start as usize..chunk.index_range().end as usize)
+        else {
+            continue;
+        };
+        for tri in indices.chunks_exact(3) {
+            let m = [source(tri[0]), source(tri[1]), source(tri[2])];
+            for (a, b) in [(m[0], m[1]), (m[1], m[2]), (m[2], m[0])] {
+                edges.push(u64::from(a.min(b)) << 32 | u64::from(a.max(b)));
+            }
+        }
+    }
+    edges.sort_unstable();
+    let mut i = 0;
+    while i < edges.len() {
+        let mut j = i + 1;
+        while j < edges.len() && edges[j] == edges[i] {
+            j += 1;
+        }
+        if j - i == 1 {
+            for v in [edges[i] >> 32, edges[i] & u64::from(u32::MAX)] {
+                if let Some(flag) = open.get_mut(v as usize) {
+                    *flag = true;
+                }
+            }
+        }
+        i = j;
+    }
 }
 
 /// The nodes of the split tree of a group of `triangles` triangles whose
@@ -330,17 +416,57 @@ fn split_tree(triangles: usize, first: usize) -> (Vec<(Range<usize>, usize)>, us
     (out, leaves.len())
 }
 
+/// One cluster of vertices: sums of their attributes, and their count.
+#[derive(Debug, Clone, Copy, Default)]
+struct Pool {
+    position_m: [f64; 3],
+    gray: f64,
+    uv: [f64; 2],
+    count: u32,
+}
+
+impl Pool {
+    fn add(&mut self, position_m: [f32; 3], gray: f32, uv: [f32; 2]) {
+        for k in 0..3 {
+            self.position_m[k] += f64::from(position_m[k]);
+        }
+        self.gray += f64::from(gray);
+        self.uv[0] += f64::from(uv[0]);
+        self.uv[1] += f64::from(uv[1]);
+        self.count += 1;
+    }
+
+    /// Mean position, gray and texture coordinates.
+    fn mean(&self) -> ([f64; 3], f64, [f64; 2]) {
+        let n = f64::from(self.count.max(1));
+        (
+            self.position_m.map(|x| x / n),
+            self.gray / n,
+            self.uv.map(|x| x / n),
+        )
+    }
+}
+
 /// Scratch of one node's simplification, reused from node to node.
 #[derive(Default)]
 struct Scratch {
-    /// Cell of each pooled vertex -> its cluster.
-    cells: HashMap<[i32; 3], u32>,
+    /// Cell (and, on a textured copy, normal class) of each pooled vertex
+    /// -> its cluster.
+    cells: HashMap<[i32; 4], u32>,
     /// Mesh vertex of each fixed vertex -> its cluster.
     fixed: HashMap<u32, u32>,
     /// Per node-local vertex, its cluster.
     cluster_of: Vec<u32>,
-    /// Per cluster: summed position, gray and count.
-    sum: Vec<([f64; 3], f64, u32)>,
+    /// Per cluster, its sums.
+    sum: Vec<Pool>,
+    /// Per node-local vertex, its area-weighted normal (textured copies).
+    normal: Vec<[f64; 3]>,
+    /// Per cluster, where its members start in `members` (and one past).
+    member_start: Vec<u32>,
+    /// Node-local vertices, cluster by cluster.
+    members: Vec<u32>,
+    /// Open-edge scratch ([`mark_open_edges`]).
+    edges: Vec<u64>,
     /// Per cluster, its vertex number in the output, or `u32::MAX`.
     emitted: Vec<u32>,
     /// Coarse triangles seen (sorted cluster triples).
@@ -361,7 +487,7 @@ pub struct VertexOrigins<'a> {
     pub last_chunk: &'a [u32],
 }
 
-/// Appends coarse copies of the untextured chunks of `chunked` (built from
+/// Appends coarse copies of the chunks of `chunked` (built from
 /// `mesh`, chunks in split-tree order per group) and fills its
 /// [`LodTable`]. Fails only when the copies no longer fit `u32` indices.
 pub fn build_levels(
@@ -372,12 +498,25 @@ pub fn build_levels(
     let fine = chunked.chunks.len();
     let fine_tris = chunked.source_triangle.len();
     chunked.lod = LodTable::fine_only(fine);
-    let Some(edge_m) = median_edge_m(chunked, mesh) else {
+    let cells = |edge_m: Option<f32>| edge_m.map(|e| CELL_EDGES.map(|k| k * e));
+    let cell_plain = cells(median_edge_m(chunked, mesh, false));
+    let cell_textured = if chunked.uvs.is_empty() {
+        None
+    } else {
+        cells(median_edge_m(chunked, mesh, true))
+    };
+    let Some(cell_m) = cell_plain.or(cell_textured) else {
         return Ok(());
     };
-    let cell_m = CELL_EDGES.map(|k| k * edge_m);
+    // Per mesh vertex: on an open edge of a textured group.
+    let mut open = if cell_textured.is_some() {
+        vec![false; origins.first_chunk.len()]
+    } else {
+        Vec::new()
+    };
     let mut nodes = Vec::new();
     let mut scratch = Scratch::default();
+    let mut textured_errors = Vec::new();
     let mut level_tris = [0usize; LEVELS];
     let mut start = 0;
     while start < fine {
@@ -389,8 +528,20 @@ pub fn build_levels(
                 .unwrap_or(fine - start);
         let run = start..end;
         start = end;
-        if !untextured(mesh, group) {
+        let is_textured = textured(mesh, group);
+        let Some(group_cells) = (if is_textured {
+            cell_textured
+        } else if untextured(mesh, group) {
+            cell_plain
+        } else {
+            None
+        }) else {
             continue;
+        };
+        if is_textured {
+            let mut edges = std::mem::take(&mut scratch.edges);
+            mark_open_edges(chunked, run.clone(), origins, &mut open, &mut edges);
+            scratch.edges = edges;
         }
         let triangles: usize = chunked.chunks[run.clone()]
             .iter()
@@ -411,6 +562,7 @@ pub fn build_levels(
             let Some(level) = NODE_HEIGHT.iter().position(|&h| h == height) else {
                 continue;
             };
+
             let node_tris: usize = chunked.chunks[chunks.clone()]
                 .iter()
                 .map(MeshChunk::triangle_count)
@@ -418,13 +570,20 @@ pub fn build_levels(
             let made = simplify(
                 chunked,
                 chunks.clone(),
-                cell_m[level],
-                origins,
+                group_cells[level],
+                (origins, is_textured.then_some(open.as_slice())),
                 &mut scratch,
             );
             if made == 0 || made > MAX_COARSE_TRIS || made as f32 > KEEP_RATIO * node_tris as f32 {
                 continue;
             }
+            let error_m = if is_textured {
+                let e = textured_error_m(chunked, chunks.clone(), group_cells[level], &mut scratch);
+                textured_errors.push(e);
+                e
+            } else {
+                group_cells[level]
+            };
             let number = chunked.chunks.len();
             if number >= u32::MAX as usize {
                 return Err(super::RenderError::InvalidMesh {
@@ -439,16 +598,22 @@ pub fn build_levels(
                 chunks: chunks.start as u32..chunks.end as u32,
                 level: level as u8,
                 coarse: number as u32,
+                error_m,
             });
         }
     }
     // By first chunk, the largest run first (parents come before their
     // children in depth-first order already; sort to be sure).
     nodes.sort_by_key(|n| (n.chunks.start, std::cmp::Reverse(n.chunks.end)));
+    textured_errors.sort_by(f32::total_cmp);
+    let textured_median_error_m = textured_errors.get(textured_errors.len() / 2).copied();
     tracing::info!(
         fine_triangles = fine_tris,
         coarse_triangles = ?level_tris,
-        cell_m = ?cell_m,
+        cell_m = ?cell_plain,
+        textured_cell_m = ?cell_textured,
+        textured_copies = textured_errors.len(),
+        textured_median_error_m = ?textured_median_error_m,
         "levels of detail built"
     );
     if !nodes.is_empty() {
@@ -463,12 +628,16 @@ pub fn build_levels(
 
 /// Clusters the vertices of fine chunks `chunks` in cells of `cell_m`
 /// into `s` and lists the coarse triangles that survive; gives their
-/// number.
+/// number. With `open` (a textured copy: one flag per mesh vertex, see
+/// [`mark_open_edges`]) the vertices on open edges stay where they are, as
+/// the node's border does, and only vertices whose normals face the same
+/// way ([`normal_class`]) share a cell, so faces that meet at an edge
+/// without sharing vertices are pooled apart.
 fn simplify(
     chunked: &ChunkedMesh,
     chunks: Range<usize>,
     cell_m: f32,
-    origins: &VertexOrigins,
+    (origins, open): (&VertexOrigins, Option<&[bool]>),
     s: &mut Scratch,
 ) -> usize {
     s.cells.clear();
@@ -487,26 +656,36 @@ fn simplify(
     let triangles = first.triangles.start as usize..last.triangles.end as usize;
     let (a, b) = (chunks.start as u32, chunks.end as u32);
     let v0 = vertices.start;
+    if open.is_some() {
+        vertex_normals(chunked, vertices.clone(), triangles.clone(), &mut s.normal);
+    }
     for v in vertices {
         let p = chunked.positions.get(v).copied().unwrap_or([0.0; 3]);
-        let gray = f64::from(chunked.gray.get(v).copied().unwrap_or(0.0));
+        let gray = chunked.gray.get(v).copied().unwrap_or(0.0);
+        let uv = chunked.uvs.get(v).copied().unwrap_or([0.0; 2]);
         let m = origins.vertex_source.get(v).copied().unwrap_or(u32::MAX);
         let inside = origins.first_chunk.get(m as usize).is_some_and(|&c| c >= a)
-            && origins.last_chunk.get(m as usize).is_some_and(|&c| c < b);
+            && origins.last_chunk.get(m as usize).is_some_and(|&c| c < b)
+            && open.is_none_or(|o| o.get(m as usize) == Some(&false));
+        let class = if open.is_some() {
+            normal_class(s.normal.get(v - v0).copied().unwrap_or_default())
+        } else {
+            0
+        };
+        let [x, y, z] = p.map(|x| (x / cell_m).floor() as i32);
+        let key = [x, y, z, class];
         let existing = if inside {
-            s.cells
-                .get(&p.map(|x| (x / cell_m).floor() as i32))
-                .copied()
+            s.cells.get(&key).copied()
         } else {
             s.fixed.get(&m).copied()
         };
         let cluster = match existing {
             Some(k) => k,
             None => {
-                s.sum.push(([0.0; 3], 0.0, 0));
+                s.sum.push(Pool::default());
                 let k = (s.sum.len() - 1) as u32;
                 if inside {
-                    s.cells.insert(p.map(|x| (x / cell_m).floor() as i32), k);
+                    s.cells.insert(key, k);
                 } else {
                     s.fixed.insert(m, k);
                 }
@@ -514,12 +693,8 @@ fn simplify(
             }
         };
         if let Some(sum) = s.sum.get_mut(cluster as usize) {
-            if inside || sum.2 == 0 {
-                for k in 0..3 {
-                    sum.0[k] += f64::from(p[k]);
-                }
-                sum.1 += gray;
-                sum.2 += 1;
+            if inside || sum.count == 0 {
+                sum.add(p, gray, uv);
             }
         }
         s.cluster_of.push(cluster);
@@ -548,6 +723,194 @@ fn simplify(
     s.triangles.len()
 }
 
+/// Area-weighted normals of `vertices` of `chunked` from `triangles`
+/// (whose vertices all lie in that range) into `out`, one per vertex.
+fn vertex_normals(
+    chunked: &ChunkedMesh,
+    vertices: Range<usize>,
+    triangles: Range<usize>,
+    out: &mut Vec<[f64; 3]>,
+) {
+    let v0 = vertices.start;
+    out.clear();
+    out.resize(vertices.len(), [0.0; 3]);
+    let p = |i: u32| {
+        chunked
+            .positions
+            .get(i as usize)
+            .copied()
+            .unwrap_or([0.0; 3])
+            .map(f64::from)
+    };
+    for t in triangles {
+        let Some(tri) = chunked.indices.get(3 * t..3 * t + 3) else {
+            continue;
+        };
+        let n = cross(sub(p(tri[1]), p(tri[0])), sub(p(tri[2]), p(tri[0])));
+        for &i in tri {
+            if let Some(acc) = out.get_mut((i as usize).wrapping_sub(v0)) {
+                for k in 0..3 {
+                    acc[k] += n[k];
+                }
+            }
+        }
+    }
+}
+
+/// Which of the six axis directions `normal` is nearest (0..6), or 6
+/// without a direction.
+fn normal_class(normal: [f64; 3]) -> i32 {
+    let axis = (0..3)
+        .max_by(|&i, &j| normal[i].abs().total_cmp(&normal[j].abs()))
+        .unwrap_or(0);
+    match normal[axis] {
+        x if x > 0.0 => 2 * axis as i32,
+        x if x < 0.0 => 2 * axis as i32 + 1,
+        _ => 6,
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Largest difference, in gray levels of 0..=255, between a fine vertex's
+/// gray and the coarse triangle's interpolated gray for which a textured
+/// copy is judged by its shape and texture coordinates alone; beyond it
+/// the copy has lost shading detail, and its error is at least its cell.
+const GRAY_TOLERANCE: f64 = 4.0;
+
+/// How far the textured copy in `s` (from [`simplify`] of fine chunks
+/// `chunks`) may stray from them on the image, meters on the surface: for
+/// every coarse triangle and every fine vertex pooled into one of its
+/// corners, the larger of the vertex's distance from the triangle's plane
+/// and the shift of the texture there (the difference between the
+/// vertex's texture coordinates and the triangle's, at the vertex's
+/// place on the plane, as a distance along the surface). A flat surface
+/// with one affine texture mapping (walls and floors cut into cells) has
+/// copies of error 0; an edge or a texture seam pooled into one cell
+/// shows as an error of its size. A triangle that lost its area or its
+/// texture mapping, or shading that changed by more than
+/// [`GRAY_TOLERANCE`], makes the error at least `cell_m`.
+fn textured_error_m(
+    chunked: &ChunkedMesh,
+    chunks: Range<usize>,
+    cell_m: f32,
+    s: &mut Scratch,
+) -> f32 {
+    let Some(first) = chunked.chunks.get(chunks.start) else {
+        return f32::INFINITY;
+    };
+    let v0 = first.vertices.start as usize;
+    // Members of each cluster.
+    let n = s.sum.len();
+    s.member_start.clear();
+    s.member_start.resize(n + 1, 0);
+    for &k in &s.cluster_of {
+        if let Some(c) = s.member_start.get_mut(k as usize + 1) {
+            *c += 1;
+        }
+    }
+    for k in 0..n {
+        s.member_start[k + 1] += s.member_start[k];
+    }
+    s.members.clear();
+    s.members.resize(s.cluster_of.len(), 0);
+    let mut cursor: Vec<u32> = s.member_start[..n].to_vec();
+    for (local, &k) in s.cluster_of.iter().enumerate() {
+        if let Some(at) = cursor.get_mut(k as usize) {
+            if let Some(slot) = s.members.get_mut(*at as usize) {
+                *slot = local as u32;
+            }
+            *at += 1;
+        }
+    }
+    let mut worst = 0.0f64;
+    let mut lost_detail = false;
+    for &(tri, _) in &s.triangles {
+        let [(m0, g0, w0), (m1, g1, w1), (m2, g2, w2)] =
+            tri.map(|k| s.sum.get(k as usize).copied().unwrap_or_default().mean());
+        let (e1, e2) = (sub(m1, m0), sub(m2, m0));
+        let normal = cross(e1, e2);
+        let area2 = dot(normal, normal);
+        let (a11, a12, a22) = (dot(e1, e1), dot(e1, e2), dot(e2, e2));
+        let (d1, d2) = (
+            [w1[0] - w0[0], w1[1] - w0[1]],
+            [w2[0] - w0[0], w2[1] - w0[1]],
+        );
+        let uv_det = d1[0] * d2[1] - d1[1] * d2[0];
+        let uv_scale = d1[0] * d1[0] + d1[1] * d1[1] + d2[0] * d2[0] + d2[1] * d2[1];
+        if !(area2 > 1e-12 * (a11 + a22).powi(2) && uv_det.abs() > 1e-9 * uv_scale) {
+            lost_detail = true;
+            continue;
+        }
+        let unit = normal.map(|x| x / area2.sqrt());
+        for k in tri {
+            let at = s.member_start.get(k as usize).copied().unwrap_or(0) as usize;
+            let to = s.member_start.get(k as usize + 1).copied().unwrap_or(0) as usize;
+            for &local in s.members.get(at..to).unwrap_or(&[]) {
+                let v = v0 + local as usize;
+                let p = chunked
+                    .positions
+                    .get(v)
+                    .copied()
+                    .unwrap_or([0.0; 3])
+                    .map(f64::from);
+                let uv = chunked
+                    .uvs
+                    .get(v)
+                    .copied()
+                    .unwrap_or([0.0; 2])
+                    .map(f64::from);
+                let gray = f64::from(chunked.gray.get(v).copied().unwrap_or(0.0));
+                let r = sub(p, m0);
+                let off_plane_m = dot(unit, r).abs();
+                // Barycentric coordinates of the point on the plane.
+                let (b1, b2) = (dot(e1, r), dot(e2, r));
+                let det = a11 * a22 - a12 * a12;
+                let (bs, bt) = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det);
+                let du = uv[0] - (w0[0] + bs * d1[0] + bt * d2[0]);
+                let dv = uv[1] - (w0[1] + bs * d1[1] + bt * d2[1]);
+                // The texture-coordinate error as a step on the surface.
+                let (sa, sb) = (
+                    (du * d2[1] - dv * d2[0]) / uv_det,
+                    (d1[0] * dv - d1[1] * du) / uv_det,
+                );
+                let step = [0, 1, 2].map(|c| sa * e1[c] + sb * e2[c]);
+                let shift_m = dot(step, step).sqrt();
+                let gray_off = (gray - (g0 + bs * (g1 - g0) + bt * (g2 - g0))).abs();
+                if !(gray_off <= GRAY_TOLERANCE) {
+                    lost_detail = true;
+                }
+                let e = off_plane_m.max(shift_m);
+                worst = if e.is_finite() {
+                    worst.max(e)
+                } else {
+                    f64::INFINITY
+                };
+            }
+        }
+    }
+    let worst = worst as f32;
+    if lost_detail {
+        worst.max(cell_m)
+    } else {
+        worst
+    }
+}
+
 /// Appends the coarse chunk in `s` (from [`simplify`]) of mesh group
 /// `group`.
 fn emit(chunked: &mut ChunkedMesh, group: u32, s: &mut Scratch) -> Result<(), super::RenderError> {
@@ -572,14 +935,13 @@ fn emit(chunked: &mut ChunkedMesh, group: u32, s: &mut Scratch) -> Result<(), su
                     });
                 }
                 *slot = n as u32;
-                let (p, gray, count) = s.sum.get(k as usize).copied().unwrap_or_default();
-                let count = f64::from(count.max(1));
-                let p = p.map(|x| (x / count) as f32);
+                let (p, gray, uv) = s.sum.get(k as usize).copied().unwrap_or_default().mean();
+                let p = p.map(|x| x as f32);
                 bounds.add(p);
                 chunked.positions.push(p);
-                chunked.gray.push((gray / count) as f32);
+                chunked.gray.push(gray as f32);
                 if has_uvs {
-                    chunked.uvs.push([0.0; 2]);
+                    chunked.uvs.push(uv.map(|x| x as f32));
                 }
             }
             chunked.indices.push(*slot);
@@ -720,28 +1082,145 @@ mod tests {
         }
     }
 
-    #[test]
-    fn textured_chunks_have_no_coarse_copy() {
-        let mut mesh = wall(100, 5.0, 5.0);
-        mesh.uvs = vec![[0.5, 0.5]; mesh.positions.len()];
+    /// `mesh` with one texture (a 64 x 64 pattern) mapped affinely,
+    /// `uv = (x, z) / 4 m`, and one group.
+    fn textured(mut mesh: Mesh) -> Mesh {
+        mesh.uvs = mesh
+            .positions
+            .iter()
+            .map(|p| [p[0] / 4.0, p[2] / 4.0])
+            .collect();
         mesh.textures = vec![GrayTexture {
-            width: 1,
-            height: 1,
-            texels: vec![1.0],
+            width: 64,
+            height: 64,
+            texels: (0..64 * 64)
+                .map(|k| 40.0 + ((k * 7919 % 211) as f32))
+                .collect(),
         }];
         mesh.groups = vec![MeshGroup {
             first_index: 0,
             index_count: mesh.indices.len() as u32,
             texture: Some(0),
         }];
+        mesh
+    }
+
+    #[test]
+    fn a_flat_textured_wall_has_exact_copies_drawn_at_any_distance() {
+        let mut mesh = wall(400, 10.0, 5.0);
+        mesh.gray.fill(200.0);
+        let mesh = textured(mesh);
         let c = ChunkedMesh::build_with_levels(&mesh, true).unwrap();
-        assert_eq!(c.lod.coarse_chunks(), 0);
-        assert_eq!(c.chunks.len(), c.lod.fine_chunks);
-        // An untextured group of the same mesh does get them.
-        mesh.groups[0].texture = None;
-        let c = ChunkedMesh::build_with_levels(&mesh, true).unwrap();
-        assert!(c.lod.coarse_chunks() > 0);
-        assert_eq!(c.uvs.len(), c.positions.len(), "uvs kept per vertex");
+        let fine = c.lod.fine_chunks;
+        assert_eq!(c.lod.nodes.len(), 32 + 8 + 2, "every node has a copy");
+        for node in &c.lod.nodes {
+            assert!(node.error_m < 1e-4, "{node:?}");
+            // The copy keeps the texture mapping: uv = (x, z) / 4 m.
+            let chunk = &c.chunks[node.coarse as usize];
+            for v in chunk.vertices.start as usize..chunk.vertices.end as usize {
+                let (p, uv) = (c.positions[v], c.uvs[v]);
+                assert!((uv[0] - p[0] / 4.0).abs() < 1e-5 && (uv[1] - p[2] / 4.0).abs() < 1e-5);
+                assert!((p[1] - 5.0).abs() < 1e-5, "on the wall's plane");
+            }
+        }
+        // 1 m in front of the wall: the two largest copies, not the fine
+        // chunks.
+        let camera = PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5);
+        let mut pose = looking_along_y(0.0);
+        pose.translation.vector = Vector3::new(0.0, 4.0, 0.0);
+        let view = LodView::new(&pose, &camera, 2.0).unwrap();
+        let mut visible = Vec::new();
+        let stats = c.lod.mark(&c.chunks, Some(&view), None, &mut visible);
+        assert!(visible[..fine].iter().all(|&v| !v));
+        assert!(
+            10 * stats.visible_triangles < mesh.triangle_count(),
+            "{stats:?}"
+        );
+    }
+
+    #[test]
+    fn a_textured_copy_that_bends_or_loses_shading_has_an_error() {
+        // Folded along x = 1.3 m (off the chunks' median splits), at
+        // y = 5.03 m (off the cells' borders): two planes meeting at a
+        // crease.
+        let mut bent = wall(400, 10.0, 5.03);
+        bent.gray.fill(200.0);
+        for p in &mut bent.positions {
+            p[1] += 0.3 * (p[0] - 1.3).abs();
+        }
+        let c = ChunkedMesh::build_with_levels(&textured(bent), true).unwrap();
+        let crosses = |n: &LodNode| {
+            let b = &c.chunks[n.coarse as usize].bounds;
+            b.min_m[0] < 1.1 && b.max_m[0] > 1.5
+        };
+        let (across, beside): (Vec<&LodNode>, Vec<&LodNode>) =
+            c.lod.nodes.iter().partition(|n| crosses(n));
+        assert!(!across.is_empty() && !beside.is_empty());
+        for n in across {
+            assert!(n.error_m > 0.004, "the crease: {n:?}");
+        }
+        for n in beside {
+            assert!(n.error_m < 1e-4, "a flat part: {n:?}");
+        }
+        // Shading that changes from vertex to vertex: each copy is judged
+        // by its cell, as an untextured one.
+        let mut speckled = wall(400, 10.0, 5.0);
+        for (k, g) in speckled.gray.iter_mut().enumerate() {
+            *g = if k % 2 == 0 { 120.0 } else { 160.0 };
+        }
+        let c = ChunkedMesh::build_with_levels(&textured(speckled), true).unwrap();
+        assert!(!c.lod.nodes.is_empty());
+        for n in &c.lod.nodes {
+            assert!(n.error_m >= 0.1 * (1 << n.level) as f32 * 0.999, "{n:?}");
+        }
+    }
+
+    #[test]
+    fn a_textured_render_with_exact_copies_matches_the_full_one() {
+        let mut mesh = wall(400, 10.0, 5.0);
+        mesh.gray.fill(200.0);
+        let mesh = Arc::new(textured(mesh));
+        // Obliquely, 1-15 m from the wall, its outline in view.
+        let mut pose = looking_along_y(0.0);
+        pose.translation.vector = Vector3::new(-6.0, 1.0, 0.5);
+        let full = render(&mesh, &pose, 0.0, true);
+        let coarse = render(&mesh, &pose, 2.0, true);
+        let (w, h) = (full.depth_m.width(), full.depth_m.height());
+        let (mut hits, mut mask_off, mut depth_off, mut gray_off) = (0, 0, 0, 0);
+        for y in 0..h {
+            for x in 0..w {
+                let (a, b) = (
+                    full.depth_m.get(x, y).unwrap_or(0.0),
+                    coarse.depth_m.get(x, y).unwrap_or(0.0),
+                );
+                let (ha, hb) = (RenderedView::is_hit(a), RenderedView::is_hit(b));
+                if ha != hb {
+                    mask_off += 1;
+                    continue;
+                }
+                if !ha {
+                    continue;
+                }
+                hits += 1;
+                if (a - b).abs() > 1e-4 * a {
+                    depth_off += 1;
+                }
+                let (ga, gb) = (
+                    full.gray.get(x, y).unwrap_or(0.0),
+                    coarse.gray.get(x, y).unwrap_or(0.0),
+                );
+                if (ga - gb).abs() > 1.0 {
+                    gray_off += 1;
+                }
+            }
+        }
+        assert!(hits > 30_000, "the wall fills most of the view: {hits}");
+        assert_eq!(mask_off, 0, "the same pixels covered");
+        assert_eq!(depth_off, 0, "the same depth");
+        assert!(
+            gray_off * 1000 < hits,
+            "{gray_off} of {hits} off by a gray level"
+        );
     }
 
     #[test]
@@ -876,13 +1355,16 @@ mod tests {
             let t = (p[0] + 10.0) / 20.0;
             *p = [p[0] * 0.5, 4.0 + 40.0 * t, p[2] * 0.3];
         }
-        let mesh = Arc::new(mesh);
-        for x_m in [-3.0, 0.0, 2.5] {
-            let pose = looking_along_y(x_m);
-            let culled = render(&mesh, &pose, 2.0, true);
-            let whole = render(&mesh, &pose, 2.0, false);
-            assert_eq!(culled.depth_m.data(), whole.depth_m.data(), "x = {x_m}");
-            assert_eq!(culled.gray.data(), whole.gray.data(), "x = {x_m}");
+        // Vertex-colored, and textured (whose copies are exact, drawn near
+        // too).
+        for mesh in [Arc::new(mesh.clone()), Arc::new(textured(mesh))] {
+            for x_m in [-3.0, 0.0, 2.5] {
+                let pose = looking_along_y(x_m);
+                let culled = render(&mesh, &pose, 2.0, true);
+                let whole = render(&mesh, &pose, 2.0, false);
+                assert_eq!(culled.depth_m.data(), whole.depth_m.data(), "x = {x_m}");
+                assert_eq!(culled.gray.data(), whole.gray.data(), "x = {x_m}");
+            }
         }
     }
 }

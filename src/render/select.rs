@@ -88,13 +88,15 @@ pub struct RenderConfig {
     /// the first read back between them (`render::gpu` docs). Off: the
     /// frustum and far limit only.
     pub occlusion_cull: bool,
-    /// Level of detail (`render::lod`): runs of 4, 16 and 64 untextured
-    /// chunks (a scan's vertex-colored mesh) also have coarser copies, their
-    /// vertices pooled in cells of 2, 4 and 8 times the median edge and the
-    /// run's border kept exact; a render draws the coarsest copy whose cell
-    /// spans at most this many pixels at the copy's nearest point, so an
-    /// outline moves by less than that. 0 turns it off (every triangle
-    /// drawn, and no copies built). Textured chunks are always drawn whole.
+    /// Level of detail (`render::lod`): runs of 4, 16 and 64 chunks also
+    /// have coarser copies, their vertices pooled in cells of 2, 4 and 8
+    /// times the median edge and the run's border kept exact; a render
+    /// draws the coarsest copy whose error spans at most this many pixels
+    /// at the copy's nearest point. A vertex-colored copy's error is its
+    /// cell (its gray is averaged over the cell); a textured copy's is
+    /// measured against the fine chunks (0 where they are flat and mapped
+    /// affinely, so such a copy is drawn at every distance). 0 turns it
+    /// off (every triangle drawn, and no copies built).
     pub lod_max_px: f64,
 }
 

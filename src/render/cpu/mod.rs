@@ -119,8 +119,8 @@ impl CpuRenderer {
         Self::with_lod(mesh, 0.0)
     }
 
-    /// As [`CpuRenderer::new`], drawing far untextured chunks at a coarser
-    /// level of detail where its cells span at most `lod_max_px` pixels
+    /// As [`CpuRenderer::new`], drawing chunks at a coarser level of
+    /// detail where its error spans at most `lod_max_px` pixels
     /// (0: full detail, exactly as [`CpuRenderer::new`]; see
     /// [`crate::render::lod`] and
     /// [`crate::render::RenderConfig::lod_max_px`]).

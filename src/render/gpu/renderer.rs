@@ -159,8 +159,8 @@ impl GpuRenderer {
         Self::new_configured(mesh, which, gpu_budget_bytes, 0.0)
     }
 
-    /// As [`GpuRenderer::new_with_budget`], drawing far untextured chunks
-    /// at a coarser level of detail where its cells span at most
+    /// As [`GpuRenderer::new_with_budget`], drawing chunks at a coarser
+    /// level of detail where its error spans at most
     /// `lod_max_px` pixels (0: full detail; see [`crate::render::lod`] and
     /// [`crate::render::RenderConfig::lod_max_px`]).
     pub fn new_configured(

@@ -115,7 +115,7 @@ fn resident_bytes(chunked: &ChunkedMesh) -> (u64, u64) {
 /// Checks `mesh` with [`Mesh::validate`] (indices in range, attributes,
 /// groups, textures) and splits it into chunks; decides whether its
 /// vertex and index data fit `budget_bytes` (0: no budget) or must stream
-/// (see [`stream::plan`]), with coarse copies of its untextured chunks
+/// (see [`stream::plan`]), with coarse copies of runs of its chunks
 /// when `levels` ([`crate::render::lod`]); fails when the buffers to allocate exceed the
 /// adapter's `limits`, or the budget cannot hold one chunk.
 pub fn validate(
