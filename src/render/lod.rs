@@ -262,6 +262,15 @@ impl LodTable {
     }
 }
 
+/// Position of vertex `i` of `chunked`, meters (the origin if out of range).
+fn position_m(chunked: &ChunkedMesh, i: u32) -> [f32; 3] {
+    chunked
+        .positions
+        .get(i as usize)
+        .copied()
+        .unwrap_or([0.0; 3])
+}
+
 /// Whether the chunks of `group` are untextured (their appearance is in
 /// their vertices' gray).
 fn untextured(mesh: &Mesh, group: u32) -> bool {
@@ -314,13 +323,7 @@ fn median_edge_m(chunked: &ChunkedMesh, mesh: &Mesh, want_textured: bool) -> Opt
             let Some(tri) = chunked.indices.get(3 * t as usize..3 * t as usize + 3) else {
                 continue;
             };
-            let p = |i: u32| {
-                chunked
-                    .positions
-                    .get(i as usize)
-                    .copied()
-                    .unwrap_or([0.0; 3])
-            };
+            let p = |i: u32| position_m(chunked, i);
             let (a, b, c) = (p(tri[0]), p(tri[1]), p(tri[2]));
             for (u, v) in [(a, b), (b, c), (c, a)] {
                 let d =
@@ -757,14 +760,7 @@ fn vertex_normals(
     let v0 = vertices.start;
     out.clear();
     out.resize(vertices.len(), [0.0; 3]);
-    let p = |i: u32| {
-        chunked
-            .positions
-            .get(i as usize)
-            .copied()
-            .unwrap_or([0.0; 3])
-            .map(f64::from)
-    };
+    let p = |i: u32| position_m(chunked, i).map(f64::from);
     for t in triangles {
         let Some(tri) = chunked.indices.get(3 * t..3 * t + 3) else {
             continue;
