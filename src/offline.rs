@@ -93,8 +93,6 @@ pub struct OfflineReport {
     pub reloc_ambiguous: u64,
     /// Passing rivals told apart by a decisive correlation.
     pub reloc_decided: u64,
-    /// Relocalizations aligned and verified on local contrast.
-    pub reloc_on_local_contrast: u64,
     /// Relocalization attempts (lost frames searched).
     pub reloc_attempts: u64,
     /// Keyframes rendered.
@@ -293,7 +291,6 @@ pub fn localize_dataset_recorded(
         relocalizations: 0,
         reloc_ambiguous: 0,
         reloc_decided: 0,
-        reloc_on_local_contrast: 0,
         reloc_attempts: 0,
         keyframes: 0,
         stale_frames: 0,
@@ -396,7 +393,6 @@ pub fn localize_dataset_recorded(
     report.relocalizations = stats.relocalizations;
     report.reloc_ambiguous = stats.reloc_ambiguous;
     report.reloc_decided = stats.reloc_decided;
-    report.reloc_on_local_contrast = stats.reloc_on_local_contrast;
     report.reloc_attempts = stats.reloc_attempts;
     report.stale_frames = stats.stale_frames;
     report.max_keyframe_age_s = stats.max_keyframe_age_s;

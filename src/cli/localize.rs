@@ -231,10 +231,9 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
     );
     if report.reloc_attempts > 0 || report.relocalizations > 0 {
         println!(
-            "  relocalization: {} attempts, {} relocalized ({} on local contrast; reset_counter {})",
+            "  relocalization: {} attempts, {} relocalized (reset_counter {})",
             report.reloc_attempts,
             report.relocalizations,
-            report.reloc_on_local_contrast,
             report.reset_counters.last().copied().unwrap_or(0)
         );
     }

@@ -191,13 +191,6 @@ pub struct LoopStats {
     /// Passing rivals at another place that a decisive correlation told
     /// apart from the held pose (`reloc::rivals::DECISIVE_MARGIN`).
     pub reloc_decided: u64,
-    /// Relocalization candidates accepted (then verified, or not, by the
-    /// next frames).
-    pub reloc_accepts: u64,
-    /// Of `relocalizations`, those aligned and verified on local contrast
-    /// (`[reloc] twin_checked_local_contrast_px`), which tracking then
-    /// took over from a plain keyframe.
-    pub reloc_on_local_contrast: u64,
 }
 
 /// The STAR loop.
@@ -260,27 +253,6 @@ pub struct Localizer {
     /// Rigid motions under which the map looked the same to a
     /// relocalization (look-alike rooms): `second = symmetry * first`.
     map_symmetries: heapless::Vec<Pose, { relocalize::MAX_SYMMETRIES }>,
-    /// Where relocalization aligns on local contrast (the database's
-    /// [`crate::reloc::Relocalizer::local_contrast`]): the normalizer, and
-    /// the pyramid of the normalized frame its candidates align against.
-    contrast: Option<Box<FrameContrast>>,
-    /// The keyframe is a relocalization candidate normalized on local
-    /// contrast: the frames that verify it are normalized too, and once
-    /// verified a plain keyframe takes its place.
-    keyframe_on_contrast: bool,
-}
-
-/// A frame normalized on local contrast, for relocalization, and which
-/// attempts align on it.
-struct FrameContrast {
-    normalizer: crate::reloc::local_contrast::LocalContrast,
-    pyramid: Pyramid,
-    /// The attempt under way aligns its candidates on local contrast...
-    this_attempt: bool,
-    /// ... and so will the next one. Attempts alternate between the two
-    /// kinds of image until one accepts, and the kind that accepted starts
-    /// the next loss: which one a map needs is not known beforehand.
-    next_attempt: bool,
 }
 
 impl Localizer {
@@ -305,7 +277,6 @@ impl Localizer {
             world_from_keyframe: world_from_camera,
             id: 1,
             requested_at_ns: capture_ns,
-            local_contrast: None,
         });
         let keyframe = worker
             .wait_result()
@@ -354,8 +325,6 @@ impl Localizer {
             last_attempt: RelocAttempt::default(),
             correlation_samples: Vec::with_capacity(build.max_points_per_level(0)),
             map_symmetries: heapless::Vec::new(),
-            contrast: None,
-            keyframe_on_contrast: false,
         })
     }
 
@@ -428,9 +397,7 @@ impl Localizer {
         }
         self.previous_ns = Some(capture_ns);
         self.swap_in_ready_keyframe(capture_ns);
-        // Against a keyframe normalized on local contrast (a relocalization
-        // being verified) the frame is normalized the same way.
-        let normalized = self.fill_pyramid(pixels, stride);
+        self.pyramid.fill_from_u8(pixels, stride);
 
         // Constant-velocity prediction.
         let (prev_ns, world_from_camera_prev) = self
@@ -571,11 +538,6 @@ impl Localizer {
             self.local_frames = 0;
             let attempts = self.stats.reloc_attempts;
             if self.reloc.is_some() && self.reloc_due(capture_ns) {
-                if normalized {
-                    // The search ranks the database's views on the plain
-                    // frame; its candidates get their own normalized one.
-                    self.pyramid.fill_from_u8(pixels, stride);
-                }
                 self.relocalize(pixels, stride, capture_ns);
                 out.reset_counter = self.reset_counter;
             }
@@ -602,13 +564,6 @@ impl Localizer {
             // Confirming a relocalization: no pose until it is confirmed.
             self.verify_left -= 1;
             if self.verify_left > 0 {
-                self.stats.lost_frames += 1;
-                out.searching = true;
-                return Ok(out);
-            }
-            if self.keyframe_on_contrast && !self.track_from_plain_keyframe(world_from_camera) {
-                // Verified, but with nothing plain to track against: still
-                // lost, and the next frame searches again.
                 self.stats.lost_frames += 1;
                 out.searching = true;
                 return Ok(out);
@@ -644,7 +599,6 @@ impl Localizer {
                 ),
                 id: self.next_keyframe_id,
                 requested_at_ns: capture_ns,
-                local_contrast: None,
             });
             if requested {
                 self.next_keyframe_id += 1;
@@ -652,65 +606,6 @@ impl Localizer {
             }
         }
         Ok(out)
-    }
-
-    /// Fills the frame's pyramid from `pixels`: normalized on local
-    /// contrast when the keyframe is (then true), else as they are.
-    fn fill_pyramid(&mut self, pixels: &[u8], stride: usize) -> bool {
-        if self.keyframe_on_contrast {
-            if let Some(c) = self.contrast.as_mut() {
-                if let Some(normalized) = c.normalizer.frame_strided(pixels, stride) {
-                    self.pyramid
-                        .fill_from_u8(normalized, self.camera.width as usize);
-                    return true;
-                }
-            }
-        }
-        self.pyramid.fill_from_u8(pixels, stride);
-        false
-    }
-
-    /// A relocalization aligned on local contrast was verified at
-    /// `world_from_camera`: renders the plain keyframe there (the frame
-    /// waits, as for a candidate) and makes it the one tracking aligns
-    /// against, with the running correlation means started again (they
-    /// were of normalized images). False, the normalized keyframe kept and
-    /// nothing confirmed, when the render thread refused or failed.
-    fn track_from_plain_keyframe(&mut self, world_from_camera: Pose) -> bool {
-        let requested = !self.pending
-            && self.worker.try_request(RenderRequest {
-                world_from_keyframe: world_from_camera,
-                id: self.next_keyframe_id,
-                requested_at_ns: self.previous_ns.unwrap_or(0),
-                local_contrast: None,
-            });
-        if !requested {
-            tracing::warn!("render thread busy: the verified relocalization is not confirmed");
-            self.verify_left = 0;
-            return false;
-        }
-        self.next_keyframe_id += 1;
-        match self.worker.wait_result() {
-            Ok(kf) => {
-                let old = std::mem::replace(&mut self.keyframe, kf);
-                self.worker.recycle(old);
-                self.stats.keyframes += 1;
-                self.keyframe_on_contrast = false;
-                self.stats.reloc_on_local_contrast += 1;
-                self.correlation_mean = None;
-                self.local_mean = None;
-                self.local_frames = 0;
-                self.last_local = f32::NAN;
-                tracing::debug!("verified on local contrast; tracking from a plain keyframe");
-                true
-            }
-            Err(e) => {
-                self.stats.render_failures += 1;
-                tracing::warn!(error = %e, "the verified relocalization's keyframe failed to render; not confirmed");
-                self.verify_left = 0;
-                false
-            }
-        }
     }
 
     /// Takes a finished keyframe from the render thread, if any, for the
@@ -730,8 +625,6 @@ impl Localizer {
                     let old = std::mem::replace(&mut self.keyframe, kf);
                     self.worker.recycle(old);
                     self.stats.keyframes += 1;
-                    // Tracking's keyframes are rendered plain.
-                    self.keyframe_on_contrast = false;
                 }
                 Err(e) => {
                     self.stats.render_failures += 1;

@@ -58,22 +58,6 @@ impl Localizer {
             "relocalization enabled"
         );
         self.attempt_budget_s = relocalizer.config().attempt_budget_s;
-        self.contrast = relocalizer.local_contrast().map(|settings| {
-            tracing::info!(
-                radius_px = settings.radius_px,
-                floor_gray = settings.floor_gray,
-                "relocalization aligns its candidates on local contrast (a map checked for geometric twins)"
-            );
-            let (w, h) = (self.camera.width as usize, self.camera.height as usize);
-            Box::new(super::FrameContrast {
-                normalizer: crate::reloc::local_contrast::LocalContrast::with_settings(
-                    w, h, settings,
-                ),
-                pyramid: Pyramid::new(w, h, self.pyramid.len()),
-                this_attempt: false,
-                next_attempt: false,
-            })
-        });
         self.reloc = Some(Box::new(relocalizer));
         Ok(())
     }
@@ -276,22 +260,8 @@ impl Localizer {
 
     /// Searches, renders and verifies candidates for the frame already in
     /// `self.pyramid`; on success the candidate becomes the keyframe and the
-    /// prediction, and verification starts. Where the database says so
-    /// ([`Relocalizer::local_contrast`]), attempts alternate between
-    /// aligning the candidates on the images as they are and on local
-    /// contrast, until one accepts; that kind starts the next loss.
+    /// prediction, and verification starts.
     pub(super) fn relocalize(&mut self, pixels: &[u8], stride: usize, capture_ns: u64) {
-        let (attempts, accepts) = (self.stats.reloc_attempts, self.stats.reloc_accepts);
-        self.attempt(pixels, stride, capture_ns);
-        if let Some(c) = self.contrast.as_deref_mut() {
-            if self.stats.reloc_attempts > attempts && self.stats.reloc_accepts == accepts {
-                c.next_attempt = !c.this_attempt;
-            }
-        }
-    }
-
-    /// One relocalization attempt for [`Self::relocalize`].
-    fn attempt(&mut self, pixels: &[u8], stride: usize, capture_ns: u64) {
         let Some(mut reloc) = self.reloc.take() else {
             return;
         };
@@ -302,16 +272,6 @@ impl Localizer {
             return;
         };
         self.stats.reloc_attempts += 1;
-        if let Some(c) = self.contrast.as_deref_mut() {
-            // This attempt's candidates align against the frame normalized
-            // on local contrast, or plain (the search and its coarse
-            // ranking read it plain either way).
-            c.this_attempt = c.next_attempt
-                && c.normalizer
-                    .frame_strided(pixels, stride)
-                    .map(|normalized| c.pyramid.fill_from_u8(normalized, w))
-                    .is_some();
-        }
         self.last_attempt.capture_ns = capture_ns;
         self.last_attempt.tried = 0;
         let started = std::time::Instant::now();
@@ -588,9 +548,8 @@ impl Localizer {
     }
 
     /// Renders and aligns one relocalization candidate through the gate
-    /// ([`try_candidate`]), both normalized on local contrast where the
-    /// database says so ([`Relocalizer::local_contrast`]); also whether the
-    /// render thread refused the request (busy).
+    /// ([`try_candidate`]); also whether the render thread refused the
+    /// request (busy).
     fn try_reloc_candidate(
         &mut self,
         config: &RelocConfig,
@@ -602,16 +561,11 @@ impl Localizer {
         let worker = &self.worker;
         let stats = &mut self.stats;
         let next_id = &mut self.next_keyframe_id;
-        let (pyramid, local_contrast) = match self.contrast.as_deref() {
-            Some(c) if c.this_attempt => (&c.pyramid, Some(c.normalizer.settings())),
-            _ => (&self.pyramid, None),
-        };
         let mut render = |world_from_keyframe: &Pose| {
             let requested = worker.try_request(RenderRequest {
                 world_from_keyframe: *world_from_keyframe,
                 id: *next_id,
                 requested_at_ns: capture_ns,
-                local_contrast,
             });
             if !requested {
                 refused = true;
@@ -630,7 +584,7 @@ impl Localizer {
         };
         let found = try_candidate(
             &mut self.reloc_aligners,
-            pyramid,
+            &self.pyramid,
             &self.camera,
             config,
             world_from_candidate,
@@ -761,8 +715,7 @@ impl Localizer {
 
     /// Takes a candidate that passed the gate: its keyframe becomes the
     /// current one, and `verify_frames` more frames must track before any
-    /// pose goes out (none: at once; a candidate normalized on local
-    /// contrast then hands over to a plain keyframe at once).
+    /// pose goes out (none: at once).
     fn accept_relocalization(
         &mut self,
         v: Verified,
@@ -773,15 +726,11 @@ impl Localizer {
         let old = std::mem::replace(&mut self.keyframe, kf);
         self.worker.recycle(old);
         self.stats.keyframes += 1;
-        self.stats.reloc_accepts += 1;
-        self.keyframe_on_contrast = self.contrast.as_deref().is_some_and(|c| c.this_attempt);
         self.last = Some((capture_ns, v.world_from_camera));
         self.velocity = nalgebra::Vector6::zeros();
         self.tracked_run = 0;
         self.verify_left = verify_frames;
-        if self.verify_left == 0
-            && (!self.keyframe_on_contrast || self.track_from_plain_keyframe(v.world_from_camera))
-        {
+        if self.verify_left == 0 {
             self.confirm_relocalization();
             self.state = TrackState::Tracking;
             self.lost_since_ns = None;

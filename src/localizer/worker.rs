@@ -9,7 +9,6 @@ use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TryRecvError, TrySendE
 use std::thread::JoinHandle;
 
 use crate::geometry::{PinholeCamera, Pose};
-use crate::reloc::local_contrast::{LocalContrast, Settings};
 use crate::render::{RenderedView, Renderer};
 use crate::track::Keyframe;
 use crate::track::TrackerConfig;
@@ -26,10 +25,6 @@ pub struct RenderRequest {
     pub id: u64,
     /// Capture time of the frame that asked for it.
     pub requested_at_ns: u64,
-    /// Normalize the render's gray on local contrast before the keyframe is
-    /// prepared (a relocalization candidate on a scanned map); `None`: as
-    /// rendered, what tracking aligns against.
-    pub local_contrast: Option<Settings>,
 }
 
 /// A finished keyframe, or the reason it could not be made.
@@ -68,9 +63,6 @@ impl RenderWorker {
             .spawn(move || {
                 let mut view = RenderedView::for_camera(&pinhole);
                 let mut spare = Some(spare);
-                // Made on the first request that asks for it (only maps
-                // whose candidates are aligned on local contrast need it).
-                let mut contrast: Option<LocalContrast> = None;
                 while let Ok(req) = req_rx.recv() {
                     let mut kf = match spare.take() {
                         Some(kf) => kf,
@@ -83,17 +75,6 @@ impl RenderWorker {
                     let result =
                         match renderer.render(&req.world_from_keyframe, &pinhole, &mut view) {
                             Ok(()) => {
-                                if let Some(settings) = req.local_contrast {
-                                    let c = match &mut contrast {
-                                        Some(c) if c.settings() == settings => c,
-                                        _ => contrast.insert(LocalContrast::with_settings(
-                                            pinhole.width as usize,
-                                            pinhole.height as usize,
-                                            settings,
-                                        )),
-                                    };
-                                    c.view(&mut view);
-                                }
                                 kf.prepare(&view, req.world_from_keyframe, req.id, &config);
                                 kf.requested_at_ns = req.requested_at_ns;
                                 tracing::debug!(

@@ -114,24 +114,6 @@ pub struct RelocConfig {
     /// threshold; alignments more than 30 cm off reached 0.94, so the ratio
     /// refuses true poses there and no wrong one (local contrast does).
     pub twin_checked_min_inlier_ratio: f32,
-    /// On maps checked for geometric twins, relocalization aligns and judges
-    /// its candidates on local contrast ([`super::local_contrast`]): each
-    /// pixel as its distance from the mean of a window of this radius, in
-    /// units of the window's standard deviation, in the frame and in the
-    /// candidate's render alike; 0 aligns them on the images as they are.
-    /// A scan's baked light gives each surface another gain than the
-    /// flight's, which one affine gain cannot explain: on 4 scanned rooms
-    /// (2 cm) it took cold starts from 52 to 73 of 100 in `star bench
-    /// reloc`, with none off; on the textured floor it cost cold starts
-    /// (95 to 91 of 100), which is why it is for twin-checked maps only.
-    /// The frames that verify such a relocalization are normalized too;
-    /// tracking then starts from a plain keyframe rendered at the verified
-    /// pose (docs/building-scale.md).
-    pub twin_checked_local_contrast_px: u32,
-    /// Standard deviation floor of that normalization, gray levels: a flat,
-    /// dark wall's noise is not blown up into texture (6 kept 73 of 100
-    /// cold starts on the 4 scanned rooms, 12 kept 68).
-    pub local_contrast_floor_gray: f32,
     /// Acceptance gate: smallest correlation of local contrast over the
     /// same levels, trimmed of the points that do not fit
     /// ([`crate::track::Correlations::local`]: each intensity divided by
@@ -253,8 +235,6 @@ impl Default for RelocConfig {
             min_correlation: 0.5,
             twin_checked_min_correlation: 0.2,
             twin_checked_min_inlier_ratio: 0.5,
-            twin_checked_local_contrast_px: 24,
-            local_contrast_floor_gray: 6.0,
             min_local_correlation: 0.7,
             min_gain: 0.25,
             max_gain: 4.0,
@@ -324,7 +304,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 34] = [
+        let checks: [(&'static str, bool, String); 32] = [
             (
                 "yaw_steps",
                 (1..=360).contains(&self.yaw_steps),
@@ -423,19 +403,6 @@ impl RelocConfig {
                     "expected 0..=1, found {}",
                     self.twin_checked_min_inlier_ratio
                 ),
-            ),
-            (
-                "twin_checked_local_contrast_px",
-                self.twin_checked_local_contrast_px <= 256,
-                format!(
-                    "expected 0 (off) ..= 256 pixels, found {}",
-                    self.twin_checked_local_contrast_px
-                ),
-            ),
-            (
-                "local_contrast_floor_gray",
-                self.local_contrast_floor_gray.is_finite() && self.local_contrast_floor_gray > 0.0,
-                format!("expected > 0 gray levels, found {}", self.local_contrast_floor_gray),
             ),
             (
                 "twin_checked_min_correlation",

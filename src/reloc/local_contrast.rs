@@ -15,9 +15,7 @@
 //! the truth on dark, flat walls. A gain that is constant over a window of
 //! the radius cancels in the normalized images, so only the texture and
 //! the edges inside each window are left to align.
-//! Relocalization aligns on it on maps checked for geometric twins
-//! (`[reloc] twin_checked_local_contrast_px`, [`Settings`]); `star bench
-//! reloc` overrides that with `STAR_BENCH_NORMALIZE_PX`
+//! `star bench reloc` takes it with `STAR_BENCH_NORMALIZE_PX`
 //! (docs/building-scale.md, "Aligning on local contrast"). After
 //! [`LocalContrast::new`] nothing here allocates.
 
@@ -27,15 +25,6 @@ use crate::render::RenderedView;
 const MID_GRAY: f64 = 128.0;
 /// Gray levels per standard deviation.
 const GRAY_PER_STD: f64 = 32.0;
-
-/// What a normalization is: its window and its floor.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Settings {
-    /// Window radius, pixels (at least 1).
-    pub radius_px: usize,
-    /// Standard deviation floor, gray levels.
-    pub floor_gray: f32,
-}
 
 /// Normalizes images of one size; see the module docs.
 #[derive(Debug, Clone)]
@@ -76,37 +65,15 @@ impl LocalContrast {
         }
     }
 
-    /// Buffers for `width x height` images normalized as `settings` says.
-    pub fn with_settings(width: usize, height: usize, settings: Settings) -> Self {
-        Self::new(width, height, settings.radius_px, settings.floor_gray)
-    }
-
-    /// The normalization this one makes.
-    pub fn settings(&self) -> Settings {
-        Settings {
-            radius_px: self.radius_px,
-            floor_gray: self.floor_gray as f32,
-        }
-    }
-
     /// The normalized copy of `frame` (`width x height`, row-major, tightly
     /// packed); `None` when its size is not the one of [`Self::new`].
     pub fn frame(&mut self, frame: &[u8]) -> Option<&[u8]> {
-        self.frame_strided(frame, self.width)
-    }
-
-    /// [`Self::frame`] for rows `stride` bytes apart (the copy is tightly
-    /// packed); `None` when `frame` does not hold `width x height` pixels
-    /// at that stride.
-    pub fn frame_strided(&mut self, frame: &[u8], stride: usize) -> Option<&[u8]> {
-        let (w, h) = (self.width, self.height);
-        if w == 0 || h == 0 || stride < w || frame.len() < stride * (h - 1) + w {
+        if frame.len() != self.width * self.height {
             return None;
         }
-        let at = |i: usize| frame[(i / w) * stride + i % w];
-        self.integrate(|i| Some(f64::from(at(i))));
-        for i in 0..w * h {
-            let v = self.normalized(i, f64::from(at(i)));
+        self.integrate(|i| Some(f64::from(frame[i])));
+        for i in 0..frame.len() {
+            let v = self.normalized(i, f64::from(frame[i]));
             self.frame[i] = v.round() as u8;
         }
         Some(&self.frame)
@@ -255,33 +222,6 @@ mod tests {
                 assert_eq!(g, t[i] as f32, "pixel {i} missed and must keep its gray");
             }
         }
-    }
-
-    #[test]
-    fn a_padded_frame_normalizes_as_a_packed_one() {
-        let (w, h, stride) = (30, 20, 37);
-        let t = texture(w, h);
-        let packed: Vec<u8> = t.iter().map(|&v| v.round() as u8).collect();
-        // The same rows, each followed by 7 bytes of padding the
-        // normalization must not read.
-        let mut padded = vec![255u8; stride * (h - 1) + w];
-        for y in 0..h {
-            padded[y * stride..y * stride + w].copy_from_slice(&packed[y * w..(y + 1) * w]);
-        }
-        let mut lc = LocalContrast::with_settings(
-            w,
-            h,
-            Settings {
-                radius_px: 4,
-                floor_gray: 2.0,
-            },
-        );
-        let a = lc.frame(&packed).unwrap().to_vec();
-        let b = lc.frame_strided(&padded, stride).unwrap();
-        assert_eq!(a.as_slice(), b);
-        // One byte short of the last row.
-        assert!(lc.frame_strided(&padded[..padded.len() - 1], stride).is_none());
-        assert_eq!(lc.settings().radius_px, 4);
     }
 
     #[test]

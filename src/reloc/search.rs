@@ -199,19 +199,6 @@ impl Relocalizer {
         &self.gate
     }
 
-    /// How candidates are normalized before they are aligned and judged:
-    /// on local contrast on a map checked for geometric twins, when
-    /// `[reloc] twin_checked_local_contrast_px` is not 0; `None`: on the
-    /// images as they are.
-    pub fn local_contrast(&self) -> Option<super::local_contrast::Settings> {
-        (self.twins.has_map() && self.config.twin_checked_local_contrast_px > 0).then(|| {
-            super::local_contrast::Settings {
-                radius_px: self.config.twin_checked_local_contrast_px as usize,
-                floor_gray: self.config.local_contrast_floor_gray,
-            }
-        })
-    }
-
     /// Descriptors of a camera frame at every query shift; `None` when it
     /// has too little contrast.
     pub fn describe(

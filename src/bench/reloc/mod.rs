@@ -31,13 +31,11 @@
 //! rendered at the truth itself; `STAR_BENCH_DUMP=DIR` also writes each
 //! query frame there as `qNNN.png`; `STAR_BENCH_ROLL_DEG=R` rolls the
 //! queries uniformly within +-R degrees (the database views have no roll).
-//! Candidates are aligned and gated on locally normalized images, the
-//! frame's and the render's ([`crate::reloc::local_contrast`]), where the
-//! service does: on maps checked for geometric twins (`[reloc]
-//! twin_checked_local_contrast_px`). `STAR_BENCH_NORMALIZE_PX=R` (and
-//! `STAR_BENCH_NORMALIZE_FLOOR=G`) does it at radius R on any map, `=0` on
-//! none; `STAR_BENCH_NORMALIZE_GATE=plain` judges the pose it converges to
-//! on the plain images. `STAR_BENCH_PROBES=W,L` sets the
+//! `STAR_BENCH_NORMALIZE_PX=R` (and `STAR_BENCH_NORMALIZE_FLOOR=G`)
+//! aligns and gates each candidate on locally normalized images, the
+//! frame's and the render's ([`crate::reloc::local_contrast`]; the service
+//! does not yet); `STAR_BENCH_NORMALIZE_GATE=plain` judges the pose it
+//! converges to on the plain images. `STAR_BENCH_PROBES=W,L` sets the
 //! whole-map landmark search's probes (words, leaves);
 //! `STAR_BENCH_LANDMARK_SCALES=4,16,40` adds the landmark matching figures
 //! on the landmarks replicated into look-alike rooms ([`scale`]). The landmark search's recall (the share of corners whose

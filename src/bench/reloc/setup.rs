@@ -12,7 +12,7 @@ use crate::config::Config;
 use crate::dataset::{Dataset, Trajectory};
 use crate::geometry::PinholeCamera;
 use crate::imgproc::{ImageF32, ImageU8};
-use crate::reloc::local_contrast::{LocalContrast, Settings};
+use crate::reloc::local_contrast::LocalContrast;
 use crate::reloc::{build_parallel, BuildOptions, RelocDatabase, Relocalizer};
 use crate::render::cpu::CpuRenderer;
 use crate::render::{RenderedView, Renderer};
@@ -79,9 +79,8 @@ pub(super) struct Bench {
     pub(super) returned: Vec<Box<Keyframe>>,
     pub(super) aligners: [Aligner; 2],
     pub(super) pyramid: Pyramid,
-    /// Candidates are aligned on locally normalized images
-    /// ([`LocalContrast`]: the database's setting, or
-    /// `STAR_BENCH_NORMALIZE_PX`); the frame's such pyramid.
+    /// `STAR_BENCH_NORMALIZE_PX`: candidates are aligned on locally
+    /// normalized images ([`LocalContrast`]); the frame's such pyramid.
     pub(super) contrast: Option<(LocalContrast, Pyramid)>,
     /// `STAR_BENCH_NORMALIZE_GATE=plain`: a pose found on local contrast
     /// is judged on the plain images.
@@ -279,25 +278,17 @@ impl Bench {
             .map(|_| Box::new(Keyframe::new(&pinhole, &tracker)))
             .collect();
         let judge_plain = std::env::var("STAR_BENCH_NORMALIZE_GATE").as_deref() == Ok("plain");
-        let (contrast, from) = match contrast_from_env()? {
-            Some(settings) => (settings, "STAR_BENCH_NORMALIZE_PX"),
-            None => (
-                reloc.local_contrast(),
-                "[reloc] twin_checked_local_contrast_px, a map checked for geometric twins",
-            ),
-        };
-        let contrast = contrast.map(|settings| {
+        let contrast = contrast_from_env()?.map(|(radius_px, floor_gray)| {
             println!(
-                "  candidates aligned on local contrast ({from}): windows of radius {} px, standard deviation floor {} gray; judged on the {} images",
-                settings.radius_px,
-                settings.floor_gray,
+                "  candidates aligned on local contrast (STAR_BENCH_NORMALIZE_PX): windows of radius {radius_px} px, standard deviation floor {floor_gray} gray; judged on the {} images",
                 if judge_plain { "plain" } else { "normalized" }
             );
             (
-                LocalContrast::with_settings(
+                LocalContrast::new(
                     camera.width as usize,
                     camera.height as usize,
-                    settings,
+                    radius_px,
+                    floor_gray,
                 ),
                 Pyramid::new(
                     camera.width as usize,
@@ -353,21 +344,23 @@ impl Bench {
     }
 }
 
-/// `STAR_BENCH_NORMALIZE_PX=R` (window radius, pixels; 0: off) and
+/// `STAR_BENCH_NORMALIZE_PX=R` (window radius, pixels, at least 1) and
 /// `STAR_BENCH_NORMALIZE_FLOOR=G` (standard deviation floor, gray levels,
-/// default [`NORMALIZE_FLOOR_GRAY`]): align candidates on local contrast
-/// whatever the map, or on none; `None` when unset (the database's
-/// [`crate::reloc::Relocalizer::local_contrast`] decides, as in flight).
-fn contrast_from_env() -> Result<Option<Option<Settings>>> {
+/// default [`NORMALIZE_FLOOR_GRAY`]): align candidates on local contrast.
+fn contrast_from_env() -> Result<Option<(usize, f32)>> {
     let Ok(radius) = std::env::var("STAR_BENCH_NORMALIZE_PX") else {
         return Ok(None);
     };
-    let radius_px: usize = radius.trim().parse().ok().with_context(|| {
-        format!("STAR_BENCH_NORMALIZE_PX: expected a whole number of pixels (0: off), found {radius:?}")
-    })?;
-    if radius_px == 0 {
-        return Ok(Some(None));
-    }
+    let radius_px: usize = radius
+        .trim()
+        .parse()
+        .ok()
+        .filter(|&r| r >= 1)
+        .with_context(|| {
+            format!(
+                "STAR_BENCH_NORMALIZE_PX: expected a whole number of pixels >= 1, found {radius:?}"
+            )
+        })?;
     let floor_gray = match std::env::var("STAR_BENCH_NORMALIZE_FLOOR") {
         Ok(v) => v
             .trim()
@@ -379,10 +372,7 @@ fn contrast_from_env() -> Result<Option<Option<Settings>>> {
             })?,
         Err(_) => NORMALIZE_FLOOR_GRAY,
     };
-    Ok(Some(Some(Settings {
-        radius_px,
-        floor_gray,
-    })))
+    Ok(Some((radius_px, floor_gray)))
 }
 
 /// Default standard deviation floor of `STAR_BENCH_NORMALIZE_PX`, gray
