@@ -51,17 +51,6 @@
 //! edge lost shading detail (their error is their cell) and gained
 //! nothing.
 //!
-//! **Larger cells where the shading is even.** An exact textured copy is
-//! made again with cells of up to 2^[`ADAPTIVE_LEVELS`] times its base
-//! cell: each vertex takes the largest cell (of an octree over the base
-//! cells) whose vertex gray ranges over at most [`ADAPTIVE_GRAY_RANGE`]
-//! levels, and smaller ones where the shading varies (a room's walls,
-//! darkening near their edges). A vertex maps to one cell whatever its
-//! neighbors do, so pooling stays crack-free. That copy replaces the
-//! first only when it has fewer triangles and measures exact too; on the
-//! `building` floor it cut the binned triangles of a view from 41 k to
-//! 31 k (docs/building-scale.md).
-//!
 //! **The choice.** A render draws, for each run of chunks, the coarsest
 //! copy whose error, at the copy's box's nearest point to the camera, spans
 //! at most `max_px` pixels (`[render] lod_max_px`), else the chunks
@@ -476,9 +465,6 @@ struct Scratch {
     /// Cell (and, on a textured copy, normal class) of each pooled vertex
     /// -> its cluster.
     cells: HashMap<[i32; 4], u32>,
-    /// Adaptive cells ([`ADAPTIVE_LEVELS`]): per cell of every level above
-    /// the base one, the lowest and highest vertex gray pooled in it.
-    gray_range: HashMap<[i32; 4], [f32; 2]>,
     /// Mesh vertex of each fixed vertex -> its cluster.
     fixed: HashMap<u32, u32>,
     /// Per node-local vertex, its cluster.
@@ -543,7 +529,6 @@ pub fn build_levels(
     let mut nodes = Vec::new();
     let mut scratch = Scratch::default();
     let mut textured_errors = Vec::new();
-    let mut adaptive_copies = 0usize;
     let mut level_tris = [0usize; LEVELS];
     let mut start = 0;
     while start < fine {
@@ -602,43 +587,23 @@ pub fn build_levels(
                 .iter()
                 .map(MeshChunk::triangle_count)
                 .sum();
-            let copy = |adaptive: bool, scratch: &mut Scratch| {
-                simplify(
-                    chunked,
-                    chunks.clone(),
-                    (group_cells[level], adaptive),
-                    (origins, is_textured.then_some(open.as_slice())),
-                    scratch,
-                )
-            };
-            let mut made = copy(false, &mut scratch);
+            let made = simplify(
+                chunked,
+                chunks.clone(),
+                group_cells[level],
+                (origins, is_textured.then_some(open.as_slice())),
+                &mut scratch,
+            );
             if made == 0 || made > MAX_COARSE_TRIS || made as f32 > KEEP_RATIO * node_tris as f32 {
                 continue;
             }
-            let mut error_m = if is_textured {
-                textured_error_m(chunked, chunks.clone(), group_cells[level], &mut scratch)
+            let error_m = if is_textured {
+                let e = textured_error_m(chunked, chunks.clone(), group_cells[level], &mut scratch);
+                textured_errors.push(e);
+                e
             } else {
                 group_cells[level]
             };
-            if is_textured && error_m <= EXACT_M {
-                // An exact copy: where the gray is even, larger cells may
-                // keep it exact with fewer triangles. Kept only if so.
-                let adaptive = copy(true, &mut scratch);
-                let e = if adaptive > 0 && adaptive < made {
-                    textured_error_m(chunked, chunks.clone(), group_cells[level], &mut scratch)
-                } else {
-                    f32::INFINITY
-                };
-                if e <= EXACT_M {
-                    (made, error_m) = (adaptive, e);
-                    adaptive_copies += 1;
-                } else {
-                    copy(false, &mut scratch);
-                }
-            }
-            if is_textured {
-                textured_errors.push(error_m);
-            }
             let number = chunked.chunks.len();
             if number >= u32::MAX as usize {
                 return Err(super::RenderError::InvalidMesh {
@@ -674,7 +639,6 @@ pub fn build_levels(
         cell_m = ?cell_plain,
         textured_cell_m = ?cell_textured,
         textured_copies = textured_errors.len(),
-        adaptive_copies,
         textured_median_error_m = ?textured_median_error_m,
         "levels of detail built"
     );
@@ -698,12 +662,11 @@ pub fn build_levels(
 fn simplify(
     chunked: &ChunkedMesh,
     chunks: Range<usize>,
-    (cell_m, adaptive): (f32, bool),
+    cell_m: f32,
     (origins, open): (&VertexOrigins, Option<&[bool]>),
     s: &mut Scratch,
 ) -> usize {
     s.cells.clear();
-    s.gray_range.clear();
     s.fixed.clear();
     s.cluster_of.clear();
     s.sum.clear();
@@ -722,10 +685,10 @@ fn simplify(
     if open.is_some() {
         vertex_normals(chunked, vertices.clone(), triangles.clone(), &mut s.normal);
     }
-    // A pooled vertex: whether it is pooled at all (else kept where it
-    // is), and its cell at `level` (0: `cell_m`; each level doubles it).
-    let pooled = |v: usize, s: &Scratch| {
+    for v in vertices {
         let p = chunked.positions.get(v).copied().unwrap_or([0.0; 3]);
+        let gray = chunked.gray.get(v).copied().unwrap_or(0.0);
+        let uv = chunked.uvs.get(v).copied().unwrap_or([0.0; 2]);
         let m = origins.vertex_source.get(v).copied().unwrap_or(u32::MAX);
         let inside = origins.first_chunk.get(m as usize).is_some_and(|&c| c >= a)
             && origins.last_chunk.get(m as usize).is_some_and(|&c| c < b)
@@ -735,46 +698,8 @@ fn simplify(
         } else {
             0
         };
-        let base = p.map(|x| (x / cell_m).floor() as i32);
-        let cell = move |level: u32| {
-            let [x, y, z] = base.map(|c| c >> level);
-            [x, y, z, class * 16 + level as i32]
-        };
-        (m, inside, cell)
-    };
-    if adaptive {
-        for v in vertices.clone() {
-            let (_, inside, cell) = pooled(v, s);
-            if !inside {
-                continue;
-            }
-            let gray = chunked.gray.get(v).copied().unwrap_or(0.0);
-            for level in 1..=ADAPTIVE_LEVELS {
-                let range = s.gray_range.entry(cell(level)).or_insert([gray, gray]);
-                range[0] = range[0].min(gray);
-                range[1] = range[1].max(gray);
-            }
-        }
-    }
-    for v in vertices {
-        let p = chunked.positions.get(v).copied().unwrap_or([0.0; 3]);
-        let gray = chunked.gray.get(v).copied().unwrap_or(0.0);
-        let uv = chunked.uvs.get(v).copied().unwrap_or([0.0; 2]);
-        let (m, inside, cell) = pooled(v, s);
-        // The largest cell whose gray is even enough, when adaptive.
-        let level = if adaptive && inside {
-            (1..=ADAPTIVE_LEVELS)
-                .rev()
-                .find(|&level| {
-                    s.gray_range
-                        .get(&cell(level))
-                        .is_some_and(|r| r[1] - r[0] <= ADAPTIVE_GRAY_RANGE)
-                })
-                .unwrap_or(0)
-        } else {
-            0
-        };
-        let key = cell(level);
+        let [x, y, z] = p.map(|x| (x / cell_m).floor() as i32);
+        let key = [x, y, z, class];
         let existing = if inside {
             s.cells.get(&key).copied()
         } else {
@@ -885,19 +810,6 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 /// copy is judged by its shape and texture coordinates alone; beyond it
 /// the copy has lost shading detail, and its error is at least its cell.
 const GRAY_TOLERANCE: f64 = 4.0;
-
-/// An exact textured copy may pool vertices in cells up to `2^this` times
-/// its base cell where the vertex gray is even ([`ADAPTIVE_GRAY_RANGE`]):
-/// the inside of a wall, away from the shading that darkens its edges.
-const ADAPTIVE_LEVELS: u32 = 4;
-
-/// Most a cell's vertex gray may range over, gray levels, for its vertices
-/// to be pooled at that cell's size.
-const ADAPTIVE_GRAY_RANGE: f32 = 2.0;
-
-/// A textured copy's error at most this (meters) is exact: a flat surface
-/// mapped affinely, shaded within [`GRAY_TOLERANCE`].
-const EXACT_M: f32 = 1e-4;
 
 /// How far the textured copy in `s` (from [`simplify`] of fine chunks
 /// `chunks`) may stray from them on the image, meters on the surface: for
@@ -1241,67 +1153,6 @@ mod tests {
         assert!(
             3 * stats.visible_triangles < mesh.triangle_count(),
             "{stats:?}"
-        );
-    }
-
-    #[test]
-    fn an_evenly_shaded_inside_is_pooled_in_larger_cells() {
-        // Gray 200, darkening by up to 40 levels over the last meter to the
-        // wall's edges (as the synthetic rooms shade their walls): the even
-        // inside may take cells up to 16 times the base one, the ramp not.
-        let mut mesh = wall(400, 10.0, 5.0);
-        for (p, g) in mesh.positions.iter().zip(mesh.gray.iter_mut()) {
-            let edge_m = (10.0 - p[0].abs()).min(10.0 - p[2].abs());
-            *g = 200.0 * (1.0 - 0.2 * (1.0 - edge_m.min(1.0)));
-        }
-        let mesh = Arc::new(textured(mesh));
-        let c = ChunkedMesh::build_with_levels(&mesh, true).unwrap();
-        let fine = c.lod.fine_chunks;
-        assert_eq!(c.lod.nodes.len(), fine, "a copy of every chunk");
-        let copies: usize = c
-            .lod
-            .nodes
-            .iter()
-            .map(|n| c.chunks[n.coarse as usize].triangle_count())
-            .sum();
-        // Cells of twice the edge alone leave 98 944 of the 320 000 (the
-        // chunks' borders stay); with larger cells inside, 38 642.
-        assert!(
-            8 * copies < mesh.triangle_count(),
-            "{copies} of {}",
-            mesh.triangle_count()
-        );
-        for node in &c.lod.nodes {
-            assert!(node.error_m < 1e-4, "exact: {node:?}");
-        }
-        // Seen obliquely, 1-15 m away: the image the full wall gives.
-        let mut pose = looking_along_y(0.0);
-        pose.translation.vector = Vector3::new(-6.0, 1.0, 0.5);
-        let full = render(&mesh, &pose, 0.0, true);
-        let coarse = render(&mesh, &pose, 2.0, true);
-        let (mut hits, mut mask_off, mut gray_off) = (0, 0, 0);
-        for (k, (&a, &b)) in full
-            .depth_m
-            .data()
-            .iter()
-            .zip(coarse.depth_m.data())
-            .enumerate()
-        {
-            let (ha, hb) = (RenderedView::is_hit(a), RenderedView::is_hit(b));
-            if ha != hb {
-                mask_off += 1;
-            } else if ha {
-                hits += 1;
-                if (full.gray.data()[k] - coarse.gray.data()[k]).abs() > 1.0 {
-                    gray_off += 1;
-                }
-            }
-        }
-        assert!(hits > 30_000, "the wall fills most of the view: {hits}");
-        assert_eq!(mask_off, 0, "the same pixels covered");
-        assert!(
-            gray_off * 1000 <= hits,
-            "{gray_off} of {hits} off by more than 1 gray level"
         );
     }
 
