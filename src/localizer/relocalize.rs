@@ -34,7 +34,7 @@
 use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
 use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
-use crate::reloc::twins::{twin_pose, TwinCheck};
+use crate::reloc::twins::{prior_prefers_a_twin, twin_pose, TwinCheck};
 use crate::reloc::{passes_gate, passes_resume_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
@@ -503,7 +503,7 @@ impl Localizer {
                 self.worker.recycle(kf);
                 self.stats.reloc_ambiguous += 1;
             }
-            None if self.geometric_twins_refuse(&mut reloc, &v, &kf, capture_ns) => {
+            None if self.geometric_twins_refuse(&mut reloc, (&v, &rule), &kf, capture_ns) => {
                 self.worker.recycle(kf);
                 self.stats.reloc_ambiguous += 1;
             }
@@ -657,15 +657,16 @@ impl Localizer {
         None
     }
 
-    /// Whether the map's geometry refuses `held` (a pose the prior cannot
-    /// vouch for, aligned against `kf`): its view fits at many places, or
-    /// the frame passes the looser gate at one of its geometric twins
-    /// ([`crate::reloc::twins`]). A twin the render thread could not render
-    /// was not ruled out, and refuses too.
+    /// Whether the map's geometry refuses `held` (a pose the prior of
+    /// `rule` cannot vouch for, aligned against `kf`): its view fits at many
+    /// places, a twin stands within the prior's reach
+    /// ([`prior_prefers_a_twin`]), or the frame passes the looser gate at
+    /// one of its geometric twins ([`crate::reloc::twins`]). A twin the
+    /// render thread could not render was not ruled out, and refuses too.
     fn geometric_twins_refuse(
         &mut self,
         reloc: &mut Relocalizer,
-        held: &Verified,
+        (held, rule): (&Verified, &RivalRule),
         kf: &Keyframe,
         capture_ns: u64,
     ) -> bool {
@@ -681,6 +682,14 @@ impl Localizer {
             }
             TwinCheck::Check(n) => n,
         };
+        if prior_prefers_a_twin(rule, &held.world_from_camera, reloc.twins_mut().found()) {
+            tracing::info!(
+                capture_ns,
+                held = ?held.world_from_camera.translation.vector,
+                "relocalization refused: the view's geometry stands again where the motion prior expects the vehicle"
+            );
+            return true;
+        }
         for k in 0..n {
             let Some(twin) = reloc.twins_mut().found().get(k).copied() else {
                 break;

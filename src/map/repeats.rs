@@ -73,12 +73,18 @@ const FREE_MARGIN: f32 = 0.1;
 /// Two offsets closer than this are one, meters.
 const SAME_OFFSET_M: f64 = 0.3;
 
-/// A translation under which a view's surfaces stand in the map again.
+/// A translation under which a view's surfaces stand in the map again
+/// (after a turn of the view about its camera's vertical axis, when the
+/// caller turned the points it searched).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Twin {
     /// World offset `[x, y]`, meters: the view's points at `p` stand at
     /// `p + offset` too.
     pub offset_m: [f64; 2],
+    /// The turn about the camera's vertical axis, radians, applied before
+    /// the offset (0 from [`MapOccupancy::twins`]; `reloc::twins` turns the
+    /// view's points by a quarter, a half and three quarters).
+    pub yaw_rad: f64,
     /// Fraction of the view's points that land on the map's surfaces there.
     pub score: f32,
 }
@@ -229,7 +235,23 @@ impl MapOccupancy {
         scratch: &mut TwinScratch,
         out: &mut heapless::Vec<Twin, N>,
     ) {
+        self.twins_turned(camera_world, points_world, 0.0, scratch, out);
+    }
+
+    /// [`Self::twins`] of the view turned by `yaw_rad` about the camera's
+    /// vertical axis: the points that lie on the map's steep surfaces
+    /// where they are, turned, then searched for the offsets under which
+    /// they land on surfaces again (each [`Twin`] carries `yaw_rad`).
+    pub fn twins_turned<const N: usize>(
+        &self,
+        camera_world: &Vector3<f64>,
+        points_world: &[Vector3<f64>],
+        yaw_rad: f64,
+        scratch: &mut TwinScratch,
+        out: &mut heapless::Vec<Twin, N>,
+    ) {
         out.clear();
+        let (sin, cos) = yaw_rad.sin_cos();
         if self.is_empty()
             || scratch.scores.len() < (2 * self.coarse.nx + 1) * (2 * self.coarse.ny + 1)
         {
@@ -245,6 +267,26 @@ impl MapOccupancy {
                 .filter(|g| self.fine.at(g.x, g.y) & g.bit != 0)
             else {
                 continue;
+            };
+            // Turned about the camera: possibly off the grid, which the
+            // offsets bring back.
+            let g = if yaw_rad == 0.0 {
+                g
+            } else {
+                let d = p - camera_world;
+                let q =
+                    camera_world + Vector3::new(cos * d.x - sin * d.y, sin * d.x + cos * d.y, d.z);
+                let m = [
+                    q.x - self.origin_m[0],
+                    q.y - self.origin_m[1],
+                    q.z - self.z0_m,
+                ];
+                GridPoint {
+                    x: (m[0] / CELL_M).floor() as isize,
+                    y: (m[1] / CELL_M).floor() as isize,
+                    bit: g.bit,
+                    m,
+                }
             };
             if scratch.points.len() < MAX_POINTS {
                 scratch.points.push(g);
@@ -338,6 +380,7 @@ impl MapOccupancy {
             }
             let twin = Twin {
                 offset_m: [fx as f64 * CELL_M, fy as f64 * CELL_M],
+                yaw_rad,
                 score: hits as f32 / n as f32,
             };
             if twin.score >= MIN_SCORE && twin.offset_m[0].hypot(twin.offset_m[1]) >= MIN_OFFSET_M {

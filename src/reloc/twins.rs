@@ -1,7 +1,9 @@
 //! Geometric twins of a relocalized pose: the places where the map's
 //! surfaces stand as they do in the held pose's view, moved by a horizontal
-//! translation (found by [`crate::map::repeats`]), and the looser gate the
-//! frame is checked through there.
+//! translation (found by [`crate::map::repeats`]), or turned by a quarter,
+//! a half or three quarters about the camera's vertical axis and then
+//! moved ([`TWIN_YAWS`]), and the looser gate the frame is checked through
+//! there.
 //!
 //! Why. The rival rule ([`super::rivals`]) verifies the frame at the other
 //! places the descriptor and the landmarks found. On a scanned map the
@@ -15,6 +17,13 @@
 //!   along a corridor: only appearance could tell them apart); or
 //! - the frame passes [`GeometricTwins::loose`] at one of the best
 //!   [`TWIN_CHECKS`] twins.
+//!
+//! The turned twins are for places that repeat turned about: the two ends
+//! of a corridor, a room built as its neighbour's mirror-turned copy. On
+//! the scanned floor a window search accepted a pose 1.5 m from the truth
+//! and turned 179.8 degrees from it (correlation 0.74), whose true place's
+//! render had failed the gate: a translation alone never finds that twin
+//! (docs/building-scale.md).
 //!
 //! Where: `[reloc] geometric_twins`, by default on maps without texture,
 //! whose appearance is a scan's vertex color. On the textured `building`
@@ -51,6 +60,14 @@ pub const LOOSE_MARGIN: f32 = 0.1;
 const POINTS_LEVEL: usize = 2;
 /// Keyframe points handed to the search, at most.
 const MAX_VIEW_POINTS: usize = 1024;
+/// The turns of the view searched, radians: none, then a quarter, a half
+/// and three quarters about the camera's vertical axis.
+pub const TWIN_YAWS: [f64; 4] = [
+    0.0,
+    std::f64::consts::FRAC_PI_2,
+    std::f64::consts::PI,
+    3.0 * std::f64::consts::FRAC_PI_2,
+];
 
 /// The map's occupancy, the looser gate and the buffers of one check.
 #[derive(Debug, Clone)]
@@ -59,6 +76,8 @@ pub struct GeometricTwins {
     scratch: TwinScratch,
     points: Vec<Vector3<f64>>,
     found: heapless::Vec<Twin, DEGENERATE_TWINS>,
+    /// One turn's twins.
+    found_turn: heapless::Vec<Twin, DEGENERATE_TWINS>,
     loose: RelocConfig,
 }
 
@@ -103,6 +122,7 @@ impl GeometricTwins {
             occupancy,
             points: Vec::with_capacity(MAX_VIEW_POINTS),
             found: heapless::Vec::new(),
+            found_turn: heapless::Vec::new(),
             loose: loose_gate(config),
         }
     }
@@ -142,15 +162,41 @@ impl GeometricTwins {
                     + world_from_keyframe.translation.vector,
             );
         }
-        self.occupancy.twins(
-            &world_from_keyframe.translation.vector,
-            &self.points,
-            &mut self.scratch,
-            &mut self.found,
-        );
+        self.search(&world_from_keyframe.translation.vector)
+    }
+
+    /// [`Self::check`] for the view's points already in `self.points`,
+    /// seen from `camera_world`: each turn of [`TWIN_YAWS`] searched, the
+    /// best twins of all kept. Degenerate when one turn alone fits at
+    /// [`DEGENERATE_TWINS`] places.
+    fn search(&mut self, camera_world: &Vector3<f64>) -> TwinCheck {
+        self.found.clear();
+        let mut degenerate = false;
+        for yaw_rad in TWIN_YAWS {
+            self.occupancy.twins_turned(
+                camera_world,
+                &self.points,
+                yaw_rad,
+                &mut self.scratch,
+                &mut self.found_turn,
+            );
+            degenerate |= self.found_turn.len() >= DEGENERATE_TWINS;
+            for &twin in &self.found_turn {
+                if self.found.is_full() {
+                    match self.found.last_mut() {
+                        Some(last) if last.score < twin.score => *last = twin,
+                        _ => continue,
+                    }
+                } else {
+                    let _ = self.found.push(twin);
+                }
+                self.found
+                    .sort_unstable_by(|a, b| b.score.total_cmp(&a.score));
+            }
+        }
         match self.found.len() {
             0 => TwinCheck::Unique,
-            n if n >= DEGENERATE_TWINS => TwinCheck::Degenerate,
+            _ if degenerate => TwinCheck::Degenerate,
             n => TwinCheck::Check(n.min(TWIN_CHECKS)),
         }
     }
@@ -161,9 +207,32 @@ impl GeometricTwins {
     }
 }
 
-/// `held` moved by the twin's offset (the same heading and height).
+/// `held` turned by the twin's yaw about its camera's vertical axis, then
+/// moved by its offset (the same height, pitch and roll).
 pub fn twin_pose(held: &Pose, twin: &Twin) -> Pose {
-    Translation3::new(twin.offset_m[0], twin.offset_m[1], 0.0) * held
+    let turn = nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), twin.yaw_rad);
+    Pose::from_parts(
+        Translation3::from(
+            held.translation.vector + Vector3::new(twin.offset_m[0], twin.offset_m[1], 0.0),
+        ),
+        turn * held.rotation,
+    )
+}
+
+/// Whether a held pose the prior of `rule` cannot vouch for has a
+/// geometric twin (of `found`, all of them) that it can: the map's geometry
+/// stands the same where the vehicle is expected to be, so the held pose
+/// is no more than a look-alike of it. Refused then even when the frame
+/// fails the gate at the twin, as a scan's baked light can make it: on the
+/// scanned floor a window search held a pose 1.5 m from the truth turned
+/// 179.8 degrees, the truth its turned twin, where the frame aligned with
+/// correlation 0.19 (docs/building-scale.md). Never with no prior (a cold
+/// start).
+pub fn prior_prefers_a_twin(rule: &super::rivals::RivalRule, held: &Pose, found: &[Twin]) -> bool {
+    !rule.accepts_alone(held)
+        && found
+            .iter()
+            .any(|t| rule.accepts_alone(&twin_pose(held, t)))
 }
 
 /// Relocalization's gate under `config` on a map whose held poses are
@@ -263,11 +332,170 @@ mod tests {
             &held,
             &Twin {
                 offset_m: [40.0, -0.5],
+                yaw_rad: 0.0,
                 score: 1.0,
             },
         );
         assert!((t.translation.vector - Vector3::new(41.0, 1.5, 1.4)).norm() < 1e-12);
         assert!(t.rotation.angle_to(&held.rotation) < 1e-12);
+    }
+
+    #[test]
+    fn a_turned_twin_turns_the_view_about_the_camera_and_keeps_its_tilt() {
+        let held = Pose::from_parts(
+            Translation3::new(1.0, 2.0, 1.4),
+            crate::geometry::look::camera_rotation(0.3, -0.1, 0.0),
+        );
+        let t = twin_pose(
+            &held,
+            &Twin {
+                offset_m: [0.0, 1.5],
+                yaw_rad: std::f64::consts::PI,
+                score: 1.0,
+            },
+        );
+        assert!((t.translation.vector - Vector3::new(1.0, 3.5, 1.4)).norm() < 1e-12);
+        // The optical axis turned half round, its pitch kept.
+        let axis = |p: &Pose| p.rotation * Vector3::z();
+        let (a, b) = (axis(&held), axis(&t));
+        assert!((a.x + b.x).abs() < 1e-12 && (a.y + b.y).abs() < 1e-12);
+        assert!((a.z - b.z).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_twin_within_the_priors_reach_refuses_a_held_pose_beyond_it() {
+        use super::super::prior::MotionPrior;
+        use super::super::rivals::RivalRule;
+        use crate::geometry::look::camera_rotation;
+        let config = RelocConfig::default();
+        // Tracked last at the truth, facing +x, lost for 0.1 s: a reach of
+        // 0.7 m and 42 degrees.
+        let truth = Pose::from_parts(
+            Translation3::new(26.3, 13.1, 1.5),
+            camera_rotation(0.0, 0.0, 0.0),
+        );
+        let rule = RivalRule::new(Some(MotionPrior::new(&truth, 0.1, &config)));
+        // Held 1.5 m away, turned half round: its turned twin is the truth.
+        let held = Pose::from_parts(
+            Translation3::new(26.3, 11.6, 1.5),
+            camera_rotation(std::f64::consts::PI, 0.0, 0.0),
+        );
+        assert!(!rule.accepts_alone(&held));
+        let to_truth = Twin {
+            offset_m: [0.0, 1.5],
+            yaw_rad: std::f64::consts::PI,
+            score: 0.95,
+        };
+        let far = Twin {
+            offset_m: [30.0, 0.0],
+            yaw_rad: 0.0,
+            score: 0.97,
+        };
+        assert!(prior_prefers_a_twin(&rule, &held, &[far, to_truth]));
+        // Only far twins, no twin, or no prior (a cold start): no refusal
+        // here (the twins are then checked through the looser gate).
+        assert!(!prior_prefers_a_twin(&rule, &held, &[far]));
+        assert!(!prior_prefers_a_twin(&rule, &held, &[]));
+        assert!(!prior_prefers_a_twin(
+            &RivalRule::new(None),
+            &held,
+            &[far, to_truth]
+        ));
+        // A held pose the prior vouches for is not in question.
+        assert!(!prior_prefers_a_twin(&rule, &truth, &[to_truth]));
+    }
+
+    /// A room (walls on four sides, one alcove near a corner) and, 30 m
+    /// away along x, the same room turned half round about its center.
+    fn room_and_turned_copy() -> Mesh {
+        let mut mesh = Mesh::default();
+        let mut wall = |a: [f32; 2], b: [f32; 2]| {
+            let n = mesh.positions.len() as u32;
+            for z in [0.0, 2.5] {
+                mesh.positions.push([a[0], a[1], z]);
+                mesh.positions.push([b[0], b[1], z]);
+            }
+            mesh.gray.extend([128.0; 4]);
+            mesh.indices.extend([n, n + 1, n + 3, n, n + 3, n + 2]);
+        };
+        // Room 6 x 4 m with a 1 m alcove wall inside, near (5, 3).
+        let walls: [([f32; 2], [f32; 2]); 5] = [
+            ([0.0, 0.0], [6.0, 0.0]),
+            ([6.0, 0.0], [6.0, 4.0]),
+            ([6.0, 4.0], [0.0, 4.0]),
+            ([0.0, 4.0], [0.0, 0.0]),
+            ([4.5, 3.0], [5.5, 3.0]),
+        ];
+        for (a, b) in walls {
+            wall(a, b);
+            // Turned half round about (3, 2), then 30 m along x.
+            let turn = |p: [f32; 2]| [6.0 - p[0] + 30.0, 4.0 - p[1]];
+            wall(turn(a), turn(b));
+        }
+        // A floor under both, wider than their walls (flat: not in the
+        // occupancy, but the grid spans it).
+        let n = mesh.positions.len() as u32;
+        mesh.positions.extend([
+            [-1.0, -1.0, 0.0],
+            [37.0, -1.0, 0.0],
+            [37.0, 5.0, 0.0],
+            [-1.0, 5.0, 0.0],
+        ]);
+        mesh.gray.extend([128.0; 4]);
+        mesh.indices.extend([n, n + 1, n + 2, n, n + 2, n + 3]);
+        mesh.groups = vec![crate::map::MeshGroup {
+            first_index: 0,
+            index_count: mesh.indices.len() as u32,
+            texture: None,
+        }];
+        mesh
+    }
+
+    #[test]
+    fn a_room_turned_half_round_elsewhere_is_a_turned_twin() {
+        let mesh = room_and_turned_copy();
+        let config = RelocConfig::default();
+        let mut twins = GeometricTwins::new(&mesh, &config);
+        assert!(twins.has_map());
+        // A camera at (2, 1.5) looking toward the alcove: points on the
+        // walls it sees, at two heights.
+        let camera = Vector3::new(2.0, 1.5, 1.4);
+        twins.points.clear();
+        let seen: [fn(f64) -> [f64; 2]; 3] =
+            [|t| [6.0, 4.0 * t], |t| [6.0 * t, 4.0], |t| [4.5 + t, 3.0]];
+        for wall in seen {
+            for k in 0..=40 {
+                let [x, y] = wall(f64::from(k) / 40.0);
+                for z in [0.6, 1.2, 1.8] {
+                    twins.points.push(Vector3::new(x, y, z));
+                }
+            }
+        }
+        let check = twins.search(&camera);
+        assert!(matches!(check, TwinCheck::Check(_)), "{check:?}");
+        // In the copy that view stands turned half round, at (30 + 6 - 2,
+        // 4 - 1.5): offset (32, 1), yaw pi.
+        let turned = twins
+            .found()
+            .iter()
+            .find(|t| (t.yaw_rad - std::f64::consts::PI).abs() < 1e-9)
+            .copied();
+        let t = turned.unwrap_or_else(|| {
+            panic!(
+                "the turned copy among the twins: {check:?} {:?}",
+                twins.found()
+            )
+        });
+        assert!(
+            (t.offset_m[0] - 32.0).abs() < 0.15 && (t.offset_m[1] - 1.0).abs() < 0.15,
+            "{t:?}"
+        );
+        // Not turned, the view stands nowhere else.
+        assert!(
+            twins.found().iter().all(|t| t.yaw_rad != 0.0),
+            "{:?}",
+            twins.found()
+        );
     }
 
     #[test]

@@ -210,7 +210,7 @@ impl Bench {
                 }
                 // Still held beyond the prior's reach: its geometric twins.
                 if let Some(held) = verdict.filter(|v| !rule.accepts_alone(&v.world_from_camera)) {
-                    if !self.twins_pass(&held, held_twins, tally) {
+                    if !self.twins_pass(&held, held_twins, &rule, tally) {
                         verdict = None;
                     }
                 }
@@ -419,11 +419,14 @@ impl Bench {
 
     /// Whether `held` survives its geometric twins (`check`, from
     /// [`Self::twin_check`] when it was accepted): false when its view is
-    /// degenerate or the frame passes the looser gate at a twin.
+    /// degenerate, when a twin stands within the prior's reach of `rule`
+    /// (as [`crate::reloc::twins::prior_prefers_a_twin`]), or when the
+    /// frame passes the looser gate at a twin.
     fn twins_pass(
         &mut self,
         held: &Verified,
         (check, found): (TwinCheck, heapless::Vec<Twin, DEGENERATE_TWINS>),
+        rule: &crate::reloc::rivals::RivalRule,
         tally: &mut Tally,
     ) -> bool {
         let n = match check {
@@ -434,6 +437,10 @@ impl Bench {
             }
             TwinCheck::Check(n) => n,
         };
+        if crate::reloc::twins::prior_prefers_a_twin(rule, &held.world_from_camera, &found) {
+            tally.geometric_prior += 1;
+            return false;
+        }
         for twin in found.iter().take(n) {
             tally.geometric_checked += 1;
             let pose = twin_pose(&held.world_from_camera, twin);

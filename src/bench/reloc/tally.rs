@@ -126,6 +126,9 @@ pub(super) struct Tally {
     pub(super) geometric_degenerate: usize,
     pub(super) geometric_checked: usize,
     pub(super) geometric_refused: usize,
+    /// Poses beyond the prior's reach refused because a geometric twin
+    /// stands within it.
+    pub(super) geometric_prior: usize,
 }
 
 impl Tally {
@@ -220,9 +223,10 @@ impl Tally {
             self.rivals_tried, self.ambiguous, self.prior_chose, self.decisive, self.decisive_rival
         );
         println!(
-            "    geometric twins: {} poses refused because their view fits at {} or more places; {} twins checked, {} poses refused because the frame passed the looser gate at one (both counted in no pose)",
+            "    geometric twins: {} poses refused because their view fits at {} or more places; {} because a twin stands within the prior's reach; {} twins checked, {} poses refused because the frame passed the looser gate at one (all counted in no pose)",
             self.geometric_degenerate,
             crate::reloc::twins::DEGENERATE_TWINS,
+            self.geometric_prior,
             self.geometric_checked,
             self.geometric_refused
         );
