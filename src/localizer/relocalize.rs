@@ -670,7 +670,21 @@ impl Localizer {
         kf: &Keyframe,
         capture_ns: u64,
     ) -> bool {
-        let n = match reloc.twins_mut().check(kf) {
+        let check = reloc.twins_mut().check(kf);
+        let twins = reloc.twins_mut();
+        if prior_prefers_a_twin(
+            rule,
+            &held.world_from_camera,
+            (twins.found(), twins.turned()),
+        ) {
+            tracing::info!(
+                capture_ns,
+                held = ?held.world_from_camera.translation.vector,
+                "relocalization refused: the view's geometry stands again where the motion prior expects the vehicle"
+            );
+            return true;
+        }
+        let n = match check {
             TwinCheck::Unique => return false,
             TwinCheck::Degenerate => {
                 tracing::info!(
@@ -682,14 +696,6 @@ impl Localizer {
             }
             TwinCheck::Check(n) => n,
         };
-        if prior_prefers_a_twin(rule, &held.world_from_camera, reloc.twins_mut().found()) {
-            tracing::info!(
-                capture_ns,
-                held = ?held.world_from_camera.translation.vector,
-                "relocalization refused: the view's geometry stands again where the motion prior expects the vehicle"
-            );
-            return true;
-        }
         for k in 0..n {
             let Some(twin) = reloc.twins_mut().found().get(k).copied() else {
                 break;

@@ -1,9 +1,9 @@
 //! Geometric twins of a relocalized pose: the places where the map's
 //! surfaces stand as they do in the held pose's view, moved by a horizontal
-//! translation (found by [`crate::map::repeats`]), or turned by a quarter,
-//! a half or three quarters about the camera's vertical axis and then
-//! moved ([`TWIN_YAWS`]), and the looser gate the frame is checked through
-//! there.
+//! translation (found by [`crate::map::repeats`]), and the looser gate the
+//! frame is checked through there; and its turned twins, where they stand
+//! turned by a quarter, a half or three quarters about the camera's
+//! vertical axis and then moved ([`TWIN_YAWS`]).
 //!
 //! Why. The rival rule ([`super::rivals`]) verifies the frame at the other
 //! places the descriptor and the landmarks found. On a scanned map the
@@ -18,12 +18,16 @@
 //! - the frame passes [`GeometricTwins::loose`] at one of the best
 //!   [`TWIN_CHECKS`] twins.
 //!
-//! The turned twins are for places that repeat turned about: the two ends
-//! of a corridor, a room built as its neighbour's mirror-turned copy. On
-//! the scanned floor a window search accepted a pose 1.5 m from the truth
-//! and turned 179.8 degrees from it (correlation 0.74), whose true place's
-//! render had failed the gate: a translation alone never finds that twin
-//! (docs/building-scale.md).
+//! - a twin, moved or turned, stands within the prior's reach while the
+//!   held pose does not ([`prior_prefers_a_twin`]): the geometry stands
+//!   the same where the vehicle is expected to be. On the scanned floor a
+//!   window search accepted a pose 1.5 m from the truth and turned 179.8
+//!   degrees from it (correlation 0.74); the truth was its turned twin, and
+//!   the frame failed even the looser gate there (docs/building-scale.md).
+//!
+//! Turned twins refuse only that way: a box room's corners are each
+//! other's turned twins, too common to make a view degenerate or to be
+//! worth a render each.
 //!
 //! Where: `[reloc] geometric_twins`, by default on maps without texture,
 //! whose appearance is a scan's vertex color. On the textured `building`
@@ -76,6 +80,8 @@ pub struct GeometricTwins {
     scratch: TwinScratch,
     points: Vec<Vector3<f64>>,
     found: heapless::Vec<Twin, DEGENERATE_TWINS>,
+    /// The best twins turned by a quarter, a half or three quarters.
+    turned: heapless::Vec<Twin, DEGENERATE_TWINS>,
     /// One turn's twins.
     found_turn: heapless::Vec<Twin, DEGENERATE_TWINS>,
     loose: RelocConfig,
@@ -122,6 +128,7 @@ impl GeometricTwins {
             occupancy,
             points: Vec::with_capacity(MAX_VIEW_POINTS),
             found: heapless::Vec::new(),
+            turned: heapless::Vec::new(),
             found_turn: heapless::Vec::new(),
             loose: loose_gate(config),
         }
@@ -141,6 +148,7 @@ impl GeometricTwins {
     /// pose); at most [`TWIN_CHECKS`] are kept to check.
     pub fn check(&mut self, keyframe: &Keyframe) -> TwinCheck {
         self.found.clear();
+        self.turned.clear();
         if !self.has_map() {
             return TwinCheck::Unique;
         }
@@ -166,13 +174,21 @@ impl GeometricTwins {
     }
 
     /// [`Self::check`] for the view's points already in `self.points`,
-    /// seen from `camera_world`: each turn of [`TWIN_YAWS`] searched, the
-    /// best twins of all kept. Degenerate when one turn alone fits at
-    /// [`DEGENERATE_TWINS`] places.
+    /// seen from `camera_world`: the twins moved only ([`Self::found`],
+    /// what the check says), then those turned by the other
+    /// [`TWIN_YAWS`] ([`Self::turned`], for [`prior_prefers_a_twin`]
+    /// only: a box room's corners are each other's turned twins, so they
+    /// neither make a view degenerate nor are worth a render each).
     fn search(&mut self, camera_world: &Vector3<f64>) -> TwinCheck {
-        self.found.clear();
-        let mut degenerate = false;
-        for yaw_rad in TWIN_YAWS {
+        self.occupancy.twins_turned(
+            camera_world,
+            &self.points,
+            0.0,
+            &mut self.scratch,
+            &mut self.found,
+        );
+        self.turned.clear();
+        for yaw_rad in TWIN_YAWS.into_iter().skip(1) {
             self.occupancy.twins_turned(
                 camera_world,
                 &self.points,
@@ -180,25 +196,29 @@ impl GeometricTwins {
                 &mut self.scratch,
                 &mut self.found_turn,
             );
-            degenerate |= self.found_turn.len() >= DEGENERATE_TWINS;
             for &twin in &self.found_turn {
-                if self.found.is_full() {
-                    match self.found.last_mut() {
+                if self.turned.is_full() {
+                    match self.turned.last_mut() {
                         Some(last) if last.score < twin.score => *last = twin,
                         _ => continue,
                     }
                 } else {
-                    let _ = self.found.push(twin);
+                    let _ = self.turned.push(twin);
                 }
-                self.found
+                self.turned
                     .sort_unstable_by(|a, b| b.score.total_cmp(&a.score));
             }
         }
         match self.found.len() {
             0 => TwinCheck::Unique,
-            _ if degenerate => TwinCheck::Degenerate,
+            n if n >= DEGENERATE_TWINS => TwinCheck::Degenerate,
             n => TwinCheck::Check(n.min(TWIN_CHECKS)),
         }
+    }
+
+    /// The turned twins of the last [`Self::check`], best first.
+    pub fn turned(&self) -> &[Twin] {
+        &self.turned
     }
 
     /// The twins of the last [`Self::check`], best first.
@@ -228,10 +248,15 @@ pub fn twin_pose(held: &Pose, twin: &Twin) -> Pose {
 /// 179.8 degrees, the truth its turned twin, where the frame aligned with
 /// correlation 0.19 (docs/building-scale.md). Never with no prior (a cold
 /// start).
-pub fn prior_prefers_a_twin(rule: &super::rivals::RivalRule, held: &Pose, found: &[Twin]) -> bool {
+pub fn prior_prefers_a_twin(
+    rule: &super::rivals::RivalRule,
+    held: &Pose,
+    (found, turned): (&[Twin], &[Twin]),
+) -> bool {
     !rule.accepts_alone(held)
         && found
             .iter()
+            .chain(turned)
             .any(|t| rule.accepts_alone(&twin_pose(held, t)))
 }
 
@@ -391,18 +416,18 @@ mod tests {
             yaw_rad: 0.0,
             score: 0.97,
         };
-        assert!(prior_prefers_a_twin(&rule, &held, &[far, to_truth]));
+        assert!(prior_prefers_a_twin(&rule, &held, (&[far], &[to_truth])));
         // Only far twins, no twin, or no prior (a cold start): no refusal
         // here (the twins are then checked through the looser gate).
-        assert!(!prior_prefers_a_twin(&rule, &held, &[far]));
-        assert!(!prior_prefers_a_twin(&rule, &held, &[]));
+        assert!(!prior_prefers_a_twin(&rule, &held, (&[far], &[])));
+        assert!(!prior_prefers_a_twin(&rule, &held, (&[], &[])));
         assert!(!prior_prefers_a_twin(
             &RivalRule::new(None),
             &held,
-            &[far, to_truth]
+            (&[far], &[to_truth])
         ));
         // A held pose the prior vouches for is not in question.
-        assert!(!prior_prefers_a_twin(&rule, &truth, &[to_truth]));
+        assert!(!prior_prefers_a_twin(&rule, &truth, (&[], &[to_truth])));
     }
 
     /// A room (walls on four sides, one alcove near a corner) and, 30 m
@@ -472,29 +497,19 @@ mod tests {
             }
         }
         let check = twins.search(&camera);
-        assert!(matches!(check, TwinCheck::Check(_)), "{check:?}");
-        // In the copy that view stands turned half round, at (30 + 6 - 2,
+        // Not turned, the view stands nowhere else.
+        assert_eq!(check, TwinCheck::Unique, "{:?}", twins.found());
+        // In the copy it stands turned half round, at (30 + 6 - 2,
         // 4 - 1.5): offset (32, 1), yaw pi.
         let turned = twins
-            .found()
+            .turned()
             .iter()
             .find(|t| (t.yaw_rad - std::f64::consts::PI).abs() < 1e-9)
             .copied();
-        let t = turned.unwrap_or_else(|| {
-            panic!(
-                "the turned copy among the twins: {check:?} {:?}",
-                twins.found()
-            )
-        });
+        let t = turned.unwrap_or_else(|| panic!("not a turned twin: {:?}", twins.turned()));
         assert!(
             (t.offset_m[0] - 32.0).abs() < 0.15 && (t.offset_m[1] - 1.0).abs() < 0.15,
             "{t:?}"
-        );
-        // Not turned, the view stands nowhere else.
-        assert!(
-            twins.found().iter().all(|t| t.yaw_rad != 0.0),
-            "{:?}",
-            twins.found()
         );
     }
 

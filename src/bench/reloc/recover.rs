@@ -408,13 +408,21 @@ impl Bench {
 
     /// The geometric twins of the keyframe just accepted (the last spare
     /// one), up to [`crate::reloc::twins::TWIN_CHECKS`] to check.
-    fn twin_check(&mut self) -> (TwinCheck, heapless::Vec<Twin, DEGENERATE_TWINS>) {
+    fn twin_check(&mut self) -> HeldTwins {
         let Some(kf) = self.spare.last() else {
-            return (TwinCheck::Unique, heapless::Vec::new());
+            return (
+                TwinCheck::Unique,
+                heapless::Vec::new(),
+                heapless::Vec::new(),
+            );
         };
         let twins = self.reloc.twins_mut();
         let check = twins.check(kf);
-        (check, twins.found().iter().copied().collect())
+        (
+            check,
+            twins.found().iter().copied().collect(),
+            twins.turned().iter().copied().collect(),
+        )
     }
 
     /// Whether `held` survives its geometric twins (`check`, from
@@ -425,10 +433,18 @@ impl Bench {
     fn twins_pass(
         &mut self,
         held: &Verified,
-        (check, found): (TwinCheck, heapless::Vec<Twin, DEGENERATE_TWINS>),
+        (check, found, turned): HeldTwins,
         rule: &crate::reloc::rivals::RivalRule,
         tally: &mut Tally,
     ) -> bool {
+        if crate::reloc::twins::prior_prefers_a_twin(
+            rule,
+            &held.world_from_camera,
+            (&found, &turned),
+        ) {
+            tally.geometric_prior += 1;
+            return false;
+        }
         let n = match check {
             TwinCheck::Unique => return true,
             TwinCheck::Degenerate => {
@@ -437,10 +453,6 @@ impl Bench {
             }
             TwinCheck::Check(n) => n,
         };
-        if crate::reloc::twins::prior_prefers_a_twin(rule, &held.world_from_camera, &found) {
-            tally.geometric_prior += 1;
-            return false;
-        }
         for twin in found.iter().take(n) {
             tally.geometric_checked += 1;
             let pose = twin_pose(&held.world_from_camera, twin);
@@ -520,3 +532,11 @@ pub(super) fn attempt(
         v
     })
 }
+
+/// A held pose's geometric twins: the check, the moved twins and the
+/// turned ones ([`crate::reloc::twins::GeometricTwins::turned`]).
+type HeldTwins = (
+    TwinCheck,
+    heapless::Vec<Twin, DEGENERATE_TWINS>,
+    heapless::Vec<Twin, DEGENERATE_TWINS>,
+);
