@@ -16,8 +16,7 @@
 //! - its view fits at [`DEGENERATE_TWINS`] places or more (a plain wall
 //!   along a corridor: only appearance could tell them apart); or
 //! - the frame passes [`GeometricTwins::loose`] at one of the best
-//!   [`TWIN_CHECKS`] twins.
-//!
+//!   [`TWIN_CHECKS`] twins; or
 //! - a twin, moved or turned, stands within the prior's reach while the
 //!   held pose does not ([`prior_prefers_a_twin`]): the geometry stands
 //!   the same where the vehicle is expected to be. On the scanned floor a
@@ -27,7 +26,8 @@
 //!
 //! Turned twins refuse only that way: a box room's corners are each
 //! other's turned twins, too common to make a view degenerate or to be
-//! worth a render each.
+//! worth a render each. The turns make a check four searches instead of
+//! one (a search took 2.5-17 ms on the scanned floor, `map::repeats`).
 //!
 //! Where: `[reloc] geometric_twins`, by default on maps without texture,
 //! whose appearance is a scan's vertex color. On the textured `building`
