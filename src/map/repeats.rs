@@ -499,10 +499,12 @@ fn occupancy(mesh: &Mesh, origin_m: [f64; 2], z0: f64, nx: usize, ny: usize) -> 
     Grid { nx, ny, cells }
 }
 
-/// Adds `t` to `out` (best first, one per place; the worst drops out).
-fn insert<const N: usize>(out: &mut heapless::Vec<Twin, N>, t: Twin) {
+/// Adds `t` to `out` (best first, one per place and turn; the worst drops
+/// out).
+pub(crate) fn insert<const N: usize>(out: &mut heapless::Vec<Twin, N>, t: Twin) {
     let same = |q: &Twin| {
-        (q.offset_m[0] - t.offset_m[0]).hypot(q.offset_m[1] - t.offset_m[1]) < SAME_OFFSET_M
+        q.yaw_rad == t.yaw_rad
+            && (q.offset_m[0] - t.offset_m[0]).hypot(q.offset_m[1] - t.offset_m[1]) < SAME_OFFSET_M
     };
     if let Some(q) = out.iter_mut().find(|q| same(q)) {
         if q.score < t.score {

@@ -197,16 +197,7 @@ impl GeometricTwins {
                 &mut self.found_turn,
             );
             for &twin in &self.found_turn {
-                if self.turned.is_full() {
-                    match self.turned.last_mut() {
-                        Some(last) if last.score < twin.score => *last = twin,
-                        _ => continue,
-                    }
-                } else {
-                    let _ = self.turned.push(twin);
-                }
-                self.turned
-                    .sort_unstable_by(|a, b| b.score.total_cmp(&a.score));
+                crate::map::repeats::insert(&mut self.turned, twin);
             }
         }
         match self.found.len() {
