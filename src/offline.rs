@@ -93,6 +93,8 @@ pub struct OfflineReport {
     pub reloc_ambiguous: u64,
     /// Passing rivals told apart by a decisive correlation.
     pub reloc_decided: u64,
+    /// Losses of tracking by reason ([`crate::localizer::LoopStats::losses`]).
+    pub losses: [u64; crate::localizer::LossReason::ALL.len()],
     /// Relocalization attempts (lost frames searched).
     pub reloc_attempts: u64,
     /// Keyframes rendered.
@@ -291,6 +293,7 @@ pub fn localize_dataset_recorded(
         relocalizations: 0,
         reloc_ambiguous: 0,
         reloc_decided: 0,
+        losses: Default::default(),
         reloc_attempts: 0,
         keyframes: 0,
         stale_frames: 0,
@@ -393,6 +396,7 @@ pub fn localize_dataset_recorded(
     report.relocalizations = stats.relocalizations;
     report.reloc_ambiguous = stats.reloc_ambiguous;
     report.reloc_decided = stats.reloc_decided;
+    report.losses = stats.losses;
     report.reloc_attempts = stats.reloc_attempts;
     report.stale_frames = stats.stale_frames;
     report.max_keyframe_age_s = stats.max_keyframe_age_s;

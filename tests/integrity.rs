@@ -17,6 +17,7 @@ use common::room::twin_map;
 use nalgebra::{Translation3, Vector3};
 use star::dataset::Dataset;
 use star::geometry::Pose;
+use star::localizer::LossReason;
 use star::offline::{OfflineOptions, OfflineReport, StartMode};
 use star::synth::preset::Preset;
 use star::synth::sequence::{write_sequence, SequenceOptions};
@@ -221,6 +222,18 @@ fn a_view_that_jumps_is_not_sent() {
         assert!(
             !tracked[FAULT_START],
             "{what}: the frame after the jump was sent"
+        );
+        eprintln!("{what}: losses by reason {:?}", report.losses);
+        // Lost on the correlation: below its floor or its running mean
+        // (which one varies from run to run with the render's timing).
+        let on_correlation = [LossReason::Correlation, LossReason::CorrelationDrop]
+            .map(|r| report.losses[r.index()])
+            .iter()
+            .sum::<u64>();
+        assert!(
+            on_correlation >= 1,
+            "{what}: the jump was not lost on the correlation: {:?}",
+            report.losses
         );
         if database {
             let resumed = (FAULT_START..FRAMES - AHEAD).find(|&i| tracked[i]);

@@ -166,6 +166,17 @@ fn all_black_frames_are_lost_without_a_pose() {
         assert_eq!(out.state, TrackState::Lost, "black frame {k}");
         assert!(out.world_from_camera.is_none());
     }
+    // One loss (the first black frame), counted under the test it failed.
+    let losses = localizer.stats().losses;
+    eprintln!("losses by reason: {losses:?}");
+    assert_eq!(losses.iter().sum::<u64>(), 1, "{losses:?}");
+    assert_eq!(
+        localizer
+            .stats()
+            .losses_for(star::localizer::LossReason::NotAligned),
+        1,
+        "a black frame does not align: {losses:?}"
+    );
 }
 
 #[test]

@@ -200,6 +200,25 @@ fn check_report(report: &OfflineReport) -> Result<()> {
     Ok(())
 }
 
+/// "tracking lost N times: REASON n, ..." from the losses by reason, or
+/// `None` when tracking was never lost.
+fn losses_line(losses: &[u64]) -> Option<String> {
+    let total: u64 = losses.iter().sum();
+    if total == 0 {
+        return None;
+    }
+    let parts: Vec<String> = crate::localizer::LossReason::ALL
+        .iter()
+        .zip(losses)
+        .filter(|(_, &n)| n > 0)
+        .map(|(r, n)| format!("{} {n}", r.name()))
+        .collect();
+    Some(format!(
+        "tracking lost {total} times, by the first test failed: {}",
+        parts.join(", ")
+    ))
+}
+
 /// Prints the end-of-run summary.
 pub fn print_summary(report: &OfflineReport, output: &Path) {
     let (median_ms, p99_ms) = median_p99(&report.track_ms);
@@ -229,6 +248,9 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
         "  quality over tracked frames: lowest inlier ratio {:.3}, lowest correlation {:.3}",
         report.min_inlier_ratio, report.min_correlation
     );
+    if let Some(line) = losses_line(&report.losses) {
+        println!("  {line}");
+    }
     if report.reloc_attempts > 0 || report.relocalizations > 0 {
         println!(
             "  relocalization: {} attempts, {} relocalized (reset_counter {})",
@@ -260,6 +282,27 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
             e.ate.translation_m.max * 100.0,
             e.ate.rotation_deg.rmse,
             e.ate.rotation_deg.max
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::losses_line;
+    use crate::localizer::LossReason;
+
+    #[test]
+    fn losses_line_names_each_reason_counted() {
+        assert_eq!(losses_line(&[0; LossReason::ALL.len()]), None);
+        let mut losses = [0u64; LossReason::ALL.len()];
+        losses[LossReason::LocalContrast.index()] = 2;
+        losses[LossReason::Jump.index()] = 1;
+        let line = losses_line(&losses).expect("losses");
+        assert_eq!(
+            line,
+            "tracking lost 3 times, by the first test failed: \
+             jump from the prediction (lost_max_jump_m/_deg) 1, \
+             local contrast (track_min_local_correlation) 2"
         );
     }
 }

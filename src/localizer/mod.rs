@@ -82,6 +82,70 @@ pub enum TrackState {
     Lost,
 }
 
+/// Why a tracked frame was lost: the first of the lost tests (in the order
+/// they are made) that it failed. Logged with the loss and counted in
+/// [`LoopStats::losses`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LossReason {
+    /// The alignment did not converge, or gave a pose that is not finite.
+    NotAligned,
+    /// Inlier ratio below `[keyframe] lost_inlier_ratio`.
+    InlierRatio,
+    /// Visible fraction below `[keyframe] lost_visible_ratio`.
+    VisibleRatio,
+    /// Correlation below `[keyframe] lost_min_correlation`.
+    Correlation,
+    /// Correlation below `lost_correlation_drop` x its running mean.
+    CorrelationDrop,
+    /// The estimate landed beyond the jump limits from the prediction.
+    Jump,
+    /// With a gate: the keyframe points' plain correlation with the frame
+    /// (pyramid level 1) below `[reloc] track_min_correlation`, or too few
+    /// points to measure it.
+    GateCorrelation,
+    /// With a gate: local contrast correlation (lowest of levels 0-2)
+    /// below `[reloc] track_min_local_correlation`.
+    LocalContrast,
+    /// With a gate: local contrast below `lost_local_correlation_drop` x its
+    /// running mean.
+    LocalContrastDrop,
+}
+
+impl LossReason {
+    /// Every reason, in the order of [`LoopStats::losses`].
+    pub const ALL: [Self; 9] = [
+        Self::NotAligned,
+        Self::InlierRatio,
+        Self::VisibleRatio,
+        Self::Correlation,
+        Self::CorrelationDrop,
+        Self::Jump,
+        Self::GateCorrelation,
+        Self::LocalContrast,
+        Self::LocalContrastDrop,
+    ];
+
+    /// A short name for logs and summaries, naming the setting it tests.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::NotAligned => "not aligned",
+            Self::InlierRatio => "inlier ratio (lost_inlier_ratio)",
+            Self::VisibleRatio => "visible fraction (lost_visible_ratio)",
+            Self::Correlation => "correlation (lost_min_correlation)",
+            Self::CorrelationDrop => "correlation drop (lost_correlation_drop)",
+            Self::Jump => "jump from the prediction (lost_max_jump_m/_deg)",
+            Self::GateCorrelation => "correlation (track_min_correlation)",
+            Self::LocalContrast => "local contrast (track_min_local_correlation)",
+            Self::LocalContrastDrop => "local contrast drop (lost_local_correlation_drop)",
+        }
+    }
+
+    /// Its place in [`LossReason::ALL`] and [`LoopStats::losses`].
+    pub fn index(self) -> usize {
+        Self::ALL.iter().position(|&r| r == self).unwrap_or(0)
+    }
+}
+
 /// What the loop gives out for one frame.
 #[derive(Debug, Clone, Copy)]
 pub struct FrameOutput {
@@ -191,6 +255,16 @@ pub struct LoopStats {
     /// Passing rivals at another place that a decisive correlation told
     /// apart from the held pose (`reloc::rivals::DECISIVE_MARGIN`).
     pub reloc_decided: u64,
+    /// Losses of tracking (a tracked frame followed by a lost one), by
+    /// [`LossReason`], in the order of [`LossReason::ALL`].
+    pub losses: [u64; LossReason::ALL.len()],
+}
+
+impl LoopStats {
+    /// The losses counted for `reason`.
+    pub fn losses_for(&self, reason: LossReason) -> u64 {
+        self.losses.get(reason.index()).copied().unwrap_or(0)
+    }
 }
 
 /// The STAR loop.
@@ -439,18 +513,29 @@ impl Localizer {
         let jump_m = predicted_from_camera.translation.vector.norm();
         let jump_deg = predicted_from_camera.rotation.angle().to_degrees();
         let q = result.quality;
-        let tracking = result.valid
-            && pose_is_finite(&world_from_camera)
-            && q.inlier_ratio >= self.policy.lost_inlier_ratio
-            && q.visible_ratio >= self.policy.lost_visible_ratio
-            && q.correlation >= self.policy.lost_min_correlation
-            && self
-                .correlation_mean
-                .is_none_or(|mean| q.correlation >= self.policy.lost_correlation_drop * mean)
-            && jump_m <= max_jump_m
-            && jump_deg <= max_jump_deg
-            && self.may_resume(capture_ns, &result)
-            && self.correlation_ok(&result.camera_from_keyframe);
+        // The lost tests in order, the first failed named (NaN fails).
+        // Resuming after a loss (`may_resume`) is not a loss of its own.
+        let loss = if !(result.valid && pose_is_finite(&world_from_camera)) {
+            Some(LossReason::NotAligned)
+        } else if !(q.inlier_ratio >= self.policy.lost_inlier_ratio) {
+            Some(LossReason::InlierRatio)
+        } else if !(q.visible_ratio >= self.policy.lost_visible_ratio) {
+            Some(LossReason::VisibleRatio)
+        } else if !(q.correlation >= self.policy.lost_min_correlation) {
+            Some(LossReason::Correlation)
+        } else if self
+            .correlation_mean
+            .is_some_and(|mean| !(q.correlation >= self.policy.lost_correlation_drop * mean))
+        {
+            Some(LossReason::CorrelationDrop)
+        } else if !(jump_m <= max_jump_m && jump_deg <= max_jump_deg) {
+            Some(LossReason::Jump)
+        } else if !self.may_resume(capture_ns, &result) {
+            Some(LossReason::NotAligned)
+        } else {
+            self.correlation_check(&result.camera_from_keyframe).err()
+        };
+        let tracking = loss.is_none();
 
         let keyframe_age_s = capture_ns.saturating_sub(self.keyframe.requested_at_ns) as f64 * 1e-9;
         tracing::trace!(
@@ -491,11 +576,18 @@ impl Localizer {
         };
         if !tracking {
             if self.state == TrackState::Tracking {
+                let reason = loss.unwrap_or(LossReason::NotAligned);
+                if let Some(n) = self.stats.losses.get_mut(reason.index()) {
+                    *n += 1;
+                }
                 tracing::warn!(
+                    reason = reason.name(),
                     inliers = q.inlier_ratio,
                     visible = q.visible_ratio,
                     correlation = q.correlation,
                     correlation_mean = self.correlation_mean,
+                    local = self.last_local,
+                    local_mean = self.local_mean,
                     jump_m,
                     jump_deg,
                     "tracking lost"

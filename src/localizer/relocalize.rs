@@ -44,7 +44,7 @@ use crate::track::correlation::plain_and_local;
 use crate::track::{Aligner, Keyframe, Pyramid};
 
 use super::worker::RenderRequest;
-use super::{Localizer, TrackState};
+use super::{Localizer, LossReason, TrackState};
 
 impl Localizer {
     /// Enables relocalization with `relocalizer`; errors when its database
@@ -130,9 +130,12 @@ impl Localizer {
     /// test with an affine photometric fit, but does not correlate; an
     /// alignment sliding along a one-way texture keeps the intensity
     /// correlation but loses the fine texture.
-    pub(super) fn correlation_ok(&mut self, camera_from_keyframe: &crate::geometry::Pose) -> bool {
+    pub(super) fn correlation_check(
+        &mut self,
+        camera_from_keyframe: &crate::geometry::Pose,
+    ) -> Result<(), LossReason> {
         let Some(config) = gate_config(&self.reloc, &self.start_gate) else {
-            return true;
+            return Ok(());
         };
         let pose = camera_from_keyframe;
         // The plain correlation at level 1 (what `track_min_correlation`
@@ -176,18 +179,23 @@ impl Localizer {
             (self.local_mean, self.local_frames),
             local,
         );
-        let ok = !dropped
-            && ncc.is_some_and(|(all, _)| {
-                all >= config.track_min_correlation && !(local < config.track_min_local_correlation)
-            });
-        if !ok && self.state == TrackState::Tracking {
+        let check = if dropped {
+            Err(LossReason::LocalContrastDrop)
+        } else if !ncc.is_some_and(|(all, _)| all >= config.track_min_correlation) {
+            Err(LossReason::GateCorrelation)
+        } else if local < config.track_min_local_correlation {
+            Err(LossReason::LocalContrast)
+        } else {
+            Ok(())
+        };
+        if check.is_err() && self.state == TrackState::Tracking {
             tracing::debug!(
                 ncc = ncc.map(|c| c.0),
                 local,
                 "frame does not correlate with the keyframe"
             );
         }
-        ok
+        check
     }
 
     /// Uses the relocalization gate of `gate` (the `[reloc]` settings) for
