@@ -161,13 +161,17 @@ impl Localizer {
             )
         };
         let ncc = at(1);
-        let local = [at(0), at(2)]
+        let (at0, at2) = (at(0), at(2));
+        let local = [at0, at2]
             .iter()
             .flatten()
             .fold(ncc.map_or(f32::NAN, |(_, l)| l), |m, &(_, l)| m.min(l));
         tracing::trace!(
             ncc = ncc.map(|c| c.0),
             local,
+            local0 = at0.map(|c| c.1),
+            local1 = ncc.map(|c| c.1),
+            local2 = at2.map(|c| c.1),
             local_mean = self.local_mean,
             "tracking correlation"
         );
@@ -183,7 +187,13 @@ impl Localizer {
             Err(LossReason::LocalContrastDrop)
         } else if !ncc.is_some_and(|(all, _)| all >= config.track_min_correlation) {
             Err(LossReason::GateCorrelation)
-        } else if local < config.track_min_local_correlation {
+        } else if local
+            < local_floor(
+                config,
+                (self.local_mean, self.local_frames),
+                self.policy.lost_local_correlation_drop,
+            )
+        {
             Err(LossReason::LocalContrast)
         } else {
             Ok(())
@@ -810,6 +820,29 @@ fn local_dropped(drop: f32, (mean, frames): (Option<f32>, u32), local: f32) -> b
         && mean.is_some_and(|mean| local < drop * mean)
 }
 
+/// The local contrast floor of a tracked frame: `track_min_local_correlation`,
+/// lowered in proportion to the settled running mean `mean` (over `frames`
+/// tracked frames) where that is below `track_local_reference`, to no lower
+/// than `track_min_local_correlation_lowest`; a map with less fine detail
+/// than the camera reads lower at true poses. Only with the drop test on
+/// (`drop` > 0), which then still refuses a frame that falls below `drop`
+/// times the mean.
+fn local_floor(config: &RelocConfig, (mean, frames): (Option<f32>, u32), drop: f32) -> f32 {
+    let floor = config.track_min_local_correlation;
+    let reference = config.track_local_reference;
+    match mean {
+        Some(mean) if drop > 0.0 && reference > 0.0 && frames >= super::LOCAL_MEAN_MIN_FRAMES => {
+            let scaled = floor * (mean / reference).min(1.0);
+            if scaled.is_nan() {
+                floor
+            } else {
+                scaled.max(config.track_min_local_correlation_lowest.min(floor))
+            }
+        }
+        _ => floor,
+    }
+}
+
 /// The gate settings: the database's, else those given to
 /// [`Localizer::verify_start`]; `None` when neither was set.
 fn gate_config<'a>(
@@ -855,5 +888,48 @@ mod tests {
         assert!(!local_dropped(0.7, (Some(0.78), settled - 1), 0.5));
         // No level measured: no drop.
         assert!(!local_dropped(0.7, (Some(0.73), settled), f32::NAN));
+    }
+
+    #[test]
+    fn local_floor_follows_a_settled_mean_below_the_reference_only() {
+        let settled = super::super::LOCAL_MEAN_MIN_FRAMES;
+        let config = RelocConfig::default();
+        let floor = config.track_min_local_correlation;
+        let near = |a: f32, b: f32| (a - b).abs() < 1e-6;
+        // A map as fine as the camera (true poses 0.5 and up): the floor.
+        assert!(near(
+            local_floor(&config, (Some(0.73), settled), 0.7),
+            floor
+        ));
+        // The 2 cm scan (mean 0.36): lowered in proportion, 0.216, under
+        // its lowest true pose (0.283).
+        let scan = local_floor(&config, (Some(0.36), settled), 0.7);
+        assert!(near(scan, floor * 0.36 / 0.5), "{scan}");
+        assert!(scan < 0.283);
+        // Never under the lowest, whatever the mean.
+        assert!(near(
+            local_floor(&config, (Some(0.05), settled), 0.7),
+            config.track_min_local_correlation_lowest
+        ));
+        // Not before the mean settles, nor with the drop test off, nor with
+        // the reference at 0, nor on a NaN mean.
+        assert!(near(
+            local_floor(&config, (Some(0.36), settled - 1), 0.7),
+            floor
+        ));
+        assert!(near(local_floor(&config, (None, settled), 0.7), floor));
+        assert!(near(
+            local_floor(&config, (Some(0.36), settled), 0.0),
+            floor
+        ));
+        let off = RelocConfig {
+            track_local_reference: 0.0,
+            ..RelocConfig::default()
+        };
+        assert!(near(local_floor(&off, (Some(0.36), settled), 0.7), floor));
+        assert!(near(
+            local_floor(&config, (Some(f32::NAN), settled), 0.7),
+            floor
+        ));
     }
 }
