@@ -344,14 +344,19 @@ impl Localizer {
         let mut n = 0usize;
         let mut tried = [u32::MAX; MAX_ATTEMPT_CANDIDATES];
         let mut n_tried = 0usize;
-        // While the loss is short, the last tracked pose first (one
-        // render): a true pose that a lost test refused is verified back
-        // through the same gate, instead of after seconds of searching.
+        // While the loss is short, the last tracked pose comes next after
+        // the landmark pose (one candidate): a true pose that a lost test
+        // refused is verified back through the same gate before the
+        // database views are searched. Not before the landmark pose: on
+        // `aggressive --scanned` that put the accepted pose 0.1 s later, and
+        // its next frame, after a fast turn, often failed to confirm it
+        // (docs/building-scale.md).
         let last_pose = self.last_pose_candidate(capture_ns, reloc.config().last_pose_max_lost_s);
-        let mut steps = last_pose
-            .map(|_| Source::LastPose)
+        let [landmark_step, view_steps @ ..] = sources(prior.as_ref());
+        let mut steps = landmark_step
             .into_iter()
-            .chain(sources(prior.as_ref()).into_iter().flatten());
+            .chain(last_pose.map(|_| Source::LastPose))
+            .chain(view_steps.into_iter().flatten());
         let mut passed: Option<(Verified, Box<Keyframe>, u32)> = None;
         'steps: for source in steps.by_ref() {
             let first = n;

@@ -179,7 +179,7 @@ pub struct RelocConfig {
     /// own; afterwards only an accepted relocalization restarts it, seconds.
     pub resume_window_s: f64,
     /// Within this time of the last tracked frame, a relocalization attempt
-    /// tries that pose first, carried to the lost frame at the velocity
+    /// tries that pose after the landmark pose, carried to the lost frame at the velocity
     /// tracking had when it was lost ([`super::prior::Source::LastPose`]),
     /// seconds; 0 turns it off.
     pub last_pose_max_lost_s: f64,

@@ -108,7 +108,8 @@ pub fn yaw_rad(world_from_camera: &Pose) -> Option<f64> {
 pub enum Source {
     /// The last tracked pose, carried to the lost frame by the
     /// constant-velocity prediction: one candidate (one render), which the
-    /// service tries before every other while the loss is short
+    /// service tries after the landmark pose and before the views while
+    /// the loss is short
     /// (`[reloc] last_pose_max_lost_s`): a loss on a true pose (a test's false
     /// alarm) is verified back at once. Not in [`sources`]: `star bench
     /// reloc` draws its prior around the truth, not from a tracked pose.
