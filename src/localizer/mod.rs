@@ -140,6 +140,19 @@ impl LossReason {
         }
     }
 
+    /// Whether the loss was of this frame's alignment alone (it failed,
+    /// saw too little of the keyframe, or jumped from the prediction), so
+    /// that the pose tracked last still stands, rather than a sign that the
+    /// poses had been drifting (a correlation or local-contrast test, which
+    /// watch for that): then a relocalization tries the last pose first
+    /// ([`crate::reloc::prior::Source::LastPose`]).
+    pub fn keeps_last_pose(self) -> bool {
+        matches!(
+            self,
+            Self::NotAligned | Self::InlierRatio | Self::VisibleRatio | Self::Jump
+        )
+    }
+
     /// Its place in [`LossReason::ALL`] and [`LoopStats::losses`].
     pub fn index(self) -> usize {
         Self::ALL.iter().position(|&r| r == self).unwrap_or(0)
@@ -296,6 +309,13 @@ pub struct Localizer {
     /// `velocity` when tracking was last lost (it decays while lost): where
     /// the last-pose candidate of a relocalization is carried to.
     velocity_at_loss: nalgebra::Vector6<f64>,
+    /// The last-pose candidate was tried since tracking was last lost, or
+    /// is not to be: it is tried once a loss, on the first frame searched
+    /// (where it fails, the vehicle is not where it was, and trying it
+    /// again on later frames only delays the database's candidates), and
+    /// only after a loss that keeps the last pose
+    /// ([`LossReason::keeps_last_pose`]).
+    last_pose_tried: bool,
     /// Running mean of how old a keyframe is when it is first tracked
     /// against (request to swap-in, camera time), seconds: how far ahead
     /// of the camera the next one is rendered.
@@ -393,6 +413,7 @@ impl Localizer {
             last: None,
             velocity: nalgebra::Vector6::zeros(),
             velocity_at_loss: nalgebra::Vector6::zeros(),
+            last_pose_tried: false,
             render_latency_s: 0.0,
             tracked_run: 0,
             correlation_mean: None,
@@ -609,6 +630,7 @@ impl Localizer {
                 );
                 self.lost_since_ns = Some(self.last.map_or(capture_ns, |(t, _)| t));
                 self.velocity_at_loss = self.velocity;
+                self.last_pose_tried = !reason.keeps_last_pose();
             }
             if self.verify_left > 0 && self.reloc.is_none() {
                 // Verifying the start pose or the last keyframe without a

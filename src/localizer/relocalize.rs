@@ -345,13 +345,14 @@ impl Localizer {
         let mut tried = [u32::MAX; MAX_ATTEMPT_CANDIDATES];
         let mut n_tried = 0usize;
         // While the loss is short, the last tracked pose comes next after
-        // the landmark pose (one candidate): a true pose that a lost test
-        // refused is verified back through the same gate before the
-        // database views are searched. Not before the landmark pose: on
+        // the landmark pose (one candidate, once a loss): a true pose that a
+        // lost test refused is verified back through the same gate before
+        // the database views are searched. Not before the landmark pose: on
         // `aggressive --scanned` that put the accepted pose 0.1 s later, and
         // its next frame, after a fast turn, often failed to confirm it
         // (docs/building-scale.md).
         let last_pose = self.last_pose_candidate(capture_ns, reloc.config().last_pose_max_lost_s);
+        self.last_pose_tried |= last_pose.is_some();
         let [landmark_step, view_steps @ ..] = sources(prior.as_ref());
         let mut steps = landmark_step
             .into_iter()
@@ -567,9 +568,13 @@ impl Localizer {
     /// The candidate at the last tracked pose, carried to `capture_ns` at
     /// the velocity tracking had when it was lost (constant velocity: a
     /// vehicle keeps flying while its camera is blind), verified from the
-    /// multi-start search; `None` without a tracked pose or after
-    /// `[reloc] last_pose_max_lost_s` lost (0: never).
+    /// multi-start search; `None` without a tracked pose, after
+    /// `[reloc] last_pose_max_lost_s` lost (0: never), or once it was tried
+    /// since the loss.
     fn last_pose_candidate(&self, capture_ns: u64, max_lost_s: f64) -> Option<Candidate> {
+        if self.last_pose_tried {
+            return None;
+        }
         let (tracked_ns, world_from_camera) = self.last?;
         let dt_s = capture_ns.saturating_sub(tracked_ns) as f64 * 1e-9;
         if !(max_lost_s > 0.0 && self.lost_s(capture_ns) <= max_lost_s && dt_s <= max_lost_s) {

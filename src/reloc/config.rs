@@ -178,8 +178,8 @@ pub struct RelocConfig {
     /// Within this time of the failure, ordinary tracking may resume on its
     /// own; afterwards only an accepted relocalization restarts it, seconds.
     pub resume_window_s: f64,
-    /// Within this time of the last tracked frame, a relocalization attempt
-    /// tries that pose after the landmark pose, carried to the lost frame at the velocity
+    /// Within this time of the last tracked frame, the first relocalization
+    /// attempt after a loss tries that pose after the landmark pose, carried to the lost frame at the velocity
     /// tracking had when it was lost ([`super::prior::Source::LastPose`]),
     /// seconds; 0 turns it off.
     pub last_pose_max_lost_s: f64,
