@@ -89,9 +89,6 @@ pub struct OfflineReport {
     pub tracked: Vec<(f64, bool)>,
     /// Relocalizations accepted and confirmed.
     pub relocalizations: u64,
-    /// Of those, at the last tracked pose
-    /// ([`crate::localizer::LoopStats::relocalizations_at_last_pose`]).
-    pub relocalizations_at_last_pose: u64,
     /// Relocalization attempts refused because two places passed the gate.
     pub reloc_ambiguous: u64,
     /// Passing rivals told apart by a decisive correlation.
@@ -294,7 +291,6 @@ pub fn localize_dataset_recorded(
         reset_counters: Vec::with_capacity(n),
         tracked: Vec::with_capacity(n),
         relocalizations: 0,
-        relocalizations_at_last_pose: 0,
         reloc_ambiguous: 0,
         reloc_decided: 0,
         losses: Default::default(),
@@ -398,7 +394,6 @@ pub fn localize_dataset_recorded(
     let stats = localizer.stats();
     report.keyframes = stats.keyframes;
     report.relocalizations = stats.relocalizations;
-    report.relocalizations_at_last_pose = stats.relocalizations_at_last_pose;
     report.reloc_ambiguous = stats.reloc_ambiguous;
     report.reloc_decided = stats.reloc_decided;
     report.losses = stats.losses;

@@ -7,9 +7,8 @@
 
 mod common;
 
-use common::reloc_fixture::{fixture, run, run_with_config, spliced, Fixture, FAULT_START, FRAMES};
+use common::reloc_fixture::{fixture, run, spliced, Fixture, FAULT_START, FRAMES};
 use star::dataset::Dataset;
-use star::offline::OfflineOptions;
 use star::offline::OfflineReport;
 use star::reloc::Relocalizer;
 
@@ -180,41 +179,4 @@ fn recovers_after_blackout_and_teleport() {
     });
     let report = run(fx, &ds);
     check(&report, &ds, "teleport", FAULT_START);
-}
-
-#[test]
-fn a_short_loss_is_verified_back_at_the_last_pose_in_one_attempt() {
-    // 15 black frames (0.3 s): past the resume window (0.2 s), within the
-    // time the last tracked pose is tried (1 s). With no landmark pose
-    // (`landmark_min_inliers` out of reach: the landmark step is tried
-    // before the last pose), the first attempt, on the first frame after
-    // the blackout, takes the last pose, carried on by the prediction,
-    // through the gate.
-    let fx = fixture();
-    let tmp = tempfile::tempdir().expect("tmp");
-    let fault_end = FAULT_START + 15;
-    let ds = spliced(fx, &tmp.path().join("short"), |i| {
-        (!(FAULT_START..fault_end).contains(&i)).then_some(i)
-    });
-    let mut config = fx.config.clone();
-    config.reloc.landmark_min_inliers = 1_000_000;
-    let report = run_with_config(fx, &ds, &config, OfflineOptions::default(), true);
-    check(&report, &ds, "short blackout", fault_end);
-    assert_eq!(
-        report.reloc_attempts, 1,
-        "short blackout: one attempt recovers"
-    );
-    assert_eq!(
-        report.relocalizations_at_last_pose, 1,
-        "short blackout: recovered at the last pose"
-    );
-    // With the step off (`last_pose_max_lost_s = 0`) the same blackout is
-    // recovered through the database views, never at the last pose.
-    config.reloc.last_pose_max_lost_s = 0.0;
-    let report = run_with_config(fx, &ds, &config, OfflineOptions::default(), true);
-    check(&report, &ds, "short blackout, last pose off", fault_end);
-    assert_eq!(
-        report.relocalizations_at_last_pose, 0,
-        "short blackout, last pose off: not at the last pose"
-    );
 }

@@ -253,10 +253,9 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
     }
     if report.reloc_attempts > 0 || report.relocalizations > 0 {
         println!(
-            "  relocalization: {} attempts, {} relocalized ({} at the last tracked pose; reset_counter {})",
+            "  relocalization: {} attempts, {} relocalized (reset_counter {})",
             report.reloc_attempts,
             report.relocalizations,
-            report.relocalizations_at_last_pose,
             report.reset_counters.last().copied().unwrap_or(0)
         );
     }

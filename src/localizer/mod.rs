@@ -140,19 +140,6 @@ impl LossReason {
         }
     }
 
-    /// Whether the loss was of this frame's alignment alone (it failed,
-    /// saw too little of the keyframe, or jumped from the prediction), so
-    /// that the pose tracked last still stands, rather than a sign that the
-    /// poses had been drifting (a correlation or local-contrast test, which
-    /// watch for that): then a relocalization tries the last pose first
-    /// ([`crate::reloc::prior::Source::LastPose`]).
-    pub fn keeps_last_pose(self) -> bool {
-        matches!(
-            self,
-            Self::NotAligned | Self::InlierRatio | Self::VisibleRatio | Self::Jump
-        )
-    }
-
     /// Its place in [`LossReason::ALL`] and [`LoopStats::losses`].
     pub fn index(self) -> usize {
         Self::ALL.iter().position(|&r| r == self).unwrap_or(0)
@@ -203,9 +190,6 @@ pub struct RelocCandidate {
     pub world_from_camera: Pose,
     /// From the landmark matches (P3P), not from the database's views.
     pub from_landmarks: bool,
-    /// The last tracked pose, carried on by the prediction
-    /// ([`crate::reloc::prior::Source::LastPose`]).
-    pub from_last_pose: bool,
     /// The gate accepted it.
     pub accepted: bool,
 }
@@ -231,7 +215,6 @@ impl Default for RelocAttempt {
             candidates: [RelocCandidate {
                 world_from_camera: Pose::identity(),
                 from_landmarks: false,
-                from_last_pose: false,
                 accepted: false,
             }; ATTEMPT_CANDIDATES],
         }
@@ -266,8 +249,6 @@ pub struct LoopStats {
     pub reloc_candidates: u64,
     /// Relocalizations accepted and verified (tracking restarted).
     pub relocalizations: u64,
-    /// Of those, the ones whose candidate was the last tracked pose.
-    pub relocalizations_at_last_pose: u64,
     /// Relocalization attempts refused because candidates at two places
     /// passed the gate (look-alike rooms).
     pub reloc_ambiguous: u64,
@@ -306,16 +287,6 @@ pub struct Localizer {
     last: Option<(u64, Pose)>,
     /// Velocity as a twist per second, in the camera frame (right perturbation).
     velocity: nalgebra::Vector6<f64>,
-    /// `velocity` when tracking was last lost (it decays while lost): where
-    /// the last-pose candidate of a relocalization is carried to.
-    velocity_at_loss: nalgebra::Vector6<f64>,
-    /// The last-pose candidate was tried since tracking was last lost, or
-    /// is not to be: it is tried once a loss, on the first frame searched
-    /// (where it fails, the vehicle is not where it was, and trying it
-    /// again on later frames only delays the database's candidates), and
-    /// only after a loss that keeps the last pose
-    /// ([`LossReason::keeps_last_pose`]).
-    last_pose_tried: bool,
     /// Running mean of how old a keyframe is when it is first tracked
     /// against (request to swap-in, camera time), seconds: how far ahead
     /// of the camera the next one is rendered.
@@ -350,10 +321,6 @@ pub struct Localizer {
     start_gate: Option<crate::reloc::RelocConfig>,
     /// The candidates of the last relocalization attempt, for the logs.
     last_attempt: RelocAttempt,
-    /// The relocalization accepted last was the last-pose candidate
-    /// (counted in [`LoopStats::relocalizations_at_last_pose`] once
-    /// confirmed).
-    accepted_at_last_pose: bool,
     /// The keyframe points where the frame sees them, for the per-frame
     /// correlation check; room for a full finest level.
     correlation_samples: Vec<crate::track::correlation::Sample>,
@@ -412,8 +379,6 @@ impl Localizer {
             previous_ns: None,
             last: None,
             velocity: nalgebra::Vector6::zeros(),
-            velocity_at_loss: nalgebra::Vector6::zeros(),
-            last_pose_tried: false,
             render_latency_s: 0.0,
             tracked_run: 0,
             correlation_mean: None,
@@ -432,7 +397,6 @@ impl Localizer {
             start_gate: None,
             attempt_budget_s: 0.0,
             last_attempt: RelocAttempt::default(),
-            accepted_at_last_pose: false,
             correlation_samples: Vec::with_capacity(build.max_points_per_level(0)),
             map_symmetries: heapless::Vec::new(),
         })
@@ -629,8 +593,6 @@ impl Localizer {
                     "tracking lost"
                 );
                 self.lost_since_ns = Some(self.last.map_or(capture_ns, |(t, _)| t));
-                self.velocity_at_loss = self.velocity;
-                self.last_pose_tried = !reason.keeps_last_pose();
             }
             if self.verify_left > 0 && self.reloc.is_none() {
                 // Verifying the start pose or the last keyframe without a

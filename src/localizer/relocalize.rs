@@ -31,14 +31,14 @@
 //! pose would need to fool the gate on consecutive frames. An attempt
 //! allocates nothing (its candidates are held on the stack).
 
-use crate::geometry::{exp_se3, renormalized, Pose};
+use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
 use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
 use crate::reloc::twins::{prior_prefers_a_twin, twin_pose, TwinCheck};
-use crate::reloc::{passes_gate, passes_resume_gate, start_yaws_rad, Candidate, Ranked, MAX_TOP_K};
+use crate::reloc::{passes_gate, passes_resume_gate, start_yaws_rad, Candidate, MAX_TOP_K};
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
-    Verdict, Verified, LANDMARK_CANDIDATE, LAST_POSE_CANDIDATE,
+    Verdict, Verified, LANDMARK_CANDIDATE,
 };
 use crate::track::correlation::plain_and_local;
 use crate::track::{Aligner, Keyframe, Pyramid};
@@ -270,9 +270,6 @@ impl Localizer {
     pub(super) fn confirm_relocalization(&mut self) {
         self.reset_counter = self.reset_counter.wrapping_add(1);
         self.stats.relocalizations += 1;
-        if self.accepted_at_last_pose {
-            self.stats.relocalizations_at_last_pose += 1;
-        }
         tracing::info!(
             reset_counter = self.reset_counter,
             "relocalized: tracking restarted"
@@ -344,28 +341,15 @@ impl Localizer {
         let mut n = 0usize;
         let mut tried = [u32::MAX; MAX_ATTEMPT_CANDIDATES];
         let mut n_tried = 0usize;
-        // While the loss is short, the last tracked pose comes next after
-        // the landmark pose (one candidate, once a loss): a true pose that a
-        // lost test refused is verified back through the same gate before
-        // the database views are searched. Not before the landmark pose: on
-        // `aggressive --scanned` that put the accepted pose 0.1 s later, and
-        // its next frame, after a fast turn, often failed to confirm it
-        // (docs/building-scale.md).
-        let last_pose = self.last_pose_candidate(capture_ns, reloc.config().last_pose_max_lost_s);
-        self.last_pose_tried |= last_pose.is_some();
-        let [landmark_step, view_steps @ ..] = sources(prior.as_ref());
-        let mut steps = landmark_step
-            .into_iter()
-            .chain(last_pose.map(|_| Source::LastPose))
-            .chain(view_steps.into_iter().flatten());
-        let mut passed: Option<(Verified, Box<Keyframe>, u32)> = None;
+        let mut steps = sources(prior.as_ref()).into_iter().flatten();
+        let mut passed: Option<(Verified, Box<Keyframe>)> = None;
         'steps: for source in steps.by_ref() {
             let first = n;
             n += gather(
                 &mut reloc,
                 (&mut self.reloc_aligners[0], &self.pyramid),
                 source,
-                (landmark, last_pose),
+                landmark,
                 &query,
                 candidates.get_mut(n..).unwrap_or(&mut []),
             );
@@ -405,19 +389,15 @@ impl Localizer {
                     "relocalization candidate passed the gate"
                 );
                 if rule.accepts_alone(&v.world_from_camera) {
-                    self.accept_relocalization(
-                        (v, kf, c == LAST_POSE_CANDIDATE),
-                        capture_ns,
-                        reloc.config().verify_frames,
-                    );
+                    self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
                     self.reloc = Some(reloc);
                     return;
                 }
-                passed = Some((v, kf, c));
+                passed = Some((v, kf));
                 break 'steps;
             }
         }
-        let Some((mut v, mut kf, mut held)) = passed else {
+        let Some((mut v, mut kf)) = passed else {
             tracing::debug!(candidates = n_tried, "relocalization failed for this frame");
             self.reloc = Some(reloc);
             return;
@@ -431,7 +411,7 @@ impl Localizer {
                 &mut reloc,
                 (&mut self.reloc_aligners[0], &self.pyramid),
                 source,
-                (landmark, last_pose),
+                landmark,
                 &query,
                 candidates.get_mut(n..).unwrap_or(&mut []),
             );
@@ -496,7 +476,6 @@ impl Localizer {
                     if rival_better {
                         self.worker.recycle(std::mem::replace(&mut kf, r_kf));
                         v = r;
-                        held = rival.ranked.index;
                     } else {
                         self.worker.recycle(r_kf);
                     }
@@ -509,11 +488,7 @@ impl Localizer {
                         "two places pass the gate; the one within the motion prior's reach is taken"
                     );
                     self.worker.recycle(kf);
-                    self.accept_relocalization(
-                        (r, r_kf, rival.ranked.index == LAST_POSE_CANDIDATE),
-                        capture_ns,
-                        reloc.config().verify_frames,
-                    );
+                    self.accept_relocalization(r, r_kf, capture_ns, reloc.config().verify_frames);
                     self.reloc = Some(reloc);
                     return;
                 }
@@ -555,42 +530,10 @@ impl Localizer {
                     rivals = n_rivals,
                     "no other place passes the gate; verifying"
                 );
-                self.accept_relocalization(
-                    (v, kf, held == LAST_POSE_CANDIDATE),
-                    capture_ns,
-                    reloc.config().verify_frames,
-                );
+                self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
             }
         }
         self.reloc = Some(reloc);
-    }
-
-    /// The candidate at the last tracked pose, carried to `capture_ns` at
-    /// the velocity tracking had when it was lost (constant velocity: a
-    /// vehicle keeps flying while its camera is blind), verified from the
-    /// multi-start search; `None` without a tracked pose, after
-    /// `[reloc] last_pose_max_lost_s` lost (0: never), or once it was tried
-    /// since the loss.
-    fn last_pose_candidate(&self, capture_ns: u64, max_lost_s: f64) -> Option<Candidate> {
-        if self.last_pose_tried {
-            return None;
-        }
-        let (tracked_ns, world_from_camera) = self.last?;
-        let dt_s = capture_ns.saturating_sub(tracked_ns) as f64 * 1e-9;
-        if !(max_lost_s > 0.0 && self.lost_s(capture_ns) <= max_lost_s && dt_s <= max_lost_s) {
-            return None;
-        }
-        let predicted = renormalized(world_from_camera * exp_se3(&(self.velocity_at_loss * dt_s)));
-        Some(Candidate {
-            ranked: Ranked {
-                distance: 0,
-                index: LAST_POSE_CANDIDATE,
-                shift: 0,
-            },
-            world_from_camera: predicted,
-            yaw_rad: Some(0.0),
-            score: f32::INFINITY,
-        })
     }
 
     /// [`Self::try_reloc_candidate`] for `candidate` (a rival is verified
@@ -615,7 +558,6 @@ impl Localizer {
                     .as_ref()
                     .map_or(candidate.world_from_camera, |(v, _)| v.world_from_camera),
                 from_landmarks: candidate.ranked.index == LANDMARK_CANDIDATE,
-                from_last_pose: candidate.ranked.index == LAST_POSE_CANDIDATE,
                 accepted: found.is_some(),
             };
         }
@@ -809,17 +751,16 @@ impl Localizer {
     /// pose goes out (none: at once).
     fn accept_relocalization(
         &mut self,
-        (v, kf, at_last_pose): (Verified, Box<Keyframe>, bool),
+        v: Verified,
+        kf: Box<Keyframe>,
         capture_ns: u64,
         verify_frames: u32,
     ) {
-        self.accepted_at_last_pose = at_last_pose;
         let old = std::mem::replace(&mut self.keyframe, kf);
         self.worker.recycle(old);
         self.stats.keyframes += 1;
         self.last = Some((capture_ns, v.world_from_camera));
         self.velocity = nalgebra::Vector6::zeros();
-        self.velocity_at_loss = nalgebra::Vector6::zeros();
         self.tracked_run = 0;
         self.verify_left = verify_frames;
         if self.verify_left == 0 {
@@ -830,9 +771,9 @@ impl Localizer {
     }
 }
 
-/// Candidates one attempt can hold: the last pose, the landmark pose and
-/// the views of the two view steps (near the last position, the whole map).
-const MAX_ATTEMPT_CANDIDATES: usize = 2 * MAX_TOP_K + 2;
+/// Candidates one attempt can hold: the landmark pose and the views of
+/// the two view steps (near the last position, the whole map).
+const MAX_ATTEMPT_CANDIDATES: usize = 2 * MAX_TOP_K + 1;
 /// How far apart two passing poses must be to be two places, m (the
 /// remembered symmetries; `reloc::rivals::RIVAL_MIN_M`).
 const AMBIGUITY_RADIUS_M: f64 = crate::reloc::rivals::RIVAL_MIN_M;
@@ -847,18 +788,11 @@ fn gather(
     reloc: &mut Relocalizer,
     (aligner, pyramid): (&mut Aligner, &Pyramid),
     source: Source,
-    (landmark, last_pose): (Option<Candidate>, Option<Candidate>),
+    landmark: Option<Candidate>,
     query: &Query,
     out: &mut [Candidate],
 ) -> usize {
     match source {
-        Source::LastPose => match (last_pose, out.first_mut()) {
-            (Some(c), Some(slot)) => {
-                *slot = c;
-                1
-            }
-            _ => 0,
-        },
         Source::Landmark => match (landmark, out.first_mut()) {
             (Some(c), Some(slot)) => {
                 *slot = c;

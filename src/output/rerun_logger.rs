@@ -335,8 +335,6 @@ impl Logger {
         let labels = candidates.iter().map(|c| {
             let source = if c.from_landmarks {
                 "landmarks"
-            } else if c.from_last_pose {
-                "last pose"
             } else {
                 "view"
             };

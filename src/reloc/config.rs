@@ -178,11 +178,6 @@ pub struct RelocConfig {
     /// Within this time of the failure, ordinary tracking may resume on its
     /// own; afterwards only an accepted relocalization restarts it, seconds.
     pub resume_window_s: f64,
-    /// Within this time of the last tracked frame, the first relocalization
-    /// attempt after a loss tries that pose after the landmark pose, carried to the lost frame at the velocity
-    /// tracking had when it was lost ([`super::prior::Source::LastPose`]),
-    /// seconds; 0 turns it off.
-    pub last_pose_max_lost_s: f64,
     /// A relocalization attempt tries no new candidate after this long,
     /// seconds (0: no limit): by then its frame is stale, and the next
     /// attempt starts from a fresh one. The landmark pose is always tried.
@@ -262,7 +257,6 @@ impl Default for RelocConfig {
             track_min_local_correlation_lowest: 0.2,
             verify_frames: 1,
             resume_window_s: 0.2,
-            last_pose_max_lost_s: 1.0,
             attempt_budget_s: 0.5,
             landmark_spacing_m: 0.5,
             landmark_heights_m: vec![1.4],
@@ -321,7 +315,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 35] = [
+        let checks: [(&'static str, bool, String); 34] = [
             (
                 "yaw_steps",
                 (1..=360).contains(&self.yaw_steps),
@@ -526,14 +520,6 @@ impl RelocConfig {
                 "resume_window_s",
                 self.resume_window_s.is_finite() && self.resume_window_s >= 0.0,
                 format!("expected >= 0, found {}", self.resume_window_s),
-            ),
-            (
-                "last_pose_max_lost_s",
-                self.last_pose_max_lost_s.is_finite() && self.last_pose_max_lost_s >= 0.0,
-                format!(
-                    "expected >= 0 (0: off), found {}",
-                    self.last_pose_max_lost_s
-                ),
             ),
         ];
         for (key, ok, reason) in checks {

@@ -80,8 +80,7 @@ pub use grid::{above_floor, AlongTrajectory, BuildError};
 pub use prior::MotionPrior;
 pub use region::SearchRegion;
 pub use search::{
-    Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE, LAST_POSE_CANDIDATE,
-    MAX_TOP_K,
+    Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K,
 };
 pub use verify::{
     passes_gate, passes_resume_gate, passes_whole_gate, start_yaws_rad, try_candidate,

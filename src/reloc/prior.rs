@@ -106,14 +106,6 @@ pub fn yaw_rad(world_from_camera: &Pose) -> Option<f64> {
 /// Where one step of an attempt draws its candidates from.
 #[derive(Debug, Clone, Copy)]
 pub enum Source {
-    /// The last tracked pose, carried to the lost frame by the
-    /// constant-velocity prediction: one candidate (one render), which the
-    /// service tries after the landmark pose and before the views while
-    /// the loss is short
-    /// (`[reloc] last_pose_max_lost_s`): a loss on a true pose (a test's false
-    /// alarm) is verified back at once. Not in [`sources`]: `star bench
-    /// reloc` draws its prior around the truth, not from a tracked pose.
-    LastPose,
     /// The landmark pose (features matched to the map's landmarks, PnP):
     /// one candidate, from [`landmark_regions`].
     Landmark,

@@ -84,11 +84,6 @@ pub const MAX_TOP_K: usize = 64;
 /// database entry).
 pub const LANDMARK_CANDIDATE: u32 = u32::MAX - 1;
 
-/// [`Ranked::index`] of the candidate at the last tracked pose, carried to
-/// the lost frame by the constant-velocity prediction (the service's
-/// [`super::prior::Source::LastPose`]; not a database entry).
-pub const LAST_POSE_CANDIDATE: u32 = u32::MAX - 2;
-
 /// Fewest stored coarse points a candidate needs to be aligned when
 /// ranking (fewer score lowest).
 const COARSE_MIN_POINTS: usize = 30;

@@ -177,27 +177,16 @@ pub fn run(fx: &Fixture, ds: &Dataset) -> OfflineReport {
 pub fn run_with(
     fx: &Fixture,
     ds: &Dataset,
-    options: OfflineOptions,
-    database: bool,
-) -> OfflineReport {
-    run_with_config(fx, ds, &fx.config, options, database)
-}
-
-/// [`run_with`] under `config` instead of the fixture's own.
-pub fn run_with_config(
-    fx: &Fixture,
-    ds: &Dataset,
-    config: &Config,
     mut options: OfflineOptions,
     database: bool,
 ) -> OfflineReport {
     let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
     let renderer = Box::new(CpuRenderer::new(Arc::new(mesh)).expect("renderer"));
     if database {
-        let reloc = Relocalizer::new(fx.db.clone(), &config.reloc, ds.camera()).expect("reloc");
+        let reloc = Relocalizer::new(fx.db.clone(), &fx.config.reloc, ds.camera()).expect("reloc");
         options.relocalizer = Some(reloc);
     }
-    localize_dataset(ds, renderer, config, &options, |_| {}).expect("localize")
+    localize_dataset(ds, renderer, &fx.config, &options, |_| {}).expect("localize")
 }
 
 /// Writes a dataset at `dir` whose frame `i` is the image `frame(i).0` with

@@ -301,8 +301,6 @@ impl Bench {
                 candidates.extend(landmark);
                 0.0
             }
-            // The service's step only (`reloc::prior::sources` never gives it).
-            Source::LastPose => 0.0,
             Source::Views(region) => {
                 let t_rank = Instant::now();
                 let ranked = self.reloc.search_ranked(
