@@ -18,6 +18,7 @@
 //! while tracking.
 
 pub mod config;
+pub mod continuity;
 pub mod policy;
 mod relocalize;
 pub mod worker;
@@ -31,6 +32,7 @@ use crate::render::Renderer;
 use crate::track::TrackerConfig;
 use crate::track::{AlignQuality, Aligner, Keyframe, Pyramid};
 
+use continuity::{Continuity, CORRELATION_MEAN_WEIGHT};
 use worker::{RenderRequest, RenderWorker};
 
 /// Errors from the STAR loop. Bad frames are rejected without changing state.
@@ -291,19 +293,18 @@ pub struct Localizer {
     /// against (request to swap-in, camera time), seconds: how far ahead
     /// of the camera the next one is rendered.
     render_latency_s: f64,
-    /// Consecutive tracked frames up to the previous one: the velocity is
-    /// measured (not zero, decayed or from across a gap) from 2 on.
+    /// Consecutive tracked frames up to the previous one (the keyframe
+    /// lead renders ahead from 2 on).
     tracked_run: u32,
+    /// Whether the velocity is measured, and the local contrast's running
+    /// mean (`lost_local_correlation_drop`): kept over a short loss.
+    continuity: Continuity,
     /// Running mean of the correlation over the frames tracked since the
     /// last loss (`None` right after one): the reference of the lost
     /// test's correlation drop.
     correlation_mean: Option<f32>,
-    /// Running mean of the local contrast correlation over the frames
-    /// tracked (`lost_local_correlation_drop`), and the last frame's.
-    local_mean: Option<f32>,
+    /// The last frame's local contrast correlation (`NaN`: not measured).
     last_local: f32,
-    /// Frames in `local_mean` since it (re)started.
-    local_frames: u32,
     state: TrackState,
     reset_counter: u8,
     stats: LoopStats,
@@ -381,10 +382,9 @@ impl Localizer {
             velocity: nalgebra::Vector6::zeros(),
             render_latency_s: 0.0,
             tracked_run: 0,
+            continuity: Continuity::new(),
             correlation_mean: None,
-            local_mean: None,
             last_local: f32::NAN,
-            local_frames: 0,
             state: TrackState::Tracking,
             reset_counter: 0,
             stats: LoopStats {
@@ -424,6 +424,7 @@ impl Localizer {
     pub fn forget_motion(&mut self) {
         self.velocity = nalgebra::Vector6::zeros();
         self.tracked_run = 0;
+        self.continuity.reset();
     }
 
     /// What the last relocalization attempt tried (the attempt whose
@@ -505,7 +506,8 @@ impl Localizer {
         let (max_jump_m, max_jump_deg) = if verifying {
             (f64::INFINITY, f64::INFINITY) // bounded by the search (two grid spacings)
         } else {
-            self.policy.jump_limits(dt_s, self.tracked_run >= 2)
+            self.policy
+                .jump_limits(dt_s, self.continuity.motion_known())
         };
         let world_from_camera =
             self.keyframe.world_from_keyframe * result.camera_from_keyframe.inverse();
@@ -587,7 +589,7 @@ impl Localizer {
                     correlation = q.correlation,
                     correlation_mean = self.correlation_mean,
                     local = self.last_local,
-                    local_mean = self.local_mean,
+                    local_mean = self.continuity.local_mean().0,
                     jump_m,
                     jump_deg,
                     "tracking lost"
@@ -620,14 +622,14 @@ impl Localizer {
             self.stats.lost_frames += 1;
             // Keep predicting from the last good pose. The vehicle moves on
             // as it did for a short loss (a frame refused by the jump test,
-            // an occluder passing); over a longer one the velocity decays.
-            if self.lost_s(capture_ns) > SHORT_LOSS_S {
+            // an occluder passing), and the local contrast's running mean
+            // stays the reference for the frames after it ([`continuity`]);
+            // over a longer one the velocity decays.
+            if self.continuity.lost(self.lost_s(capture_ns)) {
                 self.velocity *= 0.5;
             }
             self.tracked_run = 0;
             self.correlation_mean = None;
-            self.local_mean = None;
-            self.local_frames = 0;
             let attempts = self.stats.reloc_attempts;
             if self.reloc.is_some() && self.reloc_due(capture_ns) {
                 self.relocalize(pixels, stride, capture_ns);
@@ -641,13 +643,8 @@ impl Localizer {
             let step = log_se3(&(world_from_camera_prev.inverse() * world_from_camera));
             self.velocity = step / dt_s;
         }
+        self.continuity.tracked(dt_s, self.last_local);
         self.tracked_run = self.tracked_run.saturating_add(1);
-        if self.last_local.is_finite() {
-            self.local_frames = self.local_frames.saturating_add(1);
-            self.local_mean = Some(self.local_mean.map_or(self.last_local, |mean| {
-                mean + CORRELATION_MEAN_WEIGHT * (self.last_local - mean)
-            }));
-        }
         self.correlation_mean = Some(self.correlation_mean.map_or(q.correlation, |mean| {
             mean + CORRELATION_MEAN_WEIGHT * (q.correlation - mean)
         }));
@@ -727,15 +724,12 @@ impl Localizer {
     }
 }
 
-/// Weight of each tracked frame in the running mean of the correlation
-/// (about the last ten frames count).
-const CORRELATION_MEAN_WEIGHT: f32 = 0.1;
-
 /// Frames the local contrast's running mean must cover before
 /// `lost_local_correlation_drop` reads it: right after a start or a resume
 /// the first frame sits on its keyframe's pose, and its local contrast is
 /// the highest the next frames will see (`realistic` seed 12: 0.78, then
-/// 0.51 two frames later).
+/// 0.51 two frames later). A short loss keeps the mean
+/// ([`continuity::Continuity::lost`]).
 const LOCAL_MEAN_MIN_FRAMES: u32 = 10;
 
 /// Weight of each keyframe in the running mean of the render latency.
@@ -744,9 +738,6 @@ const RENDER_LATENCY_WEIGHT: f64 = 0.3;
 /// Most a keyframe is rendered ahead of the camera, seconds: at 2 m/s, 30
 /// cm, about what the keyframe policy lets the camera move from one.
 const MAX_RENDER_LEAD_S: f64 = 0.15;
-
-/// A loss shorter than this keeps predicting at the last velocity.
-const SHORT_LOSS_S: f64 = 0.2;
 
 fn pose_is_finite(p: &Pose) -> bool {
     p.translation.vector.iter().all(|v| v.is_finite())

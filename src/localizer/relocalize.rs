@@ -172,7 +172,7 @@ impl Localizer {
             local0 = at0.map(|c| c.1),
             local1 = ncc.map(|c| c.1),
             local2 = at2.map(|c| c.1),
-            local_mean = self.local_mean,
+            local_mean = self.continuity.local_mean().0,
             "tracking correlation"
         );
         self.last_local = local;
@@ -180,7 +180,7 @@ impl Localizer {
         // a stale keyframe loses local contrast before anything else.
         let dropped = local_dropped(
             self.policy.lost_local_correlation_drop,
-            (self.local_mean, self.local_frames),
+            self.continuity.local_mean(),
             local,
         );
         let check = if dropped {
@@ -190,7 +190,7 @@ impl Localizer {
         } else if local
             < local_floor(
                 config,
-                (self.local_mean, self.local_frames),
+                self.continuity.local_mean(),
                 self.policy.lost_local_correlation_drop,
             )
         {
@@ -762,6 +762,7 @@ impl Localizer {
         self.last = Some((capture_ns, v.world_from_camera));
         self.velocity = nalgebra::Vector6::zeros();
         self.tracked_run = 0;
+        self.continuity.reset();
         self.verify_left = verify_frames;
         if self.verify_left == 0 {
             self.confirm_relocalization();
