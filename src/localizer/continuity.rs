@@ -9,8 +9,7 @@
 //! over a longer loss, at a relocalization, and at a start. On `aggressive
 //! --scanned` seed 1, a resume that reset both let the next frames drift
 //! 8-14 cm off within the widened limits and the drop test's warm-up
-//! (docs/building-scale.md, "Short losses keep the motion and the
-//! contrast").
+//! (docs/benchmarks.md, "Short losses keep the motion and the contrast").
 
 /// A loss shorter than this keeps the velocity (and the vehicle is
 /// predicted to move on at it), seconds.
