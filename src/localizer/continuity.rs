@@ -6,7 +6,8 @@
 //! flies on: the velocity across the gap is measured between two tracked
 //! frames over a longer baseline, and the scene's contrast from before the
 //! loss is still the reference for the frames after it. Both are forgotten
-//! over a longer loss, at a relocalization, and at a start. On `aggressive
+//! over a longer loss, at a relocalization, and at a start; a gap in the
+//! frame stream forgets the motion only. On `aggressive
 //! --scanned` seed 1, a resume that reset both let the next frames drift
 //! 8-14 cm off within the widened limits and the drop test's warm-up
 //! (docs/benchmarks.md, "Short losses keep the motion and the contrast").
@@ -88,8 +89,16 @@ impl Continuity {
         true
     }
 
-    /// The pose was set from outside tracking (a relocalization, a gap in
-    /// the frame stream): nothing carries over.
+    /// The velocity was set to zero (a gap in the frame stream): the
+    /// motion is unknown until two tracked frames measure it again. The
+    /// local contrast's mean stays: the scene has not changed.
+    pub fn forget_motion(&mut self) {
+        self.last_tracked = false;
+        self.velocity_measured = false;
+    }
+
+    /// The pose was set from outside tracking (a relocalization): nothing
+    /// carries over.
     pub fn reset(&mut self) {
         *self = Self::new();
     }
@@ -163,6 +172,21 @@ mod tests {
         // The verification frame's velocity is from the candidate's pose,
         // not from a tracked frame.
         c.tracked(FRAME_S, 0.7);
+        assert!(!c.motion_known());
+        c.tracked(FRAME_S, 0.7);
+        assert!(c.motion_known());
+    }
+
+    #[test]
+    fn a_gap_in_the_stream_forgets_the_motion_only() {
+        let mut c = settled();
+        let before = c.local_mean();
+        c.forget_motion();
+        assert!(!c.motion_known());
+        assert_eq!(c.local_mean(), before);
+        // The first frame after the gap is predicted at zero velocity; the
+        // second at the velocity it measured.
+        c.tracked(1.0, 0.7);
         assert!(!c.motion_known());
         c.tracked(FRAME_S, 0.7);
         assert!(c.motion_known());

@@ -424,7 +424,7 @@ impl Localizer {
     pub fn forget_motion(&mut self) {
         self.velocity = nalgebra::Vector6::zeros();
         self.tracked_run = 0;
-        self.continuity.reset();
+        self.continuity.forget_motion();
     }
 
     /// What the last relocalization attempt tried (the attempt whose
