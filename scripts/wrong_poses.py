@@ -21,6 +21,7 @@ import argparse
 import csv
 import math
 import re
+import signal
 import sys
 
 import numpy as np
@@ -134,4 +135,5 @@ def main():
 
 
 if __name__ == "__main__":
+    signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # quiet under `| head`
     main()
