@@ -671,27 +671,21 @@ impl Localizer {
         out.world_from_camera = Some(world_from_camera);
         out.covariance = adj * cov_delta * adj.transpose();
 
-        // Where the camera will be when a keyframe requested now arrives,
-        // at the measured velocity: the policy asks for one early enough
-        // that it arrives before the view has moved past its limits, and
-        // it is rendered there.
-        let lead_s = if self.tracked_run >= 2 {
-            self.render_latency_s.min(MAX_RENDER_LEAD_S)
-        } else {
-            0.0
-        };
-        let camera_from_camera_ahead = exp_se3(&(self.velocity * lead_s));
         if !self.pending
-            && policy::needs_keyframe(
-                &self.policy,
-                &self.keyframe,
-                &result,
-                keyframe_age_s,
-                &camera_from_camera_ahead.inverse(),
-            )
+            && policy::needs_keyframe(&self.policy, &self.keyframe, &result, keyframe_age_s)
         {
+            // Rendered where the camera will be when the keyframe arrives,
+            // at the measured velocity: a keyframe that trails a fast
+            // camera overlaps it less and lets the alignment drift.
+            let lead_s = if self.tracked_run >= 2 {
+                self.render_latency_s.min(MAX_RENDER_LEAD_S)
+            } else {
+                0.0
+            };
             let requested = self.worker.try_request(RenderRequest {
-                world_from_keyframe: renormalized(world_from_camera * camera_from_camera_ahead),
+                world_from_keyframe: renormalized(
+                    world_from_camera * exp_se3(&(self.velocity * lead_s)),
+                ),
                 id: self.next_keyframe_id,
                 requested_at_ns: capture_ns,
             });
