@@ -130,3 +130,87 @@ fn checking_geometric_twins_allocates_nothing() {
         assert!(t.score >= star::map::repeats::MIN_SCORE, "{t:?}");
     }
 }
+
+/// A map whose every landmark has an exact twin 20 m away (a look-alike
+/// room, as the `building` preset repeats its designs): every match's
+/// runner-up is at the other place, so the ratio test refuses them all.
+/// The second pass hands every match to RANSAC and finds the pose, at the
+/// place or at its twin (which the gate and the rival rule then judge),
+/// without allocating.
+#[test]
+fn the_landmark_pose_is_found_where_every_corner_has_a_twin() {
+    let mesh = common::room::textured_room();
+    let camera = PinholeCamera::new(320, 256, 210.0, 210.0, 159.5, 127.5);
+    let config = RelocConfig {
+        grid_spacing_m: 1.5,
+        heights_m: vec![1.2],
+        yaw_steps: 4,
+        pitches_deg: vec![-10.0],
+        landmark_spacing_m: 1.0,
+        landmark_heights_m: vec![1.2],
+        landmark_yaw_steps: 8,
+        floor_z_m: Some(0.0),
+        ..RelocConfig::default()
+    };
+    let mut renderer = CpuRenderer::new(Arc::new(mesh.clone())).expect("renderer");
+    let db = build_database(&mesh, &camera, &mut renderer, &config, &mut |_, _| {}).expect("db");
+    const TWIN_X_M: f32 = 20.0;
+    let mut twinned = db.landmarks.clone();
+    twinned.extend(
+        db.landmarks
+            .iter()
+            .map(|l| star::reloc::landmarks::Landmark {
+                world_m: [l.world_m[0] + TWIN_X_M, l.world_m[1], l.world_m[2]],
+                descriptor: l.descriptor,
+            }),
+    );
+    let mut single = LandmarkLocator::new(&camera, &config, &db.landmarks, &db.vocabulary);
+    let mut locator = LandmarkLocator::new(&camera, &config, &twinned, &db.vocabulary);
+
+    let pose = Pose::from_parts(
+        Translation3::new(2.7, 2.3, 1.3),
+        camera_rotation(0.4, (-8f64).to_radians(), 0.0),
+    );
+    let mut view = RenderedView::for_camera(&camera);
+    renderer.render(&pose, &camera, &mut view).expect("render");
+    let frame: Vec<u8> = view
+        .gray
+        .data()
+        .iter()
+        .map(|&g| g.clamp(0.0, 255.0) as u8)
+        .collect();
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    // The map without twins: found in the first pass.
+    let alone = single
+        .locate(&frame, w, h, w, SearchRegion::Everywhere)
+        .expect("a landmark pose in the map without twins");
+    assert!(
+        (pose.inverse() * alone.world_from_camera)
+            .translation
+            .vector
+            .norm()
+            < 0.1
+    );
+
+    locator.locate(&frame, w, h, w, SearchRegion::Everywhere); // warm-up
+    start_counting();
+    let found = locator.locate(&frame, w, h, w, SearchRegion::Everywhere);
+    let allocations = stop_counting();
+    assert_eq!(allocations, 0, "allocations while locating");
+    let found = found.expect("a landmark pose although every corner has a twin");
+    let t = found.world_from_camera.translation.vector;
+    let at_twin = t.x > (TWIN_X_M / 2.0) as f64;
+    let truth = if at_twin {
+        pose.translation.vector + Vector3::new(TWIN_X_M as f64, 0.0, 0.0)
+    } else {
+        pose.translation.vector
+    };
+    assert!(
+        (t - truth).norm() < 0.1,
+        "the pose {t:?} is neither the place nor its twin"
+    );
+    let rotation_deg = (pose.rotation.inverse() * found.world_from_camera.rotation)
+        .angle()
+        .to_degrees();
+    assert!(rotation_deg < 3.0, "{rotation_deg} deg off");
+}

@@ -16,11 +16,28 @@
 //! Online side ([`LandmarkLocator`]): the frame's features, each matched to
 //! its nearest landmark by Hamming distance among those
 //! [`super::landmark_index`] searches (near the last position, or the
-//! vocabulary's leaves over the whole map), with a ratio test that ignores
-//! runner-ups at the same place, undistorted to normalized coordinates and
-//! handed to RANSAC P3P ([`super::pnp`]). The pose it gives is only a
-//! candidate: it is rendered and verified through the same gate as the
-//! database views. After [`LandmarkLocator::new`] nothing here allocates.
+//! vocabulary's leaves over the whole map), undistorted to normalized
+//! coordinates and handed to RANSAC P3P ([`super::pnp`]). The pose it
+//! gives is only a candidate: it is rendered and verified through the same
+//! gate as the database views. After [`LandmarkLocator::new`] nothing here
+//! allocates.
+//!
+//! **Where the ratio test gives nothing.** Lowe's test (the best match
+//! clearly nearer than the best at another place) refuses every corner
+//! that the map repeats: in a floor of look-alike rooms a corner's twin
+//! in the next room matches as well, so on the scanned 22-room floor 225
+//! of the 282 features per frame that had a landmark within
+//! [`RelocConfig::landmark_max_hamming_bits`] were refused, and the
+//! landmark pose came for 3 of 50 cold starts. So each region is tried in
+//! two passes: the matches that pass the ratio test (few and clean: one
+//! pass of 1 000 hypotheses, as before), then, when they give no pose,
+//! every match within that distance, with up to [`PNP_MAX_ITERATIONS`]
+//! hypotheses for the lower inlier ratio. The largest consistent set is
+//! the place or one of its twins, and the gate, the rival rule and the
+//! twin checks judge it as any candidate. Every match in one pass cost
+//! the closed-world floor (exact twins) 40 ms of cold start, where the
+//! ratio test already found a pose for 56 of 100; handing RANSAC the best
+//! *and* the second match (both twins) lost poses (docs/building-scale.md).
 
 use std::collections::HashMap;
 
@@ -52,11 +69,17 @@ const MAX_PER_VOXEL: usize = 4;
 /// within this fraction of the center's (not on a silhouette).
 const DEPTH_EDGE_FRACTION: f32 = 0.03;
 /// Lowe's ratio: the best match must be this much nearer than the best
-/// match elsewhere.
+/// match elsewhere (the first pass).
 const MATCH_RATIO: f32 = 0.8;
 /// Landmarks nearer than this to the best match are the same place for
 /// the ratio test, meters.
 const SAME_PLACE_M: f32 = 0.15;
+/// RANSAC hypotheses of the second pass, at most (fewer once the
+/// confidence is reached). Without the ratio test a frame in a look-alike
+/// room hands RANSAC one match in five or fewer at the right place: 1000
+/// hypotheses found the pose on the scanned floor for 5 of 50 cold
+/// starts, 5000 for 9 (docs/building-scale.md).
+const PNP_MAX_ITERATIONS: usize = 5000;
 /// RANSAC inlier bound, pixels at the camera's focal length.
 const PNP_THRESHOLD_PX: f64 = 3.0;
 /// Near a known position, the landmarks searched are those within the
@@ -265,7 +288,7 @@ impl Clone for LandmarkLocator {
         Self::with_parts(
             &self.camera,
             &self.feature_params,
-            self.params.clone(),
+            self.params,
             self.max_hamming,
             self.index.clone(),
             self.positions_m.clone(),
@@ -286,6 +309,7 @@ impl LandmarkLocator {
         let params = PnpParams {
             threshold: PNP_THRESHOLD_PX / focal_px.max(1.0),
             min_inliers: config.landmark_min_inliers as usize,
+            max_iterations: PNP_MAX_ITERATIONS,
             ..PnpParams::default()
         };
         Self::with_parts(
@@ -415,55 +439,103 @@ impl LandmarkLocator {
                 }
                 SearchRegion::Everywhere => self.index.best_two_everywhere(queries, out),
             }
-            self.world_m.clear();
-            self.normalized.clear();
-            let c = &self.camera;
-            for (k, &(best_d, best_i, second_d, second_i)) in
-                keypoints[..n].iter().zip(&self.matches)
-            {
-                if best_d > self.max_hamming {
-                    continue;
-                }
-                let Some(&best_m) = self.positions_m.get(best_i as usize) else {
-                    continue;
-                };
-                let same_place = self.positions_m.get(second_i as usize).is_some_and(|p| {
-                    let d2: f32 = (0..3).map(|i| (p[i] - best_m[i]).powi(2)).sum();
-                    d2 < SAME_PLACE_M * SAME_PLACE_M
-                });
-                if !same_place && best_d as f32 >= MATCH_RATIO * second_d as f32 {
-                    continue;
-                }
-                let xd = Vector2::new((k.x_px as f64 - c.cx) / c.fx, (k.y_px as f64 - c.cy) / c.fy);
-                let Some(xn) = c.distortion.undistort(xd) else {
-                    continue;
-                };
-                self.world_m.push(Vector3::new(
-                    best_m[0] as f64,
-                    best_m[1] as f64,
-                    best_m[2] as f64,
-                ));
-                self.normalized.push(xn);
-            }
             self.calls += 1;
             let seed = 0x5354_4152_504e_5000 ^ self.calls;
-            let Some(found) = self
-                .pnp
-                .solve(&self.world_m, &self.normalized, &self.params, seed)
-            else {
-                continue;
-            };
-            if !region.contains(&found.world_from_camera.translation.vector) {
-                continue;
+            // First the matches that pass the ratio test, as few and as
+            // clean as they come; then, where those give no pose, every
+            // match, with more hypotheses (see the module docs).
+            let mut strict_kept = 0;
+            for strict in [true, false] {
+                let kept = collect_matches(
+                    &keypoints[..n],
+                    &self.matches[..n],
+                    &self.positions_m,
+                    self.max_hamming,
+                    &self.camera,
+                    strict,
+                    &mut self.world_m,
+                    &mut self.normalized,
+                );
+                let (params, seed) = if strict {
+                    strict_kept = kept;
+                    (self.params, seed)
+                } else if kept == strict_kept {
+                    // The ratio test refused nothing: the same matches.
+                    continue;
+                } else {
+                    let params = PnpParams {
+                        max_iterations: PNP_MAX_ITERATIONS,
+                        ..self.params
+                    };
+                    (params, seed.rotate_left(17) ^ 0x0041_4c4c)
+                };
+                let Some(found) = self
+                    .pnp
+                    .solve(&self.world_m, &self.normalized, &params, seed)
+                else {
+                    continue;
+                };
+                if !region.contains(&found.world_from_camera.translation.vector) {
+                    continue;
+                }
+                return Some(Located {
+                    world_from_camera: found.world_from_camera,
+                    inliers: found.inliers,
+                    matches: kept,
+                });
             }
-            return Some(Located {
-                world_from_camera: found.world_from_camera,
-                inliers: found.inliers,
-                matches: self.world_m.len(),
-            });
         }
         None
     }
+}
+
+/// Fills `world_m` and `normalized` with the matched landmarks and the
+/// undistorted feature directions of `keypoints`, one per feature whose
+/// nearest landmark (`matches`: best and second distance and index) is
+/// within `max_hamming`; with `ratio_test`, only those whose runner-up at
+/// another place is clearly farther ([`MATCH_RATIO`]). Gives how many.
+#[allow(clippy::too_many_arguments)]
+fn collect_matches(
+    keypoints: &[super::features::Keypoint],
+    matches: &[(u32, u32, u32, u32)],
+    positions_m: &[[f32; 3]],
+    max_hamming: u32,
+    camera: &PinholeCamera,
+    ratio_test: bool,
+    world_m: &mut Vec<Vector3<f64>>,
+    normalized: &mut Vec<Vector2<f64>>,
+) -> usize {
+    world_m.clear();
+    normalized.clear();
+    let c = camera;
+    for (k, &(best_d, best_i, second_d, second_i)) in keypoints.iter().zip(matches) {
+        if best_d > max_hamming {
+            continue;
+        }
+        let Some(&best_m) = positions_m.get(best_i as usize) else {
+            continue;
+        };
+        if ratio_test {
+            let same_place = positions_m.get(second_i as usize).is_some_and(|p| {
+                let d2: f32 = (0..3).map(|i| (p[i] - best_m[i]).powi(2)).sum();
+                d2 < SAME_PLACE_M * SAME_PLACE_M
+            });
+            if !same_place && best_d as f32 >= MATCH_RATIO * second_d as f32 {
+                continue;
+            }
+        }
+        let xd = Vector2::new((k.x_px as f64 - c.cx) / c.fx, (k.y_px as f64 - c.cy) / c.fy);
+        let Some(xn) = c.distortion.undistort(xd) else {
+            continue;
+        };
+        world_m.push(Vector3::new(
+            best_m[0] as f64,
+            best_m[1] as f64,
+            best_m[2] as f64,
+        ));
+        normalized.push(xn);
+    }
+    world_m.len()
 }
 
 #[cfg(test)]

@@ -207,7 +207,7 @@ fn frame(u: &Vector3<f64>, v: &Vector3<f64>) -> Matrix3<f64> {
 }
 
 /// Settings of [`RansacPnp::solve`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PnpParams {
     /// Most RANSAC hypotheses (3-point samples); fewer once `confidence` is
     /// reached for the best inlier ratio so far.
