@@ -29,10 +29,11 @@
 //! of the 282 features per frame that had a landmark within
 //! [`RelocConfig::landmark_max_hamming_bits`] were refused, and the
 //! landmark pose came for 3 of 50 cold starts. So each region is tried in
-//! two passes: the matches that pass the ratio test (few and clean: one
-//! pass of 1 000 hypotheses, as before), then, when they give no pose,
-//! every match within that distance, with up to [`PNP_MAX_ITERATIONS`]
-//! hypotheses for the lower inlier ratio. The largest consistent set is
+//! two passes: the matches that pass the ratio test (few and clean), then,
+//! when they give no pose, every match within that distance. RANSAC may
+//! draw up to [`PNP_MAX_ITERATIONS`] hypotheses in either (was 1 000), for
+//! the second pass's lower inlier ratio; on clean matches it stops much
+//! earlier, once its confidence is reached. The largest consistent set is
 //! the place or one of its twins, and the gate, the rival rule and the
 //! twin checks judge it as any candidate. Every match in one pass cost
 //! the closed-world floor (exact twins) 40 ms of cold start, where the
@@ -74,7 +75,7 @@ const MATCH_RATIO: f32 = 0.8;
 /// Landmarks nearer than this to the best match are the same place for
 /// the ratio test, meters.
 const SAME_PLACE_M: f32 = 0.15;
-/// RANSAC hypotheses of the second pass, at most (fewer once the
+/// RANSAC hypotheses of the landmark pose, at most (fewer once the
 /// confidence is reached). Without the ratio test a frame in a look-alike
 /// room hands RANSAC one match in five or fewer at the right place: 1000
 /// hypotheses found the pose on the scanned floor for 5 of 50 cold
@@ -456,22 +457,18 @@ impl LandmarkLocator {
                     &mut self.world_m,
                     &mut self.normalized,
                 );
-                let (params, seed) = if strict {
+                let seed = if strict {
                     strict_kept = kept;
-                    (self.params, seed)
+                    seed
                 } else if kept == strict_kept {
                     // The ratio test refused nothing: the same matches.
                     continue;
                 } else {
-                    let params = PnpParams {
-                        max_iterations: PNP_MAX_ITERATIONS,
-                        ..self.params
-                    };
-                    (params, seed.rotate_left(17) ^ 0x0041_4c4c)
+                    seed.rotate_left(17) ^ 0x0041_4c4c
                 };
-                let Some(found) = self
-                    .pnp
-                    .solve(&self.world_m, &self.normalized, &params, seed)
+                let Some(found) =
+                    self.pnp
+                        .solve(&self.world_m, &self.normalized, &self.params, seed)
                 else {
                     continue;
                 };
