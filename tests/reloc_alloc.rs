@@ -20,8 +20,17 @@ use star::render::{RenderedView, Renderer};
 #[global_allocator]
 static GLOBAL: CountingAlloc = CountingAlloc;
 
-#[test]
-fn locating_from_landmarks_allocates_nothing() {
+/// The textured room, its database (landmarks every metre), and a frame
+/// rendered at a pose inside it, 8-bit.
+struct Fixture {
+    camera: PinholeCamera,
+    config: RelocConfig,
+    db: star::reloc::RelocDatabase,
+    pose: Pose,
+    frame: Vec<u8>,
+}
+
+fn fixture() -> Fixture {
     let mesh = common::room::textured_room();
     let camera = PinholeCamera::new(320, 256, 210.0, 210.0, 159.5, 127.5);
     let config = RelocConfig {
@@ -37,9 +46,6 @@ fn locating_from_landmarks_allocates_nothing() {
     };
     let mut renderer = CpuRenderer::new(Arc::new(mesh.clone())).expect("renderer");
     let db = build_database(&mesh, &camera, &mut renderer, &config, &mut |_, _| {}).expect("db");
-    assert!(db.landmarks.len() > 50 && !db.vocabulary.is_empty());
-    let mut locator = LandmarkLocator::new(&camera, &config, &db.landmarks, &db.vocabulary);
-
     let pose = Pose::from_parts(
         Translation3::new(2.7, 2.3, 1.3),
         camera_rotation(0.4, (-8f64).to_radians(), 0.0),
@@ -52,6 +58,27 @@ fn locating_from_landmarks_allocates_nothing() {
         .iter()
         .map(|&g| g.clamp(0.0, 255.0) as u8)
         .collect();
+    Fixture {
+        camera,
+        config,
+        db,
+        pose,
+        frame,
+    }
+}
+
+#[test]
+fn locating_from_landmarks_allocates_nothing() {
+    let Fixture {
+        camera,
+        config,
+        db,
+        pose,
+        frame,
+    } = fixture();
+    assert!(db.landmarks.len() > 50 && !db.vocabulary.is_empty());
+    let mut locator = LandmarkLocator::new(&camera, &config, &db.landmarks, &db.vocabulary);
+
     let (w, h) = (camera.width as usize, camera.height as usize);
     let near = SearchRegion::Near {
         center_m: Vector3::new(2.5, 2.5, 1.2),
@@ -139,21 +166,13 @@ fn checking_geometric_twins_allocates_nothing() {
 /// without allocating.
 #[test]
 fn the_landmark_pose_is_found_where_every_corner_has_a_twin() {
-    let mesh = common::room::textured_room();
-    let camera = PinholeCamera::new(320, 256, 210.0, 210.0, 159.5, 127.5);
-    let config = RelocConfig {
-        grid_spacing_m: 1.5,
-        heights_m: vec![1.2],
-        yaw_steps: 4,
-        pitches_deg: vec![-10.0],
-        landmark_spacing_m: 1.0,
-        landmark_heights_m: vec![1.2],
-        landmark_yaw_steps: 8,
-        floor_z_m: Some(0.0),
-        ..RelocConfig::default()
-    };
-    let mut renderer = CpuRenderer::new(Arc::new(mesh.clone())).expect("renderer");
-    let db = build_database(&mesh, &camera, &mut renderer, &config, &mut |_, _| {}).expect("db");
+    let Fixture {
+        camera,
+        config,
+        db,
+        pose,
+        frame,
+    } = fixture();
     const TWIN_X_M: f32 = 20.0;
     let mut twinned = db.landmarks.clone();
     twinned.extend(
@@ -167,18 +186,6 @@ fn the_landmark_pose_is_found_where_every_corner_has_a_twin() {
     let mut single = LandmarkLocator::new(&camera, &config, &db.landmarks, &db.vocabulary);
     let mut locator = LandmarkLocator::new(&camera, &config, &twinned, &db.vocabulary);
 
-    let pose = Pose::from_parts(
-        Translation3::new(2.7, 2.3, 1.3),
-        camera_rotation(0.4, (-8f64).to_radians(), 0.0),
-    );
-    let mut view = RenderedView::for_camera(&camera);
-    renderer.render(&pose, &camera, &mut view).expect("render");
-    let frame: Vec<u8> = view
-        .gray
-        .data()
-        .iter()
-        .map(|&g| g.clamp(0.0, 255.0) as u8)
-        .collect();
     let (w, h) = (camera.width as usize, camera.height as usize);
     // The map without twins: found in the first pass.
     let alone = single
