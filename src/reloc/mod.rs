@@ -84,5 +84,5 @@ pub use search::{
 };
 pub use verify::{
     passes_gate, passes_resume_gate, passes_whole_gate, start_yaws_rad, try_candidate,
-    verify_candidate, Verdict, Verified,
+    verify_candidate, Verdict, Verified, PRECISE_START_SKIPPED_LEVELS,
 };

@@ -185,6 +185,16 @@ const START_OFFSETS: [(f64, f64); 9] = [
 /// Coarse starts finished at full resolution.
 const FINISHED_STARTS: usize = 2;
 
+/// Pyramid levels a precise start (one start, no yaw search: the landmark
+/// pose, a render at an aligned pose) is aligned without, coarsest first.
+/// Relocalization's pyramids have one level more than tracking's
+/// ([`crate::track::build_config`]) for the database views' basin. On 4
+/// scanned rooms (`star bench reloc`, `STAR_BENCH_VERBOSE=1`), 6 of 20
+/// frames aligned from a keyframe rendered at their true pose ended
+/// 0.11-1.0 m off with that level, where an unmapped pillar filled a fifth
+/// of the view, and 1-2.5 cm off without it (docs/building-scale.md).
+pub const PRECISE_START_SKIPPED_LEVELS: usize = 1;
+
 /// Aligns `frame` against `keyframe`. Coarse to fine: first every start
 /// (the keyframe pose turned by each of `start_yaws_rad` about the camera's
 /// vertical axis, moved by each of [`START_OFFSETS`] and, with several
@@ -243,9 +253,20 @@ pub fn verify_candidate(
     // Finish the best starts at full resolution: each aligned and gated on
     // its own aligner, then judged in order.
     let [first, second] = &mut *aligners;
+    let skip_coarsest = if search {
+        0
+    } else {
+        PRECISE_START_SKIPPED_LEVELS
+    };
     let finish = |aligner: &mut Aligner, s: &Scored| {
         (s.score != f32::NEG_INFINITY).then(|| {
-            let a = aligner.align(keyframe, frame, camera, s.camera_from_keyframe);
+            let a = aligner.align_without_coarsest(
+                keyframe,
+                frame,
+                camera,
+                s.camera_from_keyframe,
+                skip_coarsest,
+            );
             let world_from_camera = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
             let finite = world_from_camera
                 .translation

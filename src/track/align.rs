@@ -134,12 +134,62 @@ impl Aligner {
         camera_from_keyframe: Pose,
         finest_level: usize,
     ) -> Alignment {
-        let n_levels = keyframe
+        self.align_levels(
+            keyframe,
+            frame,
+            camera,
+            camera_from_keyframe,
+            finest_level,
+            0,
+        )
+    }
+
+    /// [`Self::align`] without the `skip_coarsest` coarsest levels (at
+    /// least one level is kept). Relocalization builds its pyramids one
+    /// level coarser than tracking, for the wider basin its database views
+    /// need; a start already within a few centimeters (the landmark pose,
+    /// a render at an aligned pose) has no use for it, and there an
+    /// unmapped object that fills a fifth of the view outweighs the map
+    /// at 40x32 pixels.
+    pub fn align_without_coarsest(
+        &mut self,
+        keyframe: &Keyframe,
+        frame: &Pyramid,
+        camera: &PinholeCamera,
+        camera_from_keyframe: Pose,
+        skip_coarsest: usize,
+    ) -> Alignment {
+        self.align_levels(
+            keyframe,
+            frame,
+            camera,
+            camera_from_keyframe,
+            0,
+            skip_coarsest,
+        )
+    }
+
+    /// Coarse to fine, from the coarsest level less `skip_coarsest` down to
+    /// `finest_level`.
+    fn align_levels(
+        &mut self,
+        keyframe: &Keyframe,
+        frame: &Pyramid,
+        camera: &PinholeCamera,
+        camera_from_keyframe: Pose,
+        finest_level: usize,
+        skip_coarsest: usize,
+    ) -> Alignment {
+        let all_levels = keyframe
             .levels
             .len()
             .min(frame.len())
             .min(self.config.pyramid_levels as usize)
             .min(MAX_LEVELS);
+        let n_levels = all_levels
+            .saturating_sub(skip_coarsest)
+            .max(1)
+            .min(all_levels);
         let mut pose = camera_from_keyframe;
         let (mut a, mut b) = (1.0f32, 0.0f32);
         let mut quality = AlignQuality::default();

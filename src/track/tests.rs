@@ -242,3 +242,37 @@ fn all_black_frame_is_not_a_confident_pose() {
     assert!(t.iter().all(|v| v.is_finite()));
     let _ = Vector3::<f64>::zeros();
 }
+
+#[test]
+fn a_precise_start_aligns_without_the_coarsest_levels() {
+    let s = setup(config());
+    let cam = camera();
+    let truth = pose([0.01, -0.008, 0.01], [0.3, -0.2, 0.25]);
+    let img = camera_image(&truth, &cam, 1.1, 4.0);
+    let mut pyr = Pyramid::new(cam.width as usize, cam.height as usize, 3);
+    pyr.fill_from_u8(&img, cam.width as usize);
+    let mut aligner = Aligner::new(&s.config);
+    let full = aligner.align(&s.keyframe, &pyr, &cam, Pose::identity());
+    assert!(full.quality.points_used[2] > 0, "{:?}", full.quality);
+    for skip in [1, 2, 5] {
+        let a = aligner.align_without_coarsest(&s.keyframe, &pyr, &cam, Pose::identity(), skip);
+        // The skipped levels saw no points; level 0 is always aligned.
+        let kept = 3usize.saturating_sub(skip).max(1);
+        for level in kept..3 {
+            assert_eq!(
+                a.quality.points_used[level], 0,
+                "skip {skip}: {:?}",
+                a.quality
+            );
+        }
+        assert!(a.quality.points_used[0] > 0, "skip {skip}: {:?}", a.quality);
+        assert!(a.valid, "skip {skip}");
+        let err = truth.inverse() * a.camera_from_keyframe.inverse();
+        assert!(
+            err.translation.vector.norm() < 2e-3 && err.rotation.angle().to_degrees() < 0.1,
+            "skip {skip}: {:.4} m {:.3} deg",
+            err.translation.vector.norm(),
+            err.rotation.angle().to_degrees()
+        );
+    }
+}

@@ -1,6 +1,8 @@
 //! Diagnostics of a whole-map query (`STAR_BENCH_VERBOSE=1`): would the
 //! database entry nearest the truth have been accepted, had retrieval found
-//! it; how the frame aligns against a keyframe rendered at the truth itself;
+//! it; how the frame aligns against a keyframe rendered at the truth itself
+//! (from the truth, as a precise start is aligned), and how it correlates
+//! there unaligned;
 //! where each candidate was. `STAR_BENCH_DUMP=DIR` also writes the frame.
 
 use crate::geometry::Pose;
@@ -94,7 +96,14 @@ impl Bench {
                 .is_ok()
             {
                 kf.prepare(&self.kview, query.truth, 0, &self.tracker);
-                let a = self.aligners[0].align(&kf, &self.pyramid, &self.camera, Pose::identity());
+                // As a precise start is aligned ([`crate::reloc::verify_candidate`]).
+                let a = self.aligners[0].align_without_coarsest(
+                    &kf,
+                    &self.pyramid,
+                    &self.camera,
+                    Pose::identity(),
+                    crate::reloc::PRECISE_START_SKIPPED_LEVELS,
+                );
                 let q = a.quality;
                 let corr = |level| {
                     crate::track::correlations(
@@ -110,8 +119,27 @@ impl Bench {
                     |c: Option<crate::track::Correlations>| c.map_or(f32::NAN, |c| c.trimmed);
                 let local = |c: Option<crate::track::Correlations>| c.map_or(f32::NAN, |c| c.local);
                 let off = a.camera_from_keyframe.translation.vector.norm();
+                let still = |level| {
+                    crate::track::correlations(
+                        &kf,
+                        &self.pyramid,
+                        &self.camera,
+                        &Pose::identity(),
+                        level,
+                    )
+                };
+                let (s0, s1, s2) = (still(0), still(1), still(2));
+                let unaligned = format!(
+                    "unaligned ncc {:.2}/{:.2}/{:.2} local {:.2}/{:.2}/{:.2}",
+                    s0.map_or(f32::NAN, |c| c.all),
+                    s1.map_or(f32::NAN, |c| c.all),
+                    s2.map_or(f32::NAN, |c| c.all),
+                    local(s0),
+                    local(s1),
+                    local(s2)
+                );
                 at_truth = format!(
-                        "at truth: inliers {:.2} visible {:.2} residual {:.1} ncc {:.2}/{:.2}/{:.2} trimmed {:.2}/{:.2}/{:.2} local {:.2}/{:.2}/{:.2} gain {:.2} off {off:.3} m",
+                        "at truth: inliers {:.2} visible {:.2} residual {:.1} ncc {:.2}/{:.2}/{:.2} trimmed {:.2}/{:.2}/{:.2} local {:.2}/{:.2}/{:.2} gain {:.2} off {off:.3} m; {unaligned}",
                         q.inlier_ratio,
                         q.visible_ratio,
                         q.residual_rms,

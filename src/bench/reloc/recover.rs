@@ -110,8 +110,10 @@ impl Bench {
             .brute_force
             .push(locator.brute_force_comparisons() as f64);
         let mut untimed_ms = t_untimed.elapsed().as_secs_f64() * 1e3;
+        let mut landmark_off = (f64::NAN, f64::NAN);
         let landmark = landmark.map(|(c, found)| {
             let e = query.truth.inverse() * c.world_from_camera;
+            landmark_off = (e.translation.vector.norm(), e.rotation.angle().to_degrees());
             let right =
                 e.translation.vector.norm() <= 0.1 && e.rotation.angle().to_degrees() <= 3.0;
             tally.located += 1;
@@ -248,6 +250,8 @@ impl Bench {
             renders = tally.renders - renders_before,
             rivals = tally.rivals_tried - rivals_before,
             landmark_pose = landmark.is_some(),
+            landmark_off_m = landmark_off.0,
+            landmark_off_deg = landmark_off.1,
             accepted = verdict.is_some(),
             from_landmarks = verdict_from_landmarks,
             truth_x_m = query.position_m.x,
