@@ -189,10 +189,11 @@ const FINISHED_STARTS: usize = 2;
 /// pose, a render at an aligned pose) is aligned without, coarsest first.
 /// Relocalization's pyramids have one level more than tracking's
 /// ([`crate::track::build_config`]) for the database views' basin. On 4
-/// scanned rooms (`star bench reloc`, `STAR_BENCH_VERBOSE=1`), 6 of 20
+/// scanned rooms (`star bench reloc`, `STAR_BENCH_VERBOSE=1`), 15 of 50
 /// frames aligned from a keyframe rendered at their true pose ended
-/// 0.11-1.0 m off with that level, where an unmapped pillar filled a fifth
-/// of the view, and 1-2.5 cm off without it (docs/building-scale.md).
+/// 0.11-1.07 m off with that level, where an unmapped pillar filled a
+/// fifth of the view; without it 49 of 50 stayed within 3 cm
+/// (docs/building-scale.md).
 pub const PRECISE_START_SKIPPED_LEVELS: usize = 1;
 
 /// Aligns `frame` against `keyframe`. Coarse to fine: first every start
