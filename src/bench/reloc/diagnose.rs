@@ -105,30 +105,23 @@ impl Bench {
                     crate::reloc::PRECISE_START_SKIPPED_LEVELS,
                 );
                 let q = a.quality;
-                let corr = |level| {
+                let corr = |camera_from_keyframe: &Pose, level| {
                     crate::track::correlations(
                         &kf,
                         &self.pyramid,
                         &self.camera,
-                        &a.camera_from_keyframe,
+                        camera_from_keyframe,
                         level,
                     )
                 };
-                let (c0, c1, c2) = (corr(0), corr(1), corr(2));
+                let aligned = &a.camera_from_keyframe;
+                let (c0, c1, c2) = (corr(aligned, 0), corr(aligned, 1), corr(aligned, 2));
                 let trimmed =
                     |c: Option<crate::track::Correlations>| c.map_or(f32::NAN, |c| c.trimmed);
                 let local = |c: Option<crate::track::Correlations>| c.map_or(f32::NAN, |c| c.local);
                 let off = a.camera_from_keyframe.translation.vector.norm();
-                let still = |level| {
-                    crate::track::correlations(
-                        &kf,
-                        &self.pyramid,
-                        &self.camera,
-                        &Pose::identity(),
-                        level,
-                    )
-                };
-                let (s0, s1, s2) = (still(0), still(1), still(2));
+                let still = Pose::identity();
+                let (s0, s1, s2) = (corr(&still, 0), corr(&still, 1), corr(&still, 2));
                 let unaligned = format!(
                     "unaligned ncc {:.2}/{:.2}/{:.2} local {:.2}/{:.2}/{:.2}",
                     s0.map_or(f32::NAN, |c| c.all),
