@@ -43,8 +43,16 @@ STILL_FRAMES = 300
 FUSE_WITHIN_S = 1.0
 POSITION_TOL_M = 0.01
 YAW_TOL_DEG = 1.0
-# How old EKF3 may date a sample (VISO_DELAY_MS 10 + transport + jitter).
-MAX_LAG_MS = 150.0
+# How old EKF3 may date samples. Issue 20's defect (the clock switched
+# under the first poses) had EKF3's jitter correction date them at its
+# 500 ms limit. The median is the dating itself (VISO_DELAY_MS 10 + the
+# transport through the tap; 27-38 ms measured, 64 ms in a CI run that
+# 2026-12-02's stop 47 saw); the max allows one scheduling stall of the
+# shared CI machine (176 ms, that run) but not the 500 ms limit.
+MEDIAN_LAG_MS = 100.0
+MAX_LAG_MS = 400.0
+# Samples older than this are counted and printed (not a failure alone).
+SLOW_LAG_MS = 150.0
 
 pytestmark = SKIP
 
@@ -127,6 +135,7 @@ def one_start(star_bin, still, tmp, message="vision_position_estimate"):
             "visp": len(visp),
             "visp_max_lag_ms": max(lags),
             "visp_median_lag_ms": sorted(lags)[len(lags) // 2],
+            "visp_over_150ms": sum(1 for x in lags if x > SLOW_LAG_MS),
             "visp_under_20ms": len(under),
             "visp_under_20ms_by_usec": sum(1 for a, b in under if b[1] - a[1] < 20_000),
         })
@@ -136,7 +145,7 @@ def one_start(star_bin, still, tmp, message="vision_position_estimate"):
 def report(figures):
     keys = ["fused_after_s", "position_err_m", "height_err_m", "yaw_err_deg", "min_usec_gap_ms", "usec_under_20ms",
             "poses",
-            "visp", "visp_max_lag_ms", "visp_median_lag_ms", "visp_under_20ms", "visp_under_20ms_by_usec",
+            "visp", "visp_max_lag_ms", "visp_median_lag_ms", "visp_over_150ms", "visp_under_20ms", "visp_under_20ms_by_usec",
             "own_clock"]
     return "  ".join(f"{k}={figures[k]:.3f}" if isinstance(figures.get(k), float) else f"{k}={figures.get(k)}"
                      for k in keys)
@@ -162,6 +171,8 @@ def problems(figures):
     if not figures["yaw_err_deg"] <= YAW_TOL_DEG:
         found.append(f"EKF yaw {figures['yaw_err_deg']:.2f} deg from star")
     # Issue 20's first defect made EKF3 date samples 500 ms old.
+    if figures.get("visp_median_lag_ms", 0) > MEDIAN_LAG_MS:
+        found.append(f"EKF3 dated the samples {figures['visp_median_lag_ms']:.0f} ms old (median)")
     if figures.get("visp_max_lag_ms", 0) > MAX_LAG_MS:
         found.append(f"EKF3 dated a sample {figures['visp_max_lag_ms']:.0f} ms old")
     return found
@@ -183,7 +194,7 @@ def test_vision_position_estimate_fused_from_the_first_second(star_bin, still, t
     good = sum(1 for f in results if not problems(f))
     print(f"\nSITL: {good} of {STARTS} starts fused within {FUSE_WITHIN_S} s of star's first pose and stayed on "
           f"star's pose (within {POSITION_TOL_M * 100:.0f} cm, {YAW_TOL_DEG} deg), samples dated at most "
-          f"{MAX_LAG_MS:.0f} ms old")
+          f"{MEDIAN_LAG_MS:.0f} ms old (median), {MAX_LAG_MS:.0f} ms (max)")
     bad = {k + 1: problems(f) for k, f in enumerate(results) if problems(f)}
     assert not bad, f"{len(bad)} of {STARTS} starts failed: {bad}"
 
