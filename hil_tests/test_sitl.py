@@ -47,8 +47,8 @@ YAW_TOL_DEG = 1.0
 # under the first poses) had EKF3's jitter correction date them at its
 # 500 ms limit. The median is the dating itself: VISO_DELAY_MS 10 + the
 # transport through the tap; on this VM, idle, 28-33 ms for
-# VISION_POSITION_ESTIMATE and 74 ms for ODOMETRY (twice the bytes at
-# SERIAL1's default 57 600 baud; 64 ms in stop 47's CI run). The max allows
+# VISION_POSITION_ESTIMATE and 74 ms for ODOMETRY (likely its longer message at
+# SERIAL1's default 57 600 baud, not checked; 64 ms in stop 47's CI run). The max allows
 # a scheduling stall of the shared CI machine (176 ms in that run) but not
 # the 500 ms limit.
 MEDIAN_LAG_MS = 150.0
