@@ -10,6 +10,7 @@ mod common;
 use common::reloc_fixture::{fixture, run, spliced, Fixture, FAULT_START, FRAMES};
 use star::dataset::Dataset;
 use star::offline::OfflineReport;
+use star::reloc::landmarks::{Landmark, MatchPass};
 use star::reloc::Relocalizer;
 
 /// Checks the acceptance criteria on a run with a fault in
@@ -150,6 +151,75 @@ fn check_landmarks(fx: &Fixture) {
     assert!(
         close * 10 >= tried * 6,
         "{close} of {tried} within 5 cm / 2 deg"
+    );
+}
+
+/// A room with a twin: every landmark of the fixture's map copied 30 m
+/// along x, leaf by leaf of the vocabulary (as a database stores them).
+/// Each corner's runner-up is now its twin, so the ratio test over the
+/// whole map refuses every one; matched again place by place, the frame
+/// must still give the pose of the room or of its twin, for most frames.
+#[test]
+fn the_landmark_pose_finds_a_room_whose_twin_is_in_the_map() {
+    const TWIN_X_M: f32 = 30.0;
+    let fx = fixture();
+    let ds = Dataset::open(&fx.root).expect("dataset");
+    let camera = ds.camera();
+    let mut db = fx.db.clone();
+    let mut landmarks: Vec<Landmark> = Vec::with_capacity(2 * db.landmarks.len());
+    let mut start = 0usize;
+    for size in db.vocabulary.leaf_sizes.iter_mut() {
+        let leaf = &db.landmarks[start..start + *size as usize];
+        landmarks.extend_from_slice(leaf);
+        landmarks.extend(leaf.iter().map(|l| Landmark {
+            world_m: [l.world_m[0] + TWIN_X_M, l.world_m[1], l.world_m[2]],
+            descriptor: l.descriptor,
+        }));
+        start += *size as usize;
+        *size *= 2;
+    }
+    assert_eq!(start, db.landmarks.len(), "leaves cover the landmarks");
+    db.landmarks = landmarks;
+    let mut reloc = Relocalizer::new(db, &fx.config.reloc, camera).expect("reloc");
+    let (mut tried, mut close, mut from_places) = (0, 0, 0);
+    for i in (10..FRAMES).step_by(19) {
+        let frame = ds.load_frame(i).expect("frame");
+        tried += 1;
+        let truth = fx.gt.poses[i];
+        let found = reloc.landmark_candidate(
+            frame.data(),
+            frame.width(),
+            frame.height(),
+            frame.width(),
+            &[star::reloc::SearchRegion::Everywhere],
+        );
+        let Some((candidate, located)) = found else {
+            eprintln!("twin landmarks frame {i}: no pose");
+            continue;
+        };
+        let mut pose = candidate.world_from_camera;
+        let in_twin =
+            pose.translation.vector.x > truth.translation.vector.x + 0.5 * TWIN_X_M as f64;
+        if in_twin {
+            pose.translation.vector.x -= TWIN_X_M as f64;
+        }
+        let e = truth.inverse() * pose;
+        let (err_m, err_deg) = (e.translation.vector.norm(), e.rotation.angle().to_degrees());
+        close += usize::from(err_m < 0.05 && err_deg < 2.0);
+        from_places += usize::from(located.pass == MatchPass::Place);
+        eprintln!(
+            "twin landmarks frame {i}: {:?}, in the twin: {in_twin}, {err_m:.3} m / {err_deg:.2} deg from the truth, {} inliers of {} matches",
+            located.pass, located.inliers, located.matches
+        );
+    }
+    assert!(tried >= 8, "{tried} frames");
+    assert!(
+        close * 10 >= tried * 6,
+        "{close} of {tried} within 5 cm / 2 deg of the room or its twin"
+    );
+    assert!(
+        from_places * 10 >= tried * 6,
+        "{from_places} of {tried} from the places (the ratio test refuses every corner)"
     );
 }
 

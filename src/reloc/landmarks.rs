@@ -29,16 +29,25 @@
 //! of the 282 features per frame that had a landmark within
 //! [`RelocConfig::landmark_max_hamming_bits`] were refused, and the
 //! landmark pose came for 3 of 50 cold starts. So each region is tried in
-//! two passes: the matches that pass the ratio test (few and clean), then,
-//! when they give no pose, every match within that distance. RANSAC may
-//! draw up to [`PNP_MAX_ITERATIONS`] hypotheses in either (was 1 000), for
-//! the second pass's lower inlier ratio; on clean matches it stops much
-//! earlier, once its confidence is reached. The largest consistent set is
-//! the place or one of its twins, and the gate, the rival rule and the
-//! twin checks judge it as any candidate. Every match in one pass cost
-//! the closed-world floor (exact twins) 40 ms of cold start, where the
-//! ratio test already found a pose for 56 of 100; handing RANSAC the best
-//! *and* the second match (both twins) lost poses (docs/building-scale.md).
+//! three passes ([`MatchPass`]):
+//! 1. the matches that pass the ratio test (few and clean);
+//! 2. when they give no pose, the places where the region's matches, best
+//!    and runner-up, gather on the floor plan ([`super::places`]): each
+//!    place's own landmarks (within [`PLACE_REACH_M`] of it) are matched
+//!    again, so a corner's twin in the next room is out of reach and the
+//!    ratio test keeps the corner; the pose with the most inliers over the
+//!    places, with the ratio test, else without it;
+//! 3. then every match of the region within that distance.
+//!
+//! RANSAC may draw up to [`PNP_MAX_ITERATIONS`] hypotheses in each (was
+//! 1 000), for the lower inlier ratios; on clean matches it stops much
+//! earlier, once its confidence is reached. The pose of a place with a
+//! twin may be the twin's, and the largest consistent set of every match
+//! is the place or one of its twins: the gate, the rival rule and the twin
+//! checks judge it as any candidate. Every match in one pass cost the
+//! closed-world floor (exact twins) 40 ms of cold start, where the ratio
+//! test already found a pose for 56 of 100; handing RANSAC the best *and*
+//! the second match (both twins) lost poses (docs/building-scale.md).
 
 use std::collections::HashMap;
 
@@ -51,6 +60,7 @@ use super::config::RelocConfig;
 use super::descriptor::Descriptor;
 use super::features::{FeatureExtractor, FeatureParams};
 use super::landmark_index::{LandmarkIndex, Probes};
+use super::places::{PlaceVote, MAX_PLACES};
 use super::pnp::{PnpParams, RansacPnp};
 use super::region::SearchRegion;
 use super::vocabulary::Vocabulary;
@@ -87,6 +97,10 @@ const PNP_THRESHOLD_PX: f64 = 3.0;
 /// search radius plus this distance (horizontally, meters): what the
 /// camera can see from inside the radius.
 pub const LANDMARK_VIEW_RANGE_M: f64 = 6.0;
+/// A place of [`PlaceVote`] is matched against the landmarks within this
+/// distance of its center (horizontally, meters): a room's, without its
+/// twin's next door.
+const PLACE_REACH_M: f32 = 4.0;
 
 /// One landmark.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -253,6 +267,20 @@ pub struct Located {
     pub inliers: usize,
     /// Matches tried.
     pub matches: usize,
+    /// Which matches gave it.
+    pub pass: MatchPass,
+}
+
+/// Which matches a landmark pose came from (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MatchPass {
+    /// The region's matches that pass the ratio test.
+    RatioTest,
+    /// The matches of one place where the region's matches gather, each
+    /// matched again against that place's landmarks only.
+    Place,
+    /// Every match of the region within the Hamming bound.
+    Every,
 }
 
 /// Finds a frame's pose from the landmarks (the online side).
@@ -271,6 +299,10 @@ pub struct LandmarkLocator {
     /// The frame's descriptors and their best two matches.
     query: Vec<Descriptor>,
     matches: Vec<(u32, u32, u32, u32)>,
+    /// The region's matches, while the places are matched.
+    region_matches: Vec<(u32, u32, u32, u32)>,
+    /// Where the matches gather.
+    places: PlaceVote,
     /// Corners of the last frame.
     n_query: usize,
     calls: u64,
@@ -332,6 +364,7 @@ impl LandmarkLocator {
         positions_m: Vec<[f32; 3]>,
     ) -> Self {
         let n = feature_params.max_features;
+        let places = PlaceVote::new(&positions_m, 2 * n);
         Self {
             extractor: FeatureExtractor::new(
                 camera.width as usize,
@@ -349,6 +382,8 @@ impl LandmarkLocator {
             normalized: Vec::with_capacity(n),
             query: vec![Descriptor::default(); n],
             matches: vec![(u32::MAX, u32::MAX, u32::MAX, u32::MAX); n],
+            region_matches: vec![(u32::MAX, u32::MAX, u32::MAX, u32::MAX); n],
+            places,
             n_query: 0,
             calls: 0,
         }
@@ -443,43 +478,112 @@ impl LandmarkLocator {
             self.calls += 1;
             let seed = 0x5354_4152_504e_5000 ^ self.calls;
             // First the matches that pass the ratio test, as few and as
-            // clean as they come; then, where those give no pose, every
-            // match, with more hypotheses (see the module docs).
-            let mut strict_kept = 0;
-            for strict in [true, false] {
-                let kept = collect_matches(
-                    &keypoints[..n],
-                    &self.matches[..n],
-                    &self.positions_m,
-                    self.max_hamming,
-                    &self.camera,
-                    strict,
-                    &mut self.world_m,
-                    &mut self.normalized,
-                );
-                let seed = if strict {
-                    strict_kept = kept;
-                    seed
-                } else if kept == strict_kept {
-                    // The ratio test refused nothing: the same matches.
+            // clean as they come; then the places the matches gather at,
+            // each on its own; then every match (see the module docs).
+            let (found, strict_kept) = self.solve_pass(n, true, MatchPass::RatioTest, seed);
+            if let Some(found) =
+                found.filter(|f| region.contains(&f.world_from_camera.translation.vector))
+            {
+                return Some(found);
+            }
+            if let Some(found) = self.solve_places(n, region, seed) {
+                return Some(found);
+            }
+            self.matches[..n].copy_from_slice(&self.region_matches[..n]);
+            let (found, kept) = self.solve_pass(
+                n,
+                false,
+                MatchPass::Every,
+                seed.rotate_left(17) ^ 0x0041_4c4c,
+            );
+            if kept == strict_kept {
+                // The ratio test refused nothing: the same matches.
+                continue;
+            }
+            if let Some(found) =
+                found.filter(|f| region.contains(&f.world_from_camera.translation.vector))
+            {
+                return Some(found);
+            }
+        }
+        None
+    }
+
+    /// RANSAC PnP on the current matches (with or without the ratio
+    /// test): the pose, if any, and how many matches it was given.
+    fn solve_pass(
+        &mut self,
+        n: usize,
+        strict: bool,
+        pass: MatchPass,
+        seed: u64,
+    ) -> (Option<Located>, usize) {
+        let keypoints = self.extractor.keypoints();
+        let n = n.min(keypoints.len());
+        let kept = collect_matches(
+            &keypoints[..n],
+            &self.matches[..n],
+            &self.positions_m,
+            self.max_hamming,
+            &self.camera,
+            strict,
+            &mut self.world_m,
+            &mut self.normalized,
+        );
+        let found = self
+            .pnp
+            .solve(&self.world_m, &self.normalized, &self.params, seed)
+            .map(|found| Located {
+                world_from_camera: found.world_from_camera,
+                inliers: found.inliers,
+                matches: kept,
+                pass,
+            });
+        (found, kept)
+    }
+
+    /// The places where the region's matches (best and runner-up) gather
+    /// ([`PlaceVote`]), each matched again on its own landmarks, with the
+    /// ratio test and then without: the pose with the most inliers inside
+    /// `region`. Keeps the region's matches in `region_matches`.
+    fn solve_places(&mut self, n: usize, region: &SearchRegion, seed: u64) -> Option<Located> {
+        self.region_matches[..n].copy_from_slice(&self.matches[..n]);
+        for &(best_d, best_i, second_d, second_i) in &self.matches[..n] {
+            for (d, i) in [(best_d, best_i), (second_d, second_i)] {
+                if d > self.max_hamming {
                     continue;
-                } else {
-                    seed.rotate_left(17) ^ 0x0041_4c4c
-                };
+                }
+                if let Some(p) = self.positions_m.get(i as usize) {
+                    self.places.vote(p);
+                }
+            }
+        }
+        let min_votes = self.params.min_inliers as u32;
+        let n_places = self.places.places(min_votes).len();
+        let mut centers = [Vector2::<f32>::zeros(); MAX_PLACES];
+        for (c, p) in centers.iter_mut().zip(self.places.places_found()) {
+            *c = p.center_m;
+        }
+        for strict in [true, false] {
+            let mut best: Option<Located> = None;
+            for (k, center) in centers[..n_places].iter().enumerate() {
+                let queries = &self.query[..n];
+                let out = &mut self.matches[..n];
+                self.index
+                    .best_two_near(queries, [center.x, center.y], PLACE_REACH_M, out);
+                let place_seed = seed.rotate_left(29) ^ ((k as u64) << 8) ^ u64::from(strict);
+                let (found, _) = self.solve_pass(n, strict, MatchPass::Place, place_seed);
                 let Some(found) =
-                    self.pnp
-                        .solve(&self.world_m, &self.normalized, &self.params, seed)
+                    found.filter(|f| region.contains(&f.world_from_camera.translation.vector))
                 else {
                     continue;
                 };
-                if !region.contains(&found.world_from_camera.translation.vector) {
-                    continue;
+                if best.is_none_or(|b| found.inliers > b.inliers) {
+                    best = Some(found);
                 }
-                return Some(Located {
-                    world_from_camera: found.world_from_camera,
-                    inliers: found.inliers,
-                    matches: kept,
-                });
+            }
+            if best.is_some() {
+                return best;
             }
         }
         None

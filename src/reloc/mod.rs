@@ -54,6 +54,7 @@ pub mod grid;
 pub mod landmark_index;
 pub mod landmarks;
 pub mod local_contrast;
+pub mod places;
 pub mod pnp;
 pub mod prior;
 pub mod region;

@@ -142,6 +142,11 @@ impl FeatureExtractor {
         &self.params
     }
 
+    /// The keypoints of the last [`Self::extract`].
+    pub fn keypoints(&self) -> &[Keypoint] {
+        &self.keypoints
+    }
+
     /// Keypoints of an 8-bit gray image, `stride` bytes per row, best first
     /// within each level, levels in order. Empty when the image is invalid
     /// (`stride < width`, `pixels` too short) or smaller than the patch.
