@@ -301,6 +301,9 @@ pub struct LandmarkLocator {
     matches: Vec<(u32, u32, u32, u32)>,
     /// The region's matches, while the places are matched.
     region_matches: Vec<(u32, u32, u32, u32)>,
+    /// Each place's own matches, `matches.len()` apart: matched once,
+    /// tried with the ratio test and without.
+    place_matches: Vec<(u32, u32, u32, u32)>,
     /// Where the matches gather.
     places: PlaceVote,
     /// Corners of the last frame.
@@ -383,6 +386,7 @@ impl LandmarkLocator {
             query: vec![Descriptor::default(); n],
             matches: vec![(u32::MAX, u32::MAX, u32::MAX, u32::MAX); n],
             region_matches: vec![(u32::MAX, u32::MAX, u32::MAX, u32::MAX); n],
+            place_matches: vec![(u32::MAX, u32::MAX, u32::MAX, u32::MAX); n * MAX_PLACES],
             places,
             n_query: 0,
             calls: 0,
@@ -518,6 +522,20 @@ impl LandmarkLocator {
         pass: MatchPass,
         seed: u64,
     ) -> (Option<Located>, usize) {
+        self.solve_pass_unless(n, strict, pass, seed, None)
+    }
+
+    /// [`Self::solve_pass`], except that where the matches kept number
+    /// `unless_kept` (the same matches as a pass already tried) RANSAC is
+    /// not run and no pose is given.
+    fn solve_pass_unless(
+        &mut self,
+        n: usize,
+        strict: bool,
+        pass: MatchPass,
+        seed: u64,
+        unless_kept: Option<usize>,
+    ) -> (Option<Located>, usize) {
         let keypoints = self.extractor.keypoints();
         let n = n.min(keypoints.len());
         let kept = collect_matches(
@@ -530,6 +548,9 @@ impl LandmarkLocator {
             &mut self.world_m,
             &mut self.normalized,
         );
+        if unless_kept == Some(kept) {
+            return (None, kept);
+        }
         let found = self
             .pnp
             .solve(&self.world_m, &self.normalized, &self.params, seed)
@@ -545,7 +566,9 @@ impl LandmarkLocator {
     /// The places where the region's matches (best and runner-up) gather
     /// ([`PlaceVote`]), each matched again on its own landmarks, with the
     /// ratio test and then without: the pose with the most inliers inside
-    /// `region`. Keeps the region's matches in `region_matches`.
+    /// `region`. Each place is matched once, for both passes; the pass
+    /// without the ratio test skips a place where the test refused
+    /// nothing. Keeps the region's matches in `region_matches`.
     fn solve_places(&mut self, n: usize, region: &SearchRegion, seed: u64) -> Option<Located> {
         self.region_matches[..n].copy_from_slice(&self.matches[..n]);
         for &(best_d, best_i, second_d, second_i) in &self.matches[..n] {
@@ -564,15 +587,27 @@ impl LandmarkLocator {
         for (c, p) in centers.iter_mut().zip(self.places.places_found()) {
             *c = p.center_m;
         }
+        // Each place's matches once, for both passes.
+        let stride = self.matches.len();
+        for (k, center) in centers[..n_places].iter().enumerate() {
+            let out = &mut self.place_matches[k * stride..k * stride + n];
+            self.index
+                .best_two_near(&self.query[..n], [center.x, center.y], PLACE_REACH_M, out);
+        }
+        // Matches the ratio test kept at each place: where it refused
+        // none, the pass without it has the same matches and is skipped.
+        let mut strict_kept = [usize::MAX; MAX_PLACES];
         for strict in [true, false] {
             let mut best: Option<Located> = None;
-            for (k, center) in centers[..n_places].iter().enumerate() {
-                let queries = &self.query[..n];
-                let out = &mut self.matches[..n];
-                self.index
-                    .best_two_near(queries, [center.x, center.y], PLACE_REACH_M, out);
+            for k in 0..n_places {
+                self.matches[..n].copy_from_slice(&self.place_matches[k * stride..k * stride + n]);
                 let place_seed = seed.rotate_left(29) ^ ((k as u64) << 8) ^ u64::from(strict);
-                let (found, _) = self.solve_pass(n, strict, MatchPass::Place, place_seed);
+                let unless_kept = (!strict).then_some(strict_kept[k]);
+                let (found, kept) =
+                    self.solve_pass_unless(n, strict, MatchPass::Place, place_seed, unless_kept);
+                if strict {
+                    strict_kept[k] = kept;
+                }
                 let Some(found) =
                     found.filter(|f| region.contains(&f.world_from_camera.translation.vector))
                 else {
