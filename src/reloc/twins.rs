@@ -285,6 +285,8 @@ pub fn loose_gate(config: &RelocConfig) -> RelocConfig {
         gate_at_map_detail: true,
         min_correlation: config.min_correlation - LOOSE_MARGIN,
         min_local_correlation: config.min_local_correlation - LOOSE_MARGIN,
+        min_local_correlation_at_map_detail: config.min_local_correlation_at_map_detail
+            - LOOSE_MARGIN,
         ..config.clone()
     }
 }
@@ -301,6 +303,12 @@ mod tests {
         assert!((loose.min_correlation - (strict.min_correlation - LOOSE_MARGIN)).abs() < 1e-6);
         assert!(
             (loose.min_local_correlation - (strict.min_local_correlation - LOOSE_MARGIN)).abs()
+                < 1e-6
+        );
+        assert!(
+            (loose.min_local_correlation_at_map_detail
+                - (strict.min_local_correlation_at_map_detail - LOOSE_MARGIN))
+                .abs()
                 < 1e-6
         );
         assert_eq!(loose.min_gain, strict.min_gain);

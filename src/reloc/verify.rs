@@ -12,7 +12,9 @@
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
 use crate::geometry::{PinholeCamera, Pose};
-use crate::track::correlation::{correlation, min_correlations_from, Correlations};
+use crate::track::correlation::{
+    correlation, min_correlations_and_coarser_local, min_correlations_from, Correlations,
+};
 use crate::track::{AlignQuality, Aligner, Alignment, Keyframe, Pyramid};
 
 use super::config::RelocConfig;
@@ -89,9 +91,9 @@ fn whole_gate_from(
     first_level: usize,
 ) -> Option<Correlations> {
     let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
-    let c = (passes_gate(&a.quality, config) && gain_ok)
+    let both = (passes_gate(&a.quality, config) && gain_ok)
         .then(|| {
-            min_correlations_from(
+            min_correlations_and_coarser_local(
                 keyframe,
                 frame,
                 camera,
@@ -100,8 +102,10 @@ fn whole_gate_from(
             )
         })
         .flatten();
-    let passes = c.is_some_and(|c| {
-        c.all >= config.min_correlation && c.local >= config.min_local_correlation
+    let c = both.map(|(c, _)| c);
+    let passes = both.is_some_and(|(c, coarser_local)| {
+        c.all >= config.min_correlation
+            && local_contrast_passes(&c, coarser_local, first_level, config)
     });
     if tracing::enabled!(target: "star::reloc::gate", tracing::Level::TRACE) {
         let world_from_camera = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
@@ -130,6 +134,33 @@ fn whole_gate_from(
         );
     }
     c.filter(|_| passes)
+}
+
+/// The gate's local-contrast test: the smallest over its three levels
+/// (`c.local`) at least `min_local_correlation`; where the gate starts at
+/// the map's detail (`first_level` above 0), the first level at least
+/// `min_local_correlation_at_map_detail` (when lower) and the two coarser
+/// levels (`coarser_local`) at least `min_local_correlation`; where those
+/// hold no local contrast (`NaN`: a pyramid too short for it), the first
+/// level the whole floor.
+fn local_contrast_passes(
+    c: &Correlations,
+    coarser_local: f32,
+    first_level: usize,
+    config: &RelocConfig,
+) -> bool {
+    if first_level == 0 {
+        return c.local >= config.min_local_correlation;
+    }
+    if coarser_local.is_nan() {
+        // No local contrast above the first level (too few levels): that
+        // level holds the whole floor.
+        return c.local >= config.min_local_correlation;
+    }
+    let first_floor = config
+        .min_local_correlation_at_map_detail
+        .min(config.min_local_correlation);
+    c.local >= first_floor && coarser_local >= config.min_local_correlation
 }
 
 /// The first pyramid level the gate reads: the keyframe's
@@ -658,6 +689,51 @@ mod tests {
         assert_eq!(first_gate_level(&keyframe, &config), 1);
         config.gate_at_map_detail = false;
         assert_eq!(first_gate_level(&keyframe, &config), 0);
+    }
+
+    #[test]
+    fn the_first_level_at_the_maps_detail_has_a_floor_of_its_own() {
+        let config = RelocConfig::default();
+        let with_local = |local: f32| Correlations {
+            all: 0.6,
+            trimmed: 0.6,
+            kept: 0.9,
+            local,
+            local_kept: 0.9,
+        };
+        // From level 0 (a map as fine as the camera) the smallest of the
+        // three levels holds min_local_correlation, as before.
+        assert!(!local_contrast_passes(&with_local(0.6), 0.8, 0, &config));
+        assert!(local_contrast_passes(&with_local(0.75), 0.8, 0, &config));
+        // At the map's detail: a true pose on 4 scanned rooms (0.57 at
+        // level 1, 0.75 and 0.77 above) passes ...
+        assert!(local_contrast_passes(&with_local(0.57), 0.75, 1, &config));
+        // ... the place 2.4 m away (0.59, then 0.66 and 0.70) and the
+        // 13 cm slide (0.24, 0.48, 0.63) do not.
+        assert!(!local_contrast_passes(&with_local(0.59), 0.66, 1, &config));
+        assert!(!local_contrast_passes(&with_local(0.24), 0.48, 1, &config));
+        // The first level's own floor still holds; where the coarser
+        // levels hold no local contrast (NaN), the first holds the whole.
+        assert!(!local_contrast_passes(&with_local(0.45), 0.9, 1, &config));
+        assert!(!local_contrast_passes(
+            &with_local(0.6),
+            f32::NAN,
+            1,
+            &config
+        ));
+        assert!(local_contrast_passes(
+            &with_local(0.75),
+            f32::NAN,
+            1,
+            &config
+        ));
+        // A floor set above min_local_correlation does not raise the gate.
+        let strict = RelocConfig {
+            min_local_correlation_at_map_detail: 0.95,
+            ..config
+        };
+        assert!(local_contrast_passes(&with_local(0.72), 0.8, 1, &strict));
+        assert!(!local_contrast_passes(&with_local(0.69), 0.8, 1, &strict));
     }
 
     #[test]

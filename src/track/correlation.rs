@@ -60,6 +60,41 @@ pub fn min_correlations_from(
     out
 }
 
+/// [`min_correlations_from`], and the smallest local-contrast correlation
+/// over its levels after `first` alone (`NaN` where neither holds one: a
+/// level too near the pyramid's top has no local contrast, and the
+/// minimum skips it as `f32::min` does): for a gate that holds the first
+/// level to a floor of its own.
+pub fn min_correlations_and_coarser_local(
+    keyframe: &Keyframe,
+    frame: &Pyramid,
+    camera: &PinholeCamera,
+    camera_from_keyframe: &Pose,
+    first: usize,
+) -> Option<(Correlations, f32)> {
+    let mut out: Option<Correlations> = None;
+    let mut coarser_local = f32::NAN;
+    for level in first..first + 3 {
+        match correlations(keyframe, frame, camera, camera_from_keyframe, level) {
+            Some(c) => {
+                if level > first {
+                    coarser_local = coarser_local.min(c.local);
+                }
+                out = Some(out.map_or(c, |o| Correlations {
+                    all: o.all.min(c.all),
+                    trimmed: o.trimmed.min(c.trimmed),
+                    kept: o.kept.min(c.kept),
+                    local: o.local.min(c.local),
+                    local_kept: o.local_kept.min(c.local_kept),
+                }));
+            }
+            None if level < first + 2 => return None,
+            None => {}
+        }
+    }
+    out.map(|c| (c, coarser_local))
+}
+
 /// Zero-mean normalized cross-correlation between the keyframe points of
 /// pyramid level `level` and the frame intensities where they project at
 /// `camera_from_keyframe`; `None` with fewer than 50 visible points. A wrong
