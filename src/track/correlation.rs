@@ -41,23 +41,8 @@ pub fn min_correlations_from(
     camera_from_keyframe: &Pose,
     first: usize,
 ) -> Option<Correlations> {
-    let mut out: Option<Correlations> = None;
-    for level in first..first + 3 {
-        match correlations(keyframe, frame, camera, camera_from_keyframe, level) {
-            Some(c) => {
-                out = Some(out.map_or(c, |o| Correlations {
-                    all: o.all.min(c.all),
-                    trimmed: o.trimmed.min(c.trimmed),
-                    kept: o.kept.min(c.kept),
-                    local: o.local.min(c.local),
-                    local_kept: o.local_kept.min(c.local_kept),
-                }));
-            }
-            None if level < first + 2 => return None,
-            None => {}
-        }
-    }
-    out
+    min_correlations_and_coarser_local(keyframe, frame, camera, camera_from_keyframe, first)
+        .map(|(c, _)| c)
 }
 
 /// [`min_correlations_from`], and the smallest local-contrast correlation
