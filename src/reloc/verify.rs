@@ -149,12 +149,9 @@ fn local_contrast_passes(
     first_level: usize,
     config: &RelocConfig,
 ) -> bool {
-    if first_level == 0 {
-        return c.local >= config.min_local_correlation;
-    }
-    if coarser_local.is_nan() {
-        // No local contrast above the first level (too few levels): that
-        // level holds the whole floor.
+    // From level 0, or with no local contrast above the first level (too
+    // few levels), the smallest over the levels holds the whole floor.
+    if first_level == 0 || coarser_local.is_nan() {
         return c.local >= config.min_local_correlation;
     }
     let first_floor = config
