@@ -314,6 +314,11 @@ pub struct Localizer {
     lost_since_ns: Option<u64>,
     /// Frames still to verify after an accepted relocalization.
     verify_left: u32,
+    /// The pose being verified comes from a prior alone (a start hint, or
+    /// the last keyframe without a database), with no rival checked: a
+    /// frame that passes the gate only through its first level's lowered
+    /// floor does not confirm it ([`crate::reloc::Verified::lowered_first_level`]).
+    verify_prior_only: bool,
     /// How long one relocalization attempt may try new candidates, seconds
     /// (0: no limit).
     attempt_budget_s: f64,
@@ -394,6 +399,7 @@ impl Localizer {
             reloc: None,
             lost_since_ns: None,
             verify_left: 0,
+            verify_prior_only: false,
             start_gate: None,
             attempt_budget_s: 0.0,
             last_attempt: RelocAttempt::default(),

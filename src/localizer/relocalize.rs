@@ -92,7 +92,11 @@ impl Localizer {
             config,
             &yaws,
         ) {
-            Verdict::Accepted(v) => Some(v.alignment),
+            // A prior alone does not vouch for a pose through the lowered
+            // floor (see `RivalRule::for_held`).
+            Verdict::Accepted(v) if !(self.verify_prior_only && v.lowered_first_level) => {
+                Some(v.alignment)
+            }
             _ => None,
         }
     }
@@ -233,6 +237,7 @@ impl Localizer {
         self.state = TrackState::Lost;
         self.lost_since_ns = Some(0);
         self.verify_left = if hint { gate.verify_frames + 1 } else { 0 };
+        self.verify_prior_only = hint;
         tracing::info!(
             hint,
             database = self.reloc.is_some(),
@@ -250,6 +255,7 @@ impl Localizer {
         if let Some(gate) = &self.start_gate {
             if self.lost_s(capture_ns) > gate.resume_window_s {
                 self.verify_left = gate.verify_frames + 1;
+                self.verify_prior_only = true;
             }
         }
     }
@@ -388,7 +394,10 @@ impl Localizer {
                     residual = v.alignment.quality.residual_rms,
                     "relocalization candidate passed the gate"
                 );
-                if rule.accepts_alone(&v.world_from_camera) {
+                if rule
+                    .for_held(v.lowered_first_level)
+                    .accepts_alone(&v.world_from_camera)
+                {
                     self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
                     self.reloc = Some(reloc);
                     return;
@@ -402,6 +411,7 @@ impl Localizer {
             self.reloc = Some(reloc);
             return;
         };
+        let rule = rule.for_held(v.lowered_first_level);
         // Away from where the prior can vouch for it (no prior, outside the
         // reach of the last position, or turned beyond the heading bound):
         // held while its rivals among the candidates of every step are
@@ -764,6 +774,7 @@ impl Localizer {
         self.tracked_run = 0;
         self.continuity.reset();
         self.verify_left = verify_frames;
+        self.verify_prior_only = false;
         if self.verify_left == 0 {
             self.confirm_relocalization();
             self.state = TrackState::Tracking;

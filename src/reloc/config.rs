@@ -139,7 +139,15 @@ pub struct RelocConfig {
     /// none read 0.5 at level 1 and 0.7 at both coarser levels (the nearest,
     /// a place 2.4 m away: 0.59, then 0.66 and 0.70; a slide of 13 cm: 0.24,
     /// 0.48, 0.63). docs/building-scale.md, "The gate's first level on a
-    /// scanned map".
+    /// scanned map". A pose that passes only through this floor is never
+    /// accepted on the motion prior alone: its rivals are verified as on a
+    /// cold start ([`crate::reloc::rivals::RivalRule::for_held`]). Accepted
+    /// alone, on the scanned floor of look-alike rooms, a turned look-alike
+    /// 1.4 m and 90 degrees from the truth read 0.53-0.57 there (0.7 or
+    /// more above) and was taken twice in 50 searches near the last
+    /// position, where the true place read 0.88 (docs/building-scale.md,
+    /// "A turned look-alike through the lowered first level"). Set it to
+    /// `min_local_correlation` to turn the split off.
     pub min_local_correlation_at_map_detail: f32,
     /// Acceptance gate: range of the photometric gain (camera / map) of the
     /// candidate alignment. A wrong pose on a look-alike surface fits by

@@ -15,7 +15,8 @@
 //!
 //! - whether that pose may be accepted without rivals
 //!   ([`RivalRule::accepts_alone`]): only within the prior's reach in
-//!   position and heading;
+//!   position and heading, and never a pose that passed the gate only
+//!   through its first level's lowered floor ([`RivalRule::for_held`]);
 //! - how many rivals to verify and how near the best score they must be
 //!   ([`RivalRule::budget`]): [`MAX_RIVALS`] within
 //!   [`RIVAL_SCORE_MARGIN`] without a prior or outside its radius (look-
@@ -138,24 +139,58 @@ impl Budget {
 pub struct RivalRule {
     /// Where the vehicle can be; `None` on a cold start.
     pub prior: Option<MotionPrior>,
+    /// The pose held passed the gate only through its first level's lowered
+    /// floor ([`crate::reloc::Verified::lowered_first_level`]): the prior
+    /// does not vouch for it, and its rivals are verified as on a cold
+    /// start ([`Self::for_held`]).
+    pub lowered: bool,
 }
 
 impl RivalRule {
     /// The rule under `prior` (none: a cold start).
     pub fn new(prior: Option<MotionPrior>) -> Self {
-        Self { prior }
+        Self {
+            prior,
+            lowered: false,
+        }
+    }
+
+    /// The rule for a pose `lowered_first_level` or not ([`Self::lowered`]).
+    ///
+    /// Why: the first level's lowered floor lets true poses on a scanned
+    /// map through where the map's colors are blurred, and a look-alike
+    /// with them. On the scanned floor of look-alike rooms a window search
+    /// took a turned look-alike 1.4 m and 90 degrees from the truth on the
+    /// prior alone (0.53-0.57 at the first level; the true place, 0.88,
+    /// was never tried). Verified against its rivals, the true place
+    /// correlates decisively better.
+    pub fn for_held(&self, lowered_first_level: bool) -> Self {
+        Self {
+            lowered: lowered_first_level,
+            ..*self
+        }
+    }
+
+    /// Whether `pose` lies within the prior's reach, in position and in
+    /// heading ([`MotionPrior::reaches`]); never on a cold start.
+    pub fn prior_reaches(&self, pose: &Pose) -> bool {
+        self.prior.is_some_and(|p| p.reaches(pose))
     }
 
     /// Whether a pose that passed the gate may be accepted without any
-    /// rival check: it lies within the prior's reach, in position and in
-    /// heading ([`MotionPrior::reaches`]).
+    /// rival check: it lies within the prior's reach ([`Self::prior_reaches`])
+    /// and did not pass through the lowered floor ([`Self::lowered`]).
     pub fn accepts_alone(&self, accepted: &Pose) -> bool {
-        self.prior.is_some_and(|p| p.reaches(accepted))
+        !self.lowered && self.prior_reaches(accepted)
     }
 
     /// How many rivals `accepted` must beat, and within what score margin.
     pub fn budget(&self, accepted: &Pose) -> Budget {
         match self.prior {
+            _ if self.lowered => Budget {
+                max: MAX_RIVALS,
+                margin: RIVAL_SCORE_MARGIN,
+            },
             Some(p) if p.reaches(accepted) => Budget {
                 max: 0,
                 margin: 0.0,
@@ -197,7 +232,7 @@ impl RivalRule {
         };
         if !elsewhere(accepted, rival) {
             Judgment::SamePlace
-        } else if self.accepts_alone(rival) && !self.accepts_alone(accepted) {
+        } else if self.prior_reaches(rival) && !self.prior_reaches(accepted) {
             Judgment::PriorChooses
         } else if all_checked && decisive(accepted_correlation, rival_correlation) {
             Judgment::HeldIsBetter
@@ -334,6 +369,44 @@ mod tests {
         let candidates = [at(1, 0.2, 0.9), at(2, -1.0, 0.95)];
         let mut out = [usize::MAX; LISTED_RIVALS];
         assert_eq!(rule.rivals(&candidates, &accepted, &[], &mut out), 0);
+    }
+
+    #[test]
+    fn a_pose_through_the_lowered_floor_is_checked_as_on_a_cold_start() {
+        let rule = near_origin();
+        // The scanned floor's turned look-alike: 1.4 m off, turned 90
+        // degrees, within the prior's reach.
+        let accepted = pose(1.4, 90.0);
+        assert!(rule.accepts_alone(&accepted));
+        let lowered = rule.for_held(true);
+        assert!(!lowered.accepts_alone(&accepted));
+        assert!(lowered.prior_reaches(&accepted));
+        assert_eq!(
+            lowered.budget(&accepted),
+            Budget {
+                max: MAX_RIVALS,
+                margin: RIVAL_SCORE_MARGIN
+            }
+        );
+        // The truth at the origin, scored below the look-alike but within
+        // the cold margin (not the near one), is its rival ...
+        let candidates = [at(1, 1.4, 0.9), at(2, 0.0, 0.7)];
+        let mut out = [usize::MAX; LISTED_RIVALS];
+        let n = lowered.rivals(&candidates, &accepted, &[], &mut out);
+        assert_eq!(&out[..n], &[1]);
+        // ... and where both pass, the place that correlates decisively
+        // better is held; where neither does, the frame is refused.
+        let truth = pose(0.0, 0.0);
+        assert_eq!(
+            lowered.judge((&accepted, 0.68), (&truth, 0.89), true),
+            Judgment::RivalIsBetter
+        );
+        assert_eq!(
+            lowered.judge((&accepted, 0.68), (&truth, 0.72), true),
+            Judgment::Ambiguous
+        );
+        // A pose not through the lowered floor keeps the rule as it was.
+        assert_eq!(rule.for_held(false), rule);
     }
 
     #[test]

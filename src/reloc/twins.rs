@@ -244,11 +244,11 @@ pub fn prior_prefers_a_twin(
     held: &Pose,
     (found, turned): (&[Twin], &[Twin]),
 ) -> bool {
-    !rule.accepts_alone(held)
+    !rule.prior_reaches(held)
         && found
             .iter()
             .chain(turned)
-            .any(|t| rule.accepts_alone(&twin_pose(held, t)))
+            .any(|t| rule.prior_reaches(&twin_pose(held, t)))
 }
 
 /// Relocalization's gate under `config` on a map whose held poses are

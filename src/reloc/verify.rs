@@ -33,6 +33,15 @@ pub struct Verified {
     pub trimmed_correlation: f32,
     /// Smallest fraction of points the trimming kept.
     pub kept: f32,
+    /// It passed only through the first level's lowered floor
+    /// (`min_local_correlation_at_map_detail`): its local contrast there
+    /// is below `min_local_correlation`. Such a pose is never accepted on
+    /// the motion prior alone; its rivals are verified as on a cold start
+    /// ([`crate::reloc::rivals::RivalRule::accepts_alone`]), and a prior
+    /// alone (a start hint) is not confirmed by it. Always false where the
+    /// gate starts at level 0 (a map as fine as the camera) or the floor
+    /// is set to `min_local_correlation`.
+    pub lowered_first_level: bool,
 }
 
 /// True when `q` passes the relocalization gate of `config`.
@@ -358,6 +367,7 @@ pub fn verify_candidate(
                     correlation: ncc.all,
                     trimmed_correlation: ncc.trimmed,
                     kept: ncc.kept,
+                    lowered_first_level: ncc.local < config.min_local_correlation,
                 });
             }
         } else if q.inlier_ratio >= config.refine_min_inlier_ratio
@@ -688,16 +698,32 @@ mod tests {
         assert_eq!(first_gate_level(&keyframe, &config), 0);
     }
 
-    #[test]
-    fn the_first_level_at_the_maps_detail_has_a_floor_of_its_own() {
-        let config = RelocConfig::default();
-        let with_local = |local: f32| Correlations {
+    /// Correlations with this local contrast, the rest passing.
+    fn with_local_of(local: f32) -> Correlations {
+        Correlations {
             all: 0.6,
             trimmed: 0.6,
             kept: 0.9,
             local,
             local_kept: 0.9,
+        }
+    }
+
+    #[test]
+    fn the_first_level_at_the_maps_detail_has_a_floor_of_its_own() {
+        // Set to min_local_correlation, the split is off.
+        let off = RelocConfig {
+            min_local_correlation_at_map_detail: 0.7,
+            ..RelocConfig::default()
         };
+        assert!(!local_contrast_passes(&with_local_of(0.55), 0.75, 1, &off));
+        assert!(!local_contrast_passes(&with_local_of(0.69), 0.8, 1, &off));
+        assert!(local_contrast_passes(&with_local_of(0.71), 0.8, 1, &off));
+        // The default lowers the first level (a pose through it is then
+        // verified against its rivals: `RivalRule::for_held`).
+        let config = RelocConfig::default();
+        assert!(config.min_local_correlation_at_map_detail < config.min_local_correlation);
+        let with_local = with_local_of;
         // From level 0 (a map as fine as the camera) the smallest of the
         // three levels holds min_local_correlation, as before.
         assert!(!local_contrast_passes(&with_local(0.6), 0.8, 0, &config));
@@ -727,7 +753,7 @@ mod tests {
         // A floor set above min_local_correlation does not raise the gate.
         let strict = RelocConfig {
             min_local_correlation_at_map_detail: 0.95,
-            ..config
+            ..config.clone()
         };
         assert!(local_contrast_passes(&with_local(0.72), 0.8, 1, &strict));
         assert!(!local_contrast_passes(&with_local(0.69), 0.8, 1, &strict));

@@ -152,7 +152,13 @@ impl Bench {
         // A pose the prior cannot vouch for: another place that passes the
         // gate as well makes the frame ambiguous, and no pose is given.
         match verdict {
-            Some(v) if self.check_rivals && !rule.accepts_alone(&v.world_from_camera) => {
+            Some(v)
+                if self.check_rivals
+                    && !rule
+                        .for_held(v.lowered_first_level)
+                        .accepts_alone(&v.world_from_camera) =>
+            {
+                let rule = rule.for_held(v.lowered_first_level);
                 // The held keyframe is the last spare one until the next
                 // render: its view's geometric twins now.
                 let mut held_twins = self.twin_check();
