@@ -17,7 +17,7 @@ use rayon::prelude::*;
 
 use super::occlusion::{self, Occlusion};
 use super::raster;
-use super::setup::{Chunk, Clusters, BAND_ROWS};
+use super::setup::{ChunkSetup, Clusters, SetupSlot, BAND_ROWS};
 use super::view::View;
 use crate::map::GrayTexture;
 use crate::render::chunks::{ChunkedMesh, MeshChunk};
@@ -27,22 +27,23 @@ use crate::render::RenderedView;
 /// Runs the two stages on the chunks marked in `visible`: all at once, or,
 /// with `occlusion`, in batches (see the module docs), each later batch without the
 /// chunks and triangles hidden behind what the earlier ones drew
-/// ([`occlusion`]). `out` has been checked against `view`; `tri_order` has
-/// one element per pixel; `in_batch` has one element per chunk (all false)
-/// and `batch` room for every chunk. Returns the chunks and triangles (in
-/// those chunks) the occlusion cull skipped, and the screen triangles
-/// binned.
+/// ([`occlusion`]). `setups` has one element per chunk; each chunk of a
+/// batch is set up in a slot of `pool`, which grows to the largest batch
+/// (slot `k` holds the batch's `k`-th chunk). `out` has been checked
+/// against `view`; `tri_order` has one element per pixel; `batch` has room
+/// for every chunk. Returns the chunks and triangles (in those chunks) the
+/// occlusion cull skipped, and the screen triangles binned.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn draw(
     mesh: &ChunkedMesh,
     textures: &[GrayTexture],
     visible: &[bool],
-    chunks: &mut [Chunk],
+    (setups, pool): (&[ChunkSetup], &mut Vec<SetupSlot>),
     (view, frustum): (&View, Option<&Frustum>),
     tri_order: &mut [u32],
     out: &mut RenderedView,
     occlusion: Option<(&mut Occlusion, [f64; 3])>,
-    (in_batch, batch): (&mut [bool], &mut Vec<u32>),
+    batch: &mut Vec<u32>,
 ) -> (usize, usize, usize) {
     let bands = view.height.div_ceil(BAND_ROWS);
     let mut occlusion = occlusion.map(|(occ, position_m)| {
@@ -103,26 +104,26 @@ pub(super) fn draw(
                 cursor >= order.len()
             }
         };
-        for &i in batch.iter() {
-            if let Some(slot) = in_batch.get_mut(i as usize) {
-                *slot = true;
-            }
+        if pool.len() < batch.len() {
+            // The largest batch so far: the pool grows once to it.
+            pool.resize_with(batch.len(), SetupSlot::default);
         }
+        let slots = &mut pool[..batch.len()];
         let occluders = occlusion
             .as_deref()
             .filter(|_| pass > 0)
             .map(Occlusion::tiles);
         let occ = occlusion.as_deref();
-        chunks
+        slots
             .par_iter_mut()
-            .zip(mesh.chunks.par_iter())
-            .zip(in_batch.par_iter())
-            .enumerate()
-            .with_min_len(64)
-            .for_each(|(i, ((scratch, chunk), &set_up))| {
-                if !set_up {
+            .zip(batch.par_iter())
+            .for_each(|(scratch, &i)| {
+                let i = i as usize;
+                let (Some(chunk), Some(setup)) = (mesh.chunks.get(i), setups.get(i)) else {
+                    // Not a chunk of this mesh: nothing to draw in its slot.
+                    scratch.clear();
                     return;
-                }
+                };
                 // With a coherent first batch, each chunk's clusters the
                 // previous render saw are drawn in it, the rest later.
                 let clusters = match occ {
@@ -138,19 +139,14 @@ pub(super) fn draw(
                 };
                 let first_cluster = occ.map_or(0, |o| o.first_cluster(i));
                 scratch.build(
-                    chunk,
+                    (chunk, setup),
                     mesh,
                     (view, bands),
                     (frustum, occluders),
                     (clusters, first_cluster),
                 );
             });
-        for &i in batch.iter() {
-            if let Some(slot) = in_batch.get_mut(i as usize) {
-                *slot = false;
-            }
-            binned += chunks.get(i as usize).map_or(0, |c| c.tris.len());
-        }
+        binned += slots.iter().map(|c| c.tris.len()).sum::<usize>();
         let stage = (pass == 0, last);
         let band_len = view.width * BAND_ROWS;
         // The bands mark the chunks seen, and fill the occlusion tiles (the
@@ -170,7 +166,7 @@ pub(super) fn draw(
                 None,
             ),
         };
-        let drawn = (&*chunks, batch.as_slice(), seen);
+        let drawn = (&pool[..batch.len()], seen);
         out.gray
             .data_mut()
             .par_chunks_mut(band_len)

@@ -58,7 +58,7 @@ use std::sync::Arc;
 
 use self::batches::draw;
 use self::occlusion::Occlusion;
-use self::setup::{Chunk, NO_TEXTURE};
+use self::setup::{ChunkSetup, SetupSlot, NO_TEXTURE};
 use self::view::{View, NEAR_M};
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
@@ -75,8 +75,13 @@ pub struct CpuRenderer {
     chunked: Arc<ChunkedMesh>,
     /// Dedicated thread pool, or `None` for rayon's global pool.
     pool: Option<rayon::ThreadPool>,
-    /// Setup scratch, one per chunk of `chunked`.
-    chunks: Vec<Chunk>,
+    /// What the setup of each chunk of `chunked` needs (its clusters).
+    setups: Vec<ChunkSetup>,
+    /// Setup scratch: one slot per chunk of the largest batch drawn so far
+    /// (not per chunk of the map: a floor's views set up a few percent of
+    /// its chunks, and a slot holds a chunk's camera-frame vertices and
+    /// screen triangles, about 90 bytes a triangle).
+    slots: Vec<SetupSlot>,
     /// Whether each chunk passed the frustum test in the current render.
     visible: Vec<bool>,
     /// Per pixel, the mesh number of the triangle drawn there (valid where
@@ -93,8 +98,6 @@ pub struct CpuRenderer {
     occlusion_cull: bool,
     /// Scratch of the occlusion cull.
     occlusion: Occlusion,
-    /// Per chunk, whether it is set up in the current batch.
-    in_batch: Vec<bool>,
     /// The chunks of the current batch.
     batch: Vec<u32>,
     /// Screen triangles binned in the last render.
@@ -147,11 +150,11 @@ impl CpuRenderer {
     }
 
     fn on_chunks(mesh: Arc<Mesh>, chunked: Arc<ChunkedMesh>, lod_max_px: f32) -> Self {
-        let chunks: Vec<Chunk> = chunked
+        let setups: Vec<ChunkSetup> = chunked
             .chunks
             .iter()
             .map(|c| {
-                Chunk::new(
+                ChunkSetup::new(
                     c,
                     &chunked,
                     mesh.groups
@@ -162,20 +165,20 @@ impl CpuRenderer {
             })
             .collect();
         let chunked_count = chunked.chunks.len();
-        let occlusion = Occlusion::new(chunks.iter().map(Chunk::cluster_count));
+        let occlusion = Occlusion::new(setups.iter().map(ChunkSetup::cluster_count));
         Self {
             visible: vec![true; chunked.chunks.len()],
             mesh,
             chunked,
             pool: None,
-            chunks,
+            setups,
+            slots: Vec::new(),
             tri_order: Vec::new(),
             cull: true,
             stats: CullStats::default(),
             far_m: None,
             occlusion_cull: true,
             occlusion,
-            in_batch: vec![false; chunked_count],
             batch: Vec::with_capacity(chunked_count),
             binned_triangles: 0,
             lod_max_px,
@@ -339,14 +342,14 @@ impl Renderer for CpuRenderer {
             mesh,
             chunked,
             pool,
-            chunks,
+            setups,
+            slots,
             visible,
             tri_order,
             cull,
             stats,
             occlusion_cull,
             occlusion,
-            in_batch,
             batch,
             binned_triangles,
             lod_max_px,
@@ -369,12 +372,12 @@ impl Renderer for CpuRenderer {
                 chunked,
                 &mesh.textures,
                 visible,
-                chunks,
+                (setups, slots),
                 (&view, cull.then_some(&frustum)),
                 tri_order,
                 out,
                 occlusion.map(|o| (o, position_m)),
-                (in_batch, batch),
+                batch,
             )
         };
         let (hidden_chunks, hidden_triangles, binned) = match pool {

@@ -14,7 +14,7 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use super::setup::{Chunk, ScreenTri, BAND_ROWS, NO_TEXTURE};
+use super::setup::{ScreenTri, SetupSlot, BAND_ROWS, NO_TEXTURE};
 use super::view::SUBPIXEL;
 use crate::map::GrayTexture;
 use crate::render::tiles::{band_tiles, TILE_PX};
@@ -25,9 +25,9 @@ const _: () = assert!(BAND_ROWS % TILE_PX == 0);
 
 /// Draws band `band` (rows `band * BAND_ROWS ..`) of a `width`-wide image
 /// into `gray` and `depth_m` (the band's rows only), with `order` (as many
-/// pixels) as scratch for the depth tie-break: the triangles of the chunks
-/// numbered in `batch` (of `chunks`), marking in `seen` (when given, per
-/// cluster of [`Chunk`]) each cluster of which a triangle wins a pixel's
+/// pixels) as scratch for the depth tie-break: the triangles set up in
+/// `slots` (one chunk each, in the batch's order), marking in `seen` (when
+/// given, per setup cluster of every chunk) each cluster of which a triangle wins a pixel's
 /// depth test; pixels with `1/z` below `min_inv_z`
 /// are not drawn. A render may draw a band in several passes (one per
 /// batch of chunks): `first` clears it, `last` turns its `1/z` into metric
@@ -39,7 +39,7 @@ pub(super) fn draw_band(
     width: usize,
     min_inv_z: f32,
     (first, last): (bool, bool),
-    (chunks, batch, seen): (&[Chunk], &[u32], Option<&[AtomicBool]>),
+    (slots, seen): (&[SetupSlot], Option<&[AtomicBool]>),
     textures: &[GrayTexture],
     gray: &mut [f32],
     depth_m: &mut [f32],
@@ -62,14 +62,10 @@ pub(super) fn draw_band(
         inv_z: depth_m,
         order,
     };
-    for &i in batch {
-        let Some(bin) = chunks
-            .get(i as usize)
-            .and_then(|c| Some((c, c.bins.get(band)?)))
-        else {
+    for chunk in slots {
+        let Some(bin) = chunk.bins.get(band) else {
             continue;
         };
-        let (chunk, bin) = bin;
         for &t in bin {
             if let Some(tri) = chunk.tris.get(t as usize) {
                 if target.draw(tri, textures) {

@@ -45,20 +45,46 @@ pub(super) struct ScreenTri {
     pub bbox: [u16; 4],
 }
 
-/// Scratch of one setup chunk, reused across renders.
-#[derive(Debug, Default)]
-pub(super) struct Chunk {
+/// What the setup of one chunk needs that does not change: fixed at
+/// renderer construction, one per chunk of the map.
+#[derive(Debug)]
+pub(super) struct ChunkSetup {
     /// Texture index of the chunk's group, or [`NO_TEXTURE`].
     texture: u32,
+    /// The chunk's triangles in runs of [`chunks::CLUSTER_TRIS`], each tested
+    /// against the view before its vertices are transformed.
+    clusters: Vec<Cluster>,
+}
+
+impl ChunkSetup {
+    /// The setup of `chunk` (of `mesh`), whose triangles sample `texture`
+    /// (or [`NO_TEXTURE`]).
+    pub fn new(chunk: &MeshChunk, mesh: &ChunkedMesh, texture: u32) -> Self {
+        Self {
+            texture,
+            clusters: chunks::clusters(mesh, chunk),
+        }
+    }
+
+    /// Number of setup clusters.
+    pub fn cluster_count(&self) -> usize {
+        self.clusters.len()
+    }
+}
+
+/// Scratch of one chunk being set up and rasterized: a slot of the
+/// renderer's pool, which holds one per chunk of the largest batch drawn
+/// so far, not one per chunk of the map. Each slot keeps its capacity
+/// across renders: it grows to the largest chunk it has held, and a
+/// render of views like those before allocates nothing.
+#[derive(Debug, Default)]
+pub(super) struct SetupSlot {
     /// The chunk's vertices in the camera frame.
     verts: Vec<CamVertex>,
     /// The chunk's screen triangles.
     pub tris: Vec<ScreenTri>,
     /// Per band, the indices into `tris` of the triangles touching it.
     pub bins: Vec<Vec<u32>>,
-    /// The chunk's triangles in runs of [`chunks::CLUSTER_TRIS`], each tested
-    /// against the view before its vertices are transformed.
-    clusters: Vec<Cluster>,
     /// Per screen triangle, the number of its cluster in the chunk.
     pub tri_cluster: Vec<u8>,
     /// The number of the chunk's first cluster among all chunks' (as the
@@ -98,27 +124,18 @@ struct Projected {
     uv: [f32; 2],
 }
 
-impl Chunk {
-    /// Scratch for `chunk`, whose triangles sample `texture` (or
-    /// [`NO_TEXTURE`]), with room for its camera-frame vertices. (Screen
-    /// triangles and bins grow to what the chunk has shown so far, as the
-    /// first views of a part of the map are drawn.)
-    pub fn new(chunk: &MeshChunk, mesh: &ChunkedMesh, texture: u32) -> Self {
-        let clusters = chunks::clusters(mesh, chunk);
-        Self {
-            texture,
-            verts: Vec::with_capacity(chunk.vertices.len()),
-            clusters,
-            ..Self::default()
+impl SetupSlot {
+    /// Holds no triangles (keeps the capacity).
+    pub fn clear(&mut self) {
+        self.tris.clear();
+        self.tri_cluster.clear();
+        for bin in &mut self.bins {
+            bin.clear();
         }
     }
 
-    /// Number of setup clusters.
-    pub fn cluster_count(&self) -> usize {
-        self.clusters.len()
-    }
-
-    /// Sets up and bins the triangles of `chunk` (of `mesh`) for `view`,
+    /// Sets up and bins the triangles of `chunk` (of `mesh`, its fixed
+    /// part `setup`) for `view`,
     /// cluster by cluster, of the clusters `which` takes: a cluster outside
     /// `frustum` (when given) or hidden behind `occluders` (the depth drawn
     /// so far, per tile) is skipped whole; of the others the vertices are
@@ -127,13 +144,13 @@ impl Chunk {
     /// `first_cluster` the number of the chunk's first cluster.
     pub fn build(
         &mut self,
-        chunk: &MeshChunk,
+        (chunk, setup): (&MeshChunk, &ChunkSetup),
         mesh: &ChunkedMesh,
         (view, bands): (&View, usize),
         (frustum, occluders): (Option<&Frustum>, Option<TileDepth<'_>>),
         (which, first_cluster): (Clusters<'_>, usize),
     ) {
-        let texture = self.texture;
+        let texture = setup.texture;
         self.first_cluster = first_cluster;
         self.tris.clear();
         self.tri_cluster.clear();
@@ -148,18 +165,17 @@ impl Chunk {
             .positions
             .get(first_vertex..chunk.vertices.end as usize)
             .unwrap_or(&[]);
-        // Within capacity: no allocation.
+        // Within capacity once the slot has held a chunk this large.
         self.verts.resize(positions.len(), CamVertex::default());
         // Taken out while `emit` borrows `self`; put back below.
         let mut verts = std::mem::take(&mut self.verts);
-        let clusters = std::mem::take(&mut self.clusters);
         let uv_at = |i: usize| mesh.uvs.get(i).copied().unwrap_or([0.0, 0.0]);
         let (t0, t1) = (chunk.triangles.start as usize, chunk.triangles.end as usize);
         let indices = mesh.indices.get(3 * t0..3 * t1).unwrap_or(&[]);
         let orders = mesh.source_triangle.get(t0..t1).unwrap_or(&[]);
         // The local vertices transformed in this render so far: `done`.
         let mut done = 0..0;
-        for (number, cluster) in clusters.iter().enumerate() {
+        for (number, cluster) in setup.clusters.iter().enumerate() {
             if !which.takes(number) || frustum.is_some_and(|f| !f.intersects(&cluster.bounds)) {
                 continue;
             }
@@ -248,7 +264,6 @@ impl Chunk {
         }
         // Keeps the capacity for the next render.
         self.verts = verts;
-        self.clusters = clusters;
     }
 
     /// Orients, bounds and bins one projected triangle; drops it when it is
