@@ -3,7 +3,9 @@
 //! Takes an `.obj` path (with optional `mtllib` material libraries and
 //! diffuse textures), gives out a validated [`Mesh`] or a [`MapError`] naming
 //! the file and the problem. Parsing goes through `tobj` (triangulated,
-//! single index so positions and uvs share indices); before that a pre-scan
+//! single index so positions and uvs share indices), which reads an object
+//! of more than [`PART_FACES`] faces in parts so that its face buffer stays
+//! small (a vertex two parts share is then a vertex of each); before that a pre-scan
 //! checks face indices and vertex lines so bad files give line-numbered
 //! errors and never reach a panic inside the parser.
 //!
@@ -20,9 +22,10 @@
 //! 0..=255. A `usemtl` naming a material no library defines, or a mesh with
 //! no color at all (no vertex colors, no `Kd`, no texture), loads with a
 //! warning: such surfaces render flat white, which gives the tracker nothing
-//! to align to. The text and the mesh's arrays are reserved with
-//! `try_reserve`, so a mesh too large for memory is a [`MapError::OutOfMemory`]
-//! naming the bytes, not an abort.
+//! to align to. The text is read line by line, twice (checked, then
+//! parsed), never held whole; the mesh's arrays are reserved with
+//! `try_reserve`, so a mesh too large for memory is a
+//! [`MapError::OutOfMemory`] naming the bytes, not an abort.
 
 use std::cell::RefCell;
 use std::collections::HashMap;
@@ -53,27 +56,79 @@ fn reserve<T>(
         })
 }
 
-/// Reads the OBJ text, refusing what is not a regular file (a FIFO would
-/// block) and reserving the text's memory first.
-fn read_obj_text(path: &Path) -> Result<String, MapError> {
-    let read_err = |source| MapError::Read {
+/// Opens the OBJ file for one pass over its lines, refusing what is not
+/// a regular file (a FIFO would block). The text is read twice (checked,
+/// then parsed), never held whole: a 2 cm scan of a floor is 700 MB of it.
+fn open_obj(path: &Path) -> Result<std::io::BufReader<std::fs::File>, MapError> {
+    super::format::check_regular_file(path)?;
+    let file = std::fs::File::open(path).map_err(|source| MapError::Read {
         path: path.to_path_buf(),
         source,
-    };
-    let len_bytes = super::format::check_regular_file(path)?;
-    let mut bytes: Vec<u8> = Vec::new();
-    let len = usize::try_from(len_bytes).unwrap_or(usize::MAX);
-    reserve(&mut bytes, len, path, "the OBJ text")?;
-    std::io::Read::read_to_end(
-        &mut std::fs::File::open(path).map_err(read_err)?,
-        &mut bytes,
-    )
-    .map_err(read_err)?;
-    String::from_utf8(bytes).map_err(|e| MapError::Parse {
+    })?;
+    Ok(std::io::BufReader::with_capacity(1 << 16, file))
+}
+
+/// Longest line accepted, bytes: no OBJ statement comes near it, and a
+/// binary or corrupt file (a terabyte of zeros) is refused at its first
+/// megabyte instead of being read whole as one line.
+pub const MAX_LINE_BYTES: u64 = 1 << 20;
+
+/// Why a line of the OBJ text could not be read.
+#[derive(Debug)]
+enum LineError {
+    /// Longer than [`MAX_LINE_BYTES`].
+    TooLong,
+    /// Not UTF-8, or the read failed.
+    Io(std::io::Error),
+}
+
+impl From<LineError> for std::io::Error {
+    fn from(e: LineError) -> Self {
+        match e {
+            LineError::TooLong => std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("a line longer than {MAX_LINE_BYTES} bytes"),
+            ),
+            LineError::Io(e) => e,
+        }
+    }
+}
+
+/// Reads the next line of `reader` into `line` (cleared first), with its
+/// newline; `Ok(false)` at the end of the text.
+fn read_obj_line(reader: &mut impl std::io::BufRead, line: &mut String) -> Result<bool, LineError> {
+    use std::io::{BufRead, Read};
+    line.clear();
+    let n = reader
+        .by_ref()
+        .take(MAX_LINE_BYTES + 1)
+        .read_line(line)
+        .map_err(LineError::Io)?;
+    if n as u64 > MAX_LINE_BYTES {
+        return Err(LineError::TooLong);
+    }
+    Ok(n > 0)
+}
+
+/// The error of line `line` of `path`, which could not be read.
+fn line_error(path: &Path, line: usize, e: LineError) -> MapError {
+    let parse = |reason| MapError::Parse {
         path: path.to_path_buf(),
-        line: 0,
-        reason: format!("not UTF-8 text: {e}"),
-    })
+        line,
+        reason,
+    };
+    match e {
+        LineError::TooLong => parse(format!(
+            "longer than {MAX_LINE_BYTES} bytes: not OBJ text (a binary or corrupt file?)"
+        )),
+        LineError::Io(e) if e.kind() == std::io::ErrorKind::InvalidData => {
+            parse(format!("not UTF-8 text: {e}"))
+        }
+        LineError::Io(source) => MapError::Read {
+            path: path.to_path_buf(),
+            source,
+        },
+    }
 }
 
 /// Rec.601 luma of an RGB color in 0..1, scaled to 0..=255.
@@ -82,10 +137,110 @@ pub fn luma601_255(rgb: [f32; 3]) -> f32 {
     (0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2]) * 255.0
 }
 
+/// Faces `tobj` holds at once, at most: the parser keeps every face of the
+/// object it is reading (about 100 bytes each, in a vector that doubles) and
+/// exports them when the object ends, so a scan written as one object of
+/// 14.7 M triangles took 2-3 GB for its faces alone. [`Parts`] ends an
+/// object every this many faces.
+pub const PART_FACES: usize = 1 << 16;
+
+/// The lines of an OBJ text as `tobj` reads them, with the current object
+/// or group started again (`g NAME`, the same name) before every
+/// [`Parts::part_faces`]-th face line since the object began: `tobj` then
+/// exports the faces in parts and reuses its face buffer. The triangles,
+/// their order, materials and names are those of the file; a vertex used
+/// by two parts is a vertex of each (single-index meshes are per object).
+struct Parts<R> {
+    inner: R,
+    part_faces: usize,
+    /// Face lines since the object, group or part began.
+    faces: usize,
+    /// Name of the current object or group (`tobj`'s default without one).
+    name: String,
+    /// The last line read.
+    line: String,
+    /// What is handed out: the last line, after a `g` line when a part
+    /// ends there.
+    buf: String,
+    pos: usize,
+}
+
+impl<R: std::io::BufRead> Parts<R> {
+    fn new(inner: R, part_faces: usize) -> Self {
+        Self {
+            inner,
+            part_faces: part_faces.max(1),
+            faces: 0,
+            name: "unnamed_object".to_string(),
+            line: String::new(),
+            buf: String::new(),
+            pos: 0,
+        }
+    }
+}
+
+impl<R: std::io::BufRead> std::io::Read for Parts<R> {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        let n = {
+            let available = std::io::BufRead::fill_buf(self)?;
+            let n = available.len().min(out.len());
+            out[..n].copy_from_slice(&available[..n]);
+            n
+        };
+        std::io::BufRead::consume(self, n);
+        Ok(n)
+    }
+}
+
+impl<R: std::io::BufRead> std::io::BufRead for Parts<R> {
+    fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
+        if self.pos >= self.buf.len() {
+            self.buf.clear();
+            self.pos = 0;
+            self.line.clear();
+            if read_obj_line(&mut self.inner, &mut self.line)? {
+                let mut words = self.line.split_whitespace();
+                match words.next() {
+                    Some("o" | "g") => {
+                        let name = self.line.trim_start().get(1..).unwrap_or("").trim();
+                        self.name = if name.is_empty() {
+                            "unnamed_object".to_string()
+                        } else {
+                            name.to_string()
+                        };
+                        self.faces = 0;
+                    }
+                    Some("f") => {
+                        if self.faces == self.part_faces {
+                            self.buf.push_str("g ");
+                            self.buf.push_str(&self.name);
+                            self.buf.push('\n');
+                            self.faces = 0;
+                        }
+                        self.faces += 1;
+                    }
+                    _ => {}
+                }
+                self.buf.push_str(&self.line);
+            }
+        }
+        Ok(self.buf.as_bytes().get(self.pos..).unwrap_or(&[]))
+    }
+
+    fn consume(&mut self, amount: usize) {
+        self.pos = (self.pos + amount).min(self.buf.len());
+    }
+}
+
 /// Loads an OBJ mesh (see the module docs for how colors become gray).
 pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
-    let text = read_obj_text(path)?;
-    let scan = prescan_obj(&text, path)?;
+    load_obj_in_parts(path, PART_FACES)
+}
+
+/// [`load_obj`], `tobj` reading at most `part_faces` faces at once
+/// ([`Parts`]).
+fn load_obj_in_parts(path: &Path, part_faces: usize) -> Result<Mesh, MapError> {
+    let scan = prescan_obj(open_obj(path)?, path)?;
     let mut mesh = Mesh::default();
     // Triangulated and single-indexed, the mesh has at most one vertex per
     // face corner and three indices per corner.
@@ -109,7 +264,8 @@ pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
         ignore_points: true,
         ignore_lines: true,
     };
-    let parsed = tobj::load_obj_buf(&mut text.as_bytes(), &options, |mtl: &Path| {
+    let mut parts = Parts::new(open_obj(path)?, part_faces);
+    let parsed = tobj::load_obj_buf(&mut parts, &options, |mtl: &Path| {
         let full = obj_dir.join(mtl);
         let (result, record) = load_mtl_checked(&full);
         mtl_records.borrow_mut().push(record);
@@ -151,6 +307,15 @@ pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
             );
         }
     }
+    // Colors above 1 anywhere in the file: the file's colors are 0..255.
+    let color_scale = if models
+        .iter()
+        .any(|m| m.mesh.vertex_color.iter().any(|&x| x > 1.0))
+    {
+        1.0 / 255.0
+    } else {
+        1.0
+    };
     let mut any_color = false;
     let mut texture_of_path: HashMap<PathBuf, u32> = HashMap::new();
     // Triangle buckets by texture, in order of first appearance.
@@ -183,10 +348,6 @@ pub fn load_obj(path: &Path) -> Result<Mesh, MapError> {
         any_color |= colors.is_some()
             || texture.is_some()
             || material.is_some_and(|mat| mat.diffuse.is_some());
-        let color_scale = match colors {
-            Some(c) if c.iter().any(|&x| x > 1.0) => 1.0 / 255.0,
-            _ => 1.0,
-        };
         if !m.texcoords.is_empty() && m.texcoords.len() != vertex_count * 2 {
             return Err(MapError::Parse {
                 path: path.to_path_buf(),
@@ -354,7 +515,7 @@ struct Prescan {
     used_materials: Vec<(usize, String)>,
 }
 
-fn prescan_obj(text: &str, path: &Path) -> Result<Prescan, MapError> {
+fn prescan_obj(mut text: impl std::io::BufRead, path: &Path) -> Result<Prescan, MapError> {
     let parse_err = |line: usize, reason: String| MapError::Parse {
         path: path.to_path_buf(),
         line,
@@ -366,8 +527,12 @@ fn prescan_obj(text: &str, path: &Path) -> Result<Prescan, MapError> {
         corners: 0,
         used_materials: Vec::new(),
     };
-    for (i, line) in text.lines().enumerate() {
-        let line_no = i + 1;
+    let mut read = String::new();
+    for line_no in 1.. {
+        if !read_obj_line(&mut text, &mut read).map_err(|e| line_error(path, line_no, e))? {
+            break;
+        }
+        let line = read.trim_end_matches(['\n', '\r']);
         let mut words = line.split_whitespace();
         match words.next() {
             Some("v") => {

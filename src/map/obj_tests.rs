@@ -334,3 +334,86 @@ proptest::proptest! {
         let _ = load_obj(&path);
     }
 }
+
+/// Each triangle's corners as (position, gray, uv) bits, in triangle order.
+fn corners(mesh: &Mesh) -> Vec<[u32; 6]> {
+    mesh.indices
+        .iter()
+        .map(|&i| {
+            let (p, g, t) = (
+                mesh.positions[i as usize],
+                mesh.gray[i as usize],
+                mesh.uvs.get(i as usize).copied().unwrap_or([0.0; 2]),
+            );
+            [p[0], p[1], p[2], g, t[0], t[1]].map(f32::to_bits)
+        })
+        .collect()
+}
+
+#[test]
+fn an_object_read_in_parts_is_the_same_surface() {
+    let dir = tempfile::tempdir().unwrap();
+    // A 9 x 9 grid of vertices (colors in 0..255 only in the last rows, so
+    // that a part decides nothing alone), quads and triangles, two
+    // materials switching mid-object, then a named object of its own.
+    let mut text = String::from("mtllib m.mtl\no first\n");
+    for y in 0..9 {
+        for x in 0..9 {
+            let c = if y >= 7 { 200.0 } else { 0.1 * x as f64 };
+            text += &format!("v {x} {y} 0 {c} {c} {c}\n");
+        }
+    }
+    let at = |x: usize, y: usize| 9 * y + x + 1;
+    for y in 0..8 {
+        if y == 4 {
+            text += "usemtl red\n";
+        }
+        for x in 0..8 {
+            if x % 2 == 0 {
+                text += &format!(
+                    "f {} {} {} {}\n",
+                    at(x, y),
+                    at(x + 1, y),
+                    at(x + 1, y + 1),
+                    at(x, y + 1)
+                );
+            } else {
+                text += &format!(
+                    "f {} {} {}\nf {} {} {}\n",
+                    at(x, y),
+                    at(x + 1, y),
+                    at(x + 1, y + 1),
+                    at(x, y),
+                    at(x + 1, y + 1),
+                    at(x, y + 1)
+                );
+            }
+        }
+    }
+    text += "g second\nf 1 2 10\nf 2 11 10\n";
+    write(dir.path(), "m.mtl", "newmtl red\nKd 1 0 0\n");
+    let path = write(dir.path(), "grid.obj", &text);
+    let whole = load_obj_in_parts(&path, usize::MAX).unwrap();
+    assert_eq!(whole.triangle_count(), 2 * 64 + 2);
+    for part_faces in [1, 3, 7, 40] {
+        let parts = load_obj_in_parts(&path, part_faces).unwrap();
+        assert_eq!(corners(&parts), corners(&whole), "parts of {part_faces}");
+        assert_eq!(parts.groups, whole.groups);
+        // Shared vertices are repeated per part, never lost.
+        assert!(parts.positions.len() >= whole.positions.len());
+    }
+    // The file's colors are 0..255 (some exceed 1), in every part.
+    let small = load_obj_in_parts(&path, 1).unwrap();
+    let at_5_0 = small
+        .positions
+        .iter()
+        .position(|p| *p == [5.0, 0.0, 0.0])
+        .unwrap();
+    // 0.5 of 255, not 0.5 of 1.
+    assert!(
+        (small.gray[at_5_0] - 0.5).abs() < 1e-3,
+        "{}",
+        small.gray[at_5_0]
+    );
+    assert!(load_obj(&path).unwrap() == whole);
+}
