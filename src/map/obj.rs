@@ -387,6 +387,16 @@ fn load_obj_in_parts(path: &Path, part_faces: usize) -> Result<Mesh, MapError> {
             .1
             .extend(m.indices[..whole].iter().map(|&i| i + base));
     }
+    if mesh.textures.is_empty() {
+        // Texture coordinates only place textures: without any, none are
+        // kept (8 bytes a vertex, in this mesh and in every renderer's copy).
+        mesh.uvs = Vec::new();
+    }
+    // Reserved for one vertex per face corner: give back what the shared
+    // vertices did not use.
+    mesh.positions.shrink_to_fit();
+    mesh.gray.shrink_to_fit();
+    mesh.uvs.shrink_to_fit();
     super::format::finish_mesh(
         &mut mesh,
         buckets,
