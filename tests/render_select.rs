@@ -97,7 +97,8 @@ fn auto_takes_a_hardware_adapter_else_the_cpu_rasterizer() {
 fn forced_gpu_failure_falls_back_and_rendering_continues() {
     // The software adapter (lavapipe here) fails over to the CPU rasterizer,
     // as a hardware adapter under `auto` does.
-    let Ok(mut r) = FallbackRenderer::new(RendererKind::Software, scene()) else {
+    let map = scene();
+    let Ok(mut r) = FallbackRenderer::new(RendererKind::Software, Arc::clone(&map)) else {
         assert!(
             !gpu::lavapipe_installed(),
             "lavapipe installed but the software adapter did not start"
@@ -105,6 +106,11 @@ fn forced_gpu_failure_falls_back_and_rendering_continues() {
         eprintln!("SKIPPED: no wgpu software adapter (lavapipe) on this machine");
         return;
     };
+    assert_eq!(
+        Arc::strong_count(&map),
+        2,
+        "the map is kept while the CPU rasterizer may still have to start"
+    );
     assert!(r.inject_failure_after(2));
     let camera = camera();
     let mut reference = CpuRenderer::new(scene()).expect("cpu");
@@ -140,6 +146,11 @@ fn forced_gpu_failure_falls_back_and_rendering_continues() {
         r.active_stage(),
         Stage::Cpu,
         "software falls back to the CPU"
+    );
+    assert_eq!(
+        Arc::strong_count(&map),
+        1,
+        "once on the last stage the renderer lets the map go"
     );
 }
 

@@ -188,6 +188,11 @@ impl ChunkedMesh {
             });
             start = end;
         }
+        // Only the order is needed from here; on a 15 M-triangle scan the
+        // centroids and groups are 235 MB the copy and the levels of
+        // detail below would otherwise hold beside their own arrays.
+        drop(centroids);
+        drop(tri_group);
 
         let mut out = Self {
             positions: Vec::with_capacity(mesh.positions.len() + mesh.positions.len() / 4),
@@ -266,6 +271,7 @@ impl ChunkedMesh {
                 bounds,
             });
         }
+        drop((local, stamp, order));
         out.lod = LodTable::fine_only(out.chunks.len());
         if levels {
             let origins = lod::VertexOrigins {

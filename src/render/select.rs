@@ -20,6 +20,12 @@
 //! never stops for a renderer failure. Each switch is logged at `warn`.
 //! Request errors (wrong buffer size, non-finite pose) are returned as they
 //! are: the next renderer would refuse them too.
+//!
+//! The map is held only while a later stage may still have to be started
+//! from it. Once the last stage (the CPU rasterizer) is active, the
+//! renderer holds its own chunked copy and the map's textures, and nothing
+//! else: a caller that gave its only reference frees the map's vertex and
+//! index arrays.
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
@@ -261,7 +267,11 @@ impl Active {
 /// [module docs](self).
 #[derive(Debug)]
 pub struct FallbackRenderer {
-    mesh: Arc<Mesh>,
+    /// The map, kept while a later stage of the chain may still have to
+    /// be started from it; dropped once the last stage is active, so that
+    /// the map's vertex and index arrays are not held twice beside the
+    /// renderer's chunked copy (about 300 MB on a scanned floor).
+    mesh: Option<Arc<Mesh>>,
     settings: Settings,
     chain: &'static [Stage],
     index: usize,
@@ -329,8 +339,9 @@ impl FallbackRenderer {
         for (index, &stage) in chain.iter().enumerate() {
             match Active::start(stage, &mesh, settings) {
                 Ok(active) => {
+                    let last = index + 1 >= chain.len();
                     let mut renderer = Self {
-                        mesh,
+                        mesh: (!last).then_some(mesh),
                         settings,
                         chain,
                         index,
@@ -389,10 +400,16 @@ impl FallbackRenderer {
             let Some(&stage) = self.chain.get(index) else {
                 break;
             };
-            match Active::start(stage, &self.mesh, self.settings) {
+            let Some(mesh) = self.mesh.as_ref() else {
+                break;
+            };
+            match Active::start(stage, mesh, self.settings) {
                 Ok(active) => {
                     self.active = active;
                     self.index = index;
+                    if index + 1 >= self.chain.len() {
+                        self.mesh = None;
+                    }
                     tracing::warn!(
                         from = %from,
                         to = %self.active.renderer().name(),
@@ -569,7 +586,13 @@ mod tests {
             }],
             textures: Vec::new(),
         });
-        let mut r = FallbackRenderer::new(RendererKind::Cpu, mesh).expect("cpu starts");
+        let mut r =
+            FallbackRenderer::new(RendererKind::Cpu, Arc::clone(&mesh)).expect("cpu starts");
+        assert_eq!(
+            Arc::strong_count(&mesh),
+            1,
+            "the last stage of the chain keeps no reference to the map"
+        );
         assert_eq!(r.active_stage(), Stage::Cpu);
         assert_eq!(r.name(), "cpu");
         assert!(!r.inject_failure_after(0), "no GPU renderer to fail");

@@ -61,7 +61,7 @@ use self::occlusion::Occlusion;
 use self::setup::{ChunkSetup, SetupSlot, NO_TEXTURE};
 use self::view::{View, NEAR_M};
 use crate::geometry::{PinholeCamera, Pose};
-use crate::map::Mesh;
+use crate::map::{GrayTexture, Mesh, MeshGroup};
 use crate::render::chunks::{ChunkedMesh, CullStats};
 use crate::render::frustum::Frustum;
 use crate::render::lod::LodView;
@@ -69,14 +69,20 @@ use crate::render::{check_request, RenderError, RenderedView, Renderer};
 
 /// The tiled, multithreaded software rasterizer. See the module docs.
 pub struct CpuRenderer {
-    mesh: Arc<Mesh>,
+    /// The map's gray textures (shared by the renderers of one map). The
+    /// map's own vertex and index arrays are not kept: everything drawn
+    /// comes from `chunked`.
+    textures: Arc<[GrayTexture]>,
+    /// Triangles in the map.
+    map_triangles: usize,
     /// The mesh split into spatial chunks (shared by the renderers of one
     /// map: [`CpuRenderer::share`]).
     chunked: Arc<ChunkedMesh>,
     /// Dedicated thread pool, or `None` for rayon's global pool.
     pool: Option<rayon::ThreadPool>,
-    /// What the setup of each chunk of `chunked` needs (its clusters).
-    setups: Vec<ChunkSetup>,
+    /// What the setup of each chunk of `chunked` needs (its clusters);
+    /// shared like `chunked`.
+    setups: Arc<[ChunkSetup]>,
     /// Setup scratch: one slot per chunk of the largest batch drawn so far
     /// (not per chunk of the map: a floor's views set up a few percent of
     /// its chunks, and a slot holds a chunk's camera-frame vertices and
@@ -109,7 +115,7 @@ pub struct CpuRenderer {
 impl std::fmt::Debug for CpuRenderer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("CpuRenderer")
-            .field("triangles", &self.mesh.triangle_count())
+            .field("triangles", &self.map_triangles)
             .field("threads", &self.threads())
             .finish()
     }
@@ -117,7 +123,9 @@ impl std::fmt::Debug for CpuRenderer {
 
 impl CpuRenderer {
     /// A renderer of `mesh` on rayon's global thread pool. Fails when the
-    /// mesh has non-finite values or out-of-range indices.
+    /// mesh has non-finite values or out-of-range indices. The renderer
+    /// keeps its own chunked copy of the mesh and a copy of its textures,
+    /// not `mesh`: drop it once the renderers are built.
     pub fn new(mesh: Arc<Mesh>) -> Result<Self, RenderError> {
         Self::with_lod(mesh, 0.0)
     }
@@ -131,7 +139,14 @@ impl CpuRenderer {
         validate::validate_mesh(&mesh)?;
         let lod_max_px = crate::render::lod::cell_limit_px(lod_max_px);
         let chunked = Arc::new(ChunkedMesh::build_with_levels(&mesh, lod_max_px > 0.0)?);
-        Ok(Self::on_chunks(mesh, chunked, lod_max_px))
+        let textures: Arc<[GrayTexture]> = mesh.textures.as_slice().into();
+        Ok(Self::on_chunks(
+            &mesh.groups,
+            textures,
+            mesh.triangle_count(),
+            chunked,
+            lod_max_px,
+        ))
     }
 
     /// Another renderer of the same map, sharing this one's chunked mesh
@@ -140,8 +155,10 @@ impl CpuRenderer {
     /// settings start at the defaults, but for the level of detail and the
     /// far limit, which are this one's; on rayon's global pool.
     pub fn share(&self) -> Self {
-        let mut other = Self::on_chunks(
-            Arc::clone(&self.mesh),
+        let mut other = Self::with_setups(
+            Arc::clone(&self.setups),
+            Arc::clone(&self.textures),
+            self.map_triangles,
             Arc::clone(&self.chunked),
             self.lod_max_px,
         );
@@ -149,26 +166,43 @@ impl CpuRenderer {
         other
     }
 
-    fn on_chunks(mesh: Arc<Mesh>, chunked: Arc<ChunkedMesh>, lod_max_px: f32) -> Self {
-        let setups: Vec<ChunkSetup> = chunked
+    fn on_chunks(
+        groups: &[MeshGroup],
+        textures: Arc<[GrayTexture]>,
+        map_triangles: usize,
+        chunked: Arc<ChunkedMesh>,
+        lod_max_px: f32,
+    ) -> Self {
+        let setups: Arc<[ChunkSetup]> = chunked
             .chunks
             .iter()
             .map(|c| {
                 ChunkSetup::new(
                     c,
                     &chunked,
-                    mesh.groups
+                    groups
                         .get(c.group as usize)
                         .and_then(|g| g.texture)
                         .unwrap_or(NO_TEXTURE),
                 )
             })
             .collect();
+        Self::with_setups(setups, textures, map_triangles, chunked, lod_max_px)
+    }
+
+    fn with_setups(
+        setups: Arc<[ChunkSetup]>,
+        textures: Arc<[GrayTexture]>,
+        map_triangles: usize,
+        chunked: Arc<ChunkedMesh>,
+        lod_max_px: f32,
+    ) -> Self {
         let chunked_count = chunked.chunks.len();
         let occlusion = Occlusion::new(setups.iter().map(ChunkSetup::cluster_count));
         Self {
             visible: vec![true; chunked.chunks.len()],
-            mesh,
+            textures,
+            map_triangles,
             chunked,
             pool: None,
             setups,
@@ -216,11 +250,6 @@ impl CpuRenderer {
         self.pool
             .as_ref()
             .map_or_else(rayon::current_num_threads, |p| p.current_num_threads())
-    }
-
-    /// The mesh being rendered.
-    pub fn mesh(&self) -> &Arc<Mesh> {
-        &self.mesh
     }
 
     /// Turns the skipping of chunks outside the view frustum on (the
@@ -309,10 +338,10 @@ impl CpuRenderer {
     }
 
     /// Bytes the renderer holds for the mesh: the chunked copy (vertices,
-    /// indices, triangle numbers) plus the shared mesh's textures.
+    /// indices, triangle numbers) plus the textures.
     pub fn mesh_bytes(&self) -> u64 {
         let c = &self.chunked;
-        let texels: usize = self.mesh.textures.iter().map(|t| t.texels.len()).sum();
+        let texels: usize = self.textures.iter().map(|t| t.texels.len()).sum();
         (c.positions.len() * 12
             + c.gray.len() * 4
             + c.uvs.len() * 8
@@ -339,7 +368,7 @@ impl Renderer for CpuRenderer {
         let frustum = Frustum::new(world_from_camera, camera, f64::from(NEAR_M))
             .with_far(world_from_camera, self.far_m);
         let Self {
-            mesh,
+            textures,
             chunked,
             pool,
             setups,
@@ -370,7 +399,7 @@ impl Renderer for CpuRenderer {
         let work = || {
             draw(
                 chunked,
-                &mesh.textures,
+                textures,
                 visible,
                 (setups, slots),
                 (&view, cull.then_some(&frustum)),
