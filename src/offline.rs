@@ -89,6 +89,9 @@ pub struct OfflineReport {
     pub tracked: Vec<(f64, bool)>,
     /// Relocalizations accepted and confirmed.
     pub relocalizations: u64,
+    /// Frames that resumed tracking after a loss and were held, not output
+    /// ([`crate::localizer::LoopStats::held_resumes`]).
+    pub held_resumes: u64,
     /// Relocalization attempts refused because two places passed the gate.
     pub reloc_ambiguous: u64,
     /// Passing rivals told apart by a decisive correlation.
@@ -291,6 +294,7 @@ pub fn localize_dataset_recorded(
         reset_counters: Vec::with_capacity(n),
         tracked: Vec::with_capacity(n),
         relocalizations: 0,
+        held_resumes: 0,
         reloc_ambiguous: 0,
         reloc_decided: 0,
         losses: Default::default(),
@@ -394,6 +398,7 @@ pub fn localize_dataset_recorded(
     let stats = localizer.stats();
     report.keyframes = stats.keyframes;
     report.relocalizations = stats.relocalizations;
+    report.held_resumes = stats.held_resumes;
     report.reloc_ambiguous = stats.reloc_ambiguous;
     report.reloc_decided = stats.reloc_decided;
     report.losses = stats.losses;

@@ -179,6 +179,53 @@ fn all_black_frames_are_lost_without_a_pose() {
     );
 }
 
+/// A frame that resumes tracking on its own after a loss is tracked but
+/// not output: the next frame must track too, as after a relocalization.
+#[test]
+fn a_resume_after_a_short_loss_is_output_from_the_next_tracked_frame() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    synth(tmp.path());
+    let dataset = Dataset::open(tmp.path()).expect("open");
+    let mut localizer = start(tmp.path(), &dataset, first_pose(&dataset));
+    let (w, h) = {
+        let f = dataset.load_frame(0).expect("frame");
+        (f.width(), f.height())
+    };
+    let black = vec![0u8; w * h];
+    // Frames 10 and 11 are lost (black); 12 resumes.
+    let mut outputs = Vec::new();
+    for i in 0..20 {
+        let stamp_ns = (dataset.frames[i].timestamp_s * 1e9).round() as u64;
+        let frame = dataset.load_frame(i).expect("frame");
+        let pixels = if (10..12).contains(&i) {
+            &black[..]
+        } else {
+            frame.data()
+        };
+        let out = localizer
+            .process_frame(pixels, w, h, w, stamp_ns)
+            .expect("processed");
+        outputs.push((out.state, out.world_from_camera.is_some(), out.searching));
+    }
+    let tracking = (TrackState::Tracking, true, false);
+    assert!(outputs[..10].iter().all(|o| *o == tracking), "{outputs:?}");
+    assert!(
+        outputs[10..12]
+            .iter()
+            .all(|o| o.0 == TrackState::Lost && !o.1),
+        "{outputs:?}"
+    );
+    assert_eq!(
+        outputs[12],
+        (TrackState::Lost, false, true),
+        "the resuming frame is tracked, not output: {outputs:?}"
+    );
+    assert!(outputs[13..].iter().all(|o| *o == tracking), "{outputs:?}");
+    let stats = localizer.stats();
+    assert_eq!(stats.held_resumes, 1);
+    assert_eq!(stats.lost_frames, 3, "two lost, one held");
+}
+
 #[test]
 fn far_off_initial_pose_never_gives_a_wrong_pose() {
     let tmp = tempfile::tempdir().expect("tmp");

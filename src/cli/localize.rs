@@ -249,7 +249,10 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
         report.min_inlier_ratio, report.min_correlation
     );
     if let Some(line) = losses_line(&report.losses) {
-        println!("  {line}");
+        println!(
+            "  {line}; {} resumes held a frame for confirmation",
+            report.held_resumes
+        );
     }
     if report.reloc_attempts > 0 || report.relocalizations > 0 {
         println!(
