@@ -18,19 +18,9 @@ import sys
 
 import numpy as np
 
+from wrong_poses import read_tum  # this folder: stamp -> [tx ty tz qx qy qz qw]
+
 WRONG_CM = 10.0
-
-
-def read_tum(path):
-    """Stamp (rounded to 1 ms) -> position, meters."""
-    poses = {}
-    with open(path) as f:
-        for line in f:
-            if line.startswith("#") or not line.strip():
-                continue
-            v = line.split()
-            poses[round(float(v[0]), 3)] = np.array([float(x) for x in v[1:4]])
-    return poses
 
 
 def main():
@@ -49,7 +39,7 @@ def main():
             g = truth.get(stamp)
             if g is None:
                 continue
-            error_cm = float(np.linalg.norm(sent[stamp] - g)) * 100.0
+            error_cm = float(np.linalg.norm(sent[stamp][:3] - g[:3])) * 100.0
             if i >= 1 and rows[i - 1][2] != "tracking":
                 first.append(error_cm)
             elif i >= 2 and rows[i - 2][2] != "tracking":
