@@ -177,14 +177,17 @@ impl Localizer {
             local1 = ncc.map(|c| c.1),
             local2 = at2.map(|c| c.1),
             local_mean = self.continuity.local_mean().0,
+            local_reference = self.continuity.local_reference().0,
             "tracking correlation"
         );
         self.last_local = local;
-        // A drop against its own running mean (off at 0): a drift against
-        // a stale keyframe loses local contrast before anything else.
+        // A drop against its own running mean (off at 0), the highest of
+        // the last few frames' (`continuity::LOCAL_REFERENCE_FRAMES`): a
+        // drift against a stale keyframe, or a slide, loses local contrast
+        // before anything else.
         let dropped = local_dropped(
             self.policy.lost_local_correlation_drop,
-            self.continuity.local_mean(),
+            self.continuity.local_reference(),
             local,
         );
         let check = if dropped {
