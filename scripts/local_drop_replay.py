@@ -80,7 +80,7 @@ def main():
                 continue
             error_cm = float(np.linalg.norm(sent[stamp][:3] - truth[stamp][:3])) * 100.0
             for k in KS:
-                reference = max([mean] + [m for m in means[len(means) - k :] if k and not math.isnan(m)])
+                reference = max([mean] + [m for m in means[max(0, len(means) - k) :] if k and not math.isnan(m)])
                 refused = local < drop * reference
                 c = counts[k]
                 if error_cm < 5.0:
