@@ -20,9 +20,13 @@ use star::offline::{localize_dataset, OfflineOptions};
 /// Frames per sequence (3 s at 50 Hz).
 const FRAMES: usize = 150;
 
-/// One localization at a time: each runs at the recorded 50 Hz, as a live
-/// camera delivers frames, and its render thread gets the cores it would
-/// have on the vehicle instead of competing with two other trackers.
+/// One preset at a time, its `star synth` included: each localization runs
+/// at the recorded 50 Hz, as a live camera delivers frames, and its render
+/// thread gets the cores it would have on the vehicle instead of competing
+/// with the other tests' trackers or their synthesis. A synthesis beside
+/// the `aggressive` localization on two cores (the CI machine) delayed its
+/// keyframes to 1 s, and the drop test then refused a frame there
+/// (docs/ci.md, "A synthesis beside a paced localization").
 static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 fn synth(preset: &str, seed: u64, out: &Path) {
@@ -48,10 +52,8 @@ fn check(dir: &Path, renderer: RendererKind, max_ate_cm: f64, max_rot_deg: f64) 
         realtime: true,
         ..OfflineOptions::default()
     };
-    let report = {
-        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-        localize_dataset(&dataset, renderer_box, &config, &options, |_| {}).expect("localize")
-    };
+    let report =
+        localize_dataset(&dataset, renderer_box, &config, &options, |_| {}).expect("localize");
     let e = report.evaluation.as_ref().expect("evaluation");
     let ate_cm = e.ate.translation_m.rmse * 100.0;
     let rot_deg = e.ate.rotation_deg.rmse;
@@ -94,6 +96,7 @@ fn check(dir: &Path, renderer: RendererKind, max_ate_cm: f64, max_rot_deg: f64) 
 }
 
 fn preset_meets_bounds(preset: &str, seed: u64, max_ate_cm: f64, max_rot_deg: f64) {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().expect("tmp");
     synth(preset, seed, tmp.path());
     check(tmp.path(), RendererKind::Cpu, max_ate_cm, max_rot_deg);
