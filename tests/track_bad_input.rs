@@ -226,6 +226,49 @@ fn a_resume_after_a_short_loss_is_output_from_the_next_tracked_frame() {
     assert_eq!(stats.lost_frames, 3, "two lost, one held");
 }
 
+/// During a short loss the keyframe follows the camera: the frame that
+/// resumes is aligned against a keyframe near it, not the one from before
+/// the loss (which `aggressive` leaves 30-40 degrees behind in 0.2 s).
+#[test]
+fn a_short_loss_asks_for_keyframes_near_the_camera() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    synth(tmp.path());
+    let dataset = Dataset::open(tmp.path()).expect("open");
+    let mut localizer = start(tmp.path(), &dataset, first_pose(&dataset));
+    let (w, h) = {
+        let f = dataset.load_frame(0).expect("frame");
+        (f.width(), f.height())
+    };
+    let black = vec![0u8; w * h];
+    // Frames 10 to 15 are lost (black, 0.12 s of capture time); each waits
+    // a little so the render thread is free for the next request.
+    let mut outputs = Vec::new();
+    for i in 0..24 {
+        let stamp_ns = (dataset.frames[i].timestamp_s * 1e9).round() as u64;
+        let frame = dataset.load_frame(i).expect("frame");
+        let lost = (10..16).contains(&i);
+        let pixels = if lost { &black[..] } else { frame.data() };
+        let out = localizer
+            .process_frame(pixels, w, h, w, stamp_ns)
+            .expect("processed");
+        if lost {
+            std::thread::sleep(std::time::Duration::from_millis(40));
+        }
+        outputs.push(out.world_from_camera.is_some());
+    }
+    let stats = localizer.stats();
+    assert!(
+        stats.lost_keyframes >= 1,
+        "no keyframe asked for in 6 lost frames: {stats:?}"
+    );
+    assert!(outputs[..10].iter().all(|&o| o), "{outputs:?}");
+    assert!(
+        !outputs[10..17].iter().any(|&o| o),
+        "lost, then held: {outputs:?}"
+    );
+    assert!(outputs[17..].iter().all(|&o| o), "resumed: {outputs:?}");
+}
+
 #[test]
 fn far_off_initial_pose_never_gives_a_wrong_pose() {
     let tmp = tempfile::tempdir().expect("tmp");

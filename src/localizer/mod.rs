@@ -36,7 +36,7 @@ use crate::render::Renderer;
 use crate::track::TrackerConfig;
 use crate::track::{AlignQuality, Aligner, Keyframe, Pyramid};
 
-use continuity::{Continuity, CORRELATION_MEAN_WEIGHT};
+use continuity::{Continuity, CORRELATION_MEAN_WEIGHT, SHORT_LOSS_S};
 use worker::{RenderRequest, RenderWorker};
 
 /// Errors from the STAR loop. Bad frames are rejected without changing state.
@@ -247,6 +247,9 @@ pub struct LoopStats {
     pub held_resumes: u64,
     /// Keyframes rendered (including the first).
     pub keyframes: u64,
+    /// Keyframes asked for during a short loss, where the keyframe follows
+    /// the camera for the frame that resumes.
+    pub lost_keyframes: u64,
     /// Keyframe renders that failed.
     pub render_failures: u64,
     /// Frames tracked while a newer keyframe was pending.
@@ -651,6 +654,28 @@ impl Localizer {
             }
             self.reverify_without_database(capture_ns);
             out.searching = self.stats.reloc_attempts > attempts || self.verify_left > 0;
+            if !out.searching && !self.pending && self.lost_s(capture_ns) <= SHORT_LOSS_S {
+                // Within a short loss the keyframe follows the camera, at
+                // this frame's alignment where it keeps to the motion, else
+                // at the prediction: a frame resumes against a keyframe near
+                // it. Frozen at the loss, the keyframe fell 30-40 degrees
+                // behind `aggressive` in 0.2 s and no frame resumed
+                // (docs/benchmarks.md, "A resume on blurred frames"). A
+                // keyframe is the map seen from some pose; the gate, not
+                // the pose it was rendered at, decides what is output.
+                let near = result.valid
+                    && pose_is_finite(&world_from_camera)
+                    && jump_m <= max_jump_m
+                    && jump_deg <= max_jump_deg;
+                let world_from_keyframe = if near {
+                    world_from_camera
+                } else {
+                    world_from_camera_predicted
+                };
+                if self.request_keyframe(world_from_keyframe, capture_ns) {
+                    self.stats.lost_keyframes += 1;
+                }
+            }
             return Ok(out);
         }
         if dt_s > 0.0 {
@@ -712,27 +737,34 @@ impl Localizer {
         if !self.pending
             && policy::needs_keyframe(&self.policy, &self.keyframe, &result, keyframe_age_s)
         {
-            // Rendered where the camera will be when the keyframe arrives,
-            // at the measured velocity: a keyframe that trails a fast
-            // camera overlaps it less and lets the alignment drift.
-            let lead_s = if self.tracked_run >= 2 {
-                self.render_latency_s.min(MAX_RENDER_LEAD_S)
-            } else {
-                0.0
-            };
-            let requested = self.worker.try_request(RenderRequest {
-                world_from_keyframe: renormalized(
-                    world_from_camera * exp_se3(&(self.velocity * lead_s)),
-                ),
-                id: self.next_keyframe_id,
-                requested_at_ns: capture_ns,
-            });
-            if requested {
-                self.next_keyframe_id += 1;
-                self.pending = true;
-            }
+            let _ = self.request_keyframe(world_from_camera, capture_ns);
         }
         Ok(out)
+    }
+
+    /// Asks the render thread for a keyframe near `world_from_camera`:
+    /// where the camera will be when it arrives, at the measured velocity
+    /// once two frames tracked in a row (a keyframe that trails a fast
+    /// camera overlaps it less and lets the alignment drift). False when
+    /// the render thread was busy.
+    fn request_keyframe(&mut self, world_from_camera: Pose, capture_ns: u64) -> bool {
+        let lead_s = if self.tracked_run >= 2 {
+            self.render_latency_s.min(MAX_RENDER_LEAD_S)
+        } else {
+            0.0
+        };
+        let requested = self.worker.try_request(RenderRequest {
+            world_from_keyframe: renormalized(
+                world_from_camera * exp_se3(&(self.velocity * lead_s)),
+            ),
+            id: self.next_keyframe_id,
+            requested_at_ns: capture_ns,
+        });
+        if requested {
+            self.next_keyframe_id += 1;
+            self.pending = true;
+        }
+        requested
     }
 
     /// Takes a finished keyframe from the render thread, if any, for the

@@ -35,7 +35,9 @@ use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
 use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
 use crate::reloc::twins::{prior_prefers_a_twin, twin_pose, TwinCheck};
-use crate::reloc::{passes_gate, passes_resume_gate, start_yaws_rad, Candidate, MAX_TOP_K};
+use crate::reloc::{
+    passes_gate, passes_resume_gate, resume_local_floor, start_yaws_rad, Candidate, MAX_TOP_K,
+};
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
     Verdict, Verified, LANDMARK_CANDIDATE,
@@ -121,9 +123,23 @@ impl Localizer {
         // test's thresholds are for noticing a loss, not for trusting a
         // pose again: an occluder dragging the alignment off can keep the
         // inlier ratio high), read from level 0 even with
-        // `gate_at_map_detail` (`passes_resume_gate`).
+        // `gate_at_map_detail` (`passes_resume_gate`). Its local contrast
+        // floor follows the frames tracked before the loss where they read
+        // lower (blurred frames: `resume_local_fraction`); the drop test's
+        // reference survives a short loss (`continuity`).
+        let (reference, frames) = self.continuity.local_reference();
+        let settled = frames >= super::LOCAL_MEAN_MIN_FRAMES;
+        let min_local = resume_local_floor(config, reference.filter(|_| settled));
         self.lost_s(capture_ns) <= config.resume_window_s
-            && passes_resume_gate(&self.keyframe, &self.pyramid, &self.camera, a, config).is_some()
+            && passes_resume_gate(
+                &self.keyframe,
+                &self.pyramid,
+                &self.camera,
+                a,
+                config,
+                min_local,
+            )
+            .is_some()
     }
 
     /// With a gate (a database, a verified start, or [`Self::use_gate`]),

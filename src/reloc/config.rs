@@ -200,6 +200,13 @@ pub struct RelocConfig {
     /// Within this time of the failure, ordinary tracking may resume on its
     /// own; afterwards only an accepted relocalization restarts it, seconds.
     pub resume_window_s: f64,
+    /// A frame resuming on its own needs local contrast of at least
+    /// `min_local_correlation`, or this fraction of the reference the
+    /// tracked frames before the loss set (the drop test's), where that is
+    /// lower: blurred frames track at 0.55-0.65 and could never resume
+    /// against the fixed floor (docs/benchmarks.md, "A resume on blurred
+    /// frames"). 0 keeps the fixed floor.
+    pub resume_local_fraction: f32,
     /// A relocalization attempt tries no new candidate after this long,
     /// seconds (0: no limit): by then its frame is stale, and the next
     /// attempt starts from a fresh one. The landmark pose is always tried.
@@ -280,6 +287,7 @@ impl Default for RelocConfig {
             track_min_local_correlation_lowest: 0.2,
             verify_frames: 1,
             resume_window_s: 0.2,
+            resume_local_fraction: 0.9,
             attempt_budget_s: 0.5,
             landmark_spacing_m: 0.5,
             landmark_heights_m: vec![1.4],
@@ -338,7 +346,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 35] = [
+        let checks: [(&'static str, bool, String); 36] = [
             (
                 "yaw_steps",
                 (1..=360).contains(&self.yaw_steps),
@@ -547,6 +555,12 @@ impl RelocConfig {
                     "expected >= 0 (0: no limit), found {}",
                     self.attempt_budget_s
                 ),
+            ),
+            (
+                "resume_local_fraction",
+                self.resume_local_fraction.is_finite()
+                    && (0.0..=1.0).contains(&self.resume_local_fraction),
+                format!("expected 0..=1, found {}", self.resume_local_fraction),
             ),
             (
                 "resume_window_s",

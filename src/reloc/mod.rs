@@ -84,6 +84,6 @@ pub use search::{
     Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K,
 };
 pub use verify::{
-    passes_gate, passes_resume_gate, passes_whole_gate, start_yaws_rad, try_candidate,
-    verify_candidate, Verdict, Verified, PRECISE_START_SKIPPED_LEVELS,
+    passes_gate, passes_resume_gate, passes_whole_gate, resume_local_floor, start_yaws_rad,
+    try_candidate, verify_candidate, Verdict, Verified, PRECISE_START_SKIPPED_LEVELS,
 };

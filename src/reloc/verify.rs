@@ -70,7 +70,10 @@ pub fn passes_whole_gate(
         camera,
         a,
         config,
-        first_gate_level(keyframe, config),
+        (
+            first_gate_level(keyframe, config),
+            config.min_local_correlation,
+        ),
     )
 }
 
@@ -80,24 +83,43 @@ pub fn passes_whole_gate(
 /// prediction, not from a search, and at close range a drifted pose
 /// passed the gate read from level 1 (`aggressive --scanned` seed 1:
 /// docs/building-scale.md), so the map's detail only widens the
-/// relocalization's gate.
+/// relocalization's gate. Its local contrast floor is `min_local`
+/// ([`resume_local_floor`]).
 pub fn passes_resume_gate(
     keyframe: &Keyframe,
     frame: &Pyramid,
     camera: &PinholeCamera,
     a: &Alignment,
     config: &RelocConfig,
+    min_local: f32,
 ) -> Option<Correlations> {
-    whole_gate_from(keyframe, frame, camera, a, config, 0)
+    whole_gate_from(keyframe, frame, camera, a, config, (0, min_local))
 }
 
+/// The local contrast floor of a frame resuming on its own after a short
+/// loss: `min_local_correlation`, or `resume_local_fraction` times
+/// `reference` (the drop test's reference from the frames tracked before
+/// the loss; `None` while it is not settled) where that is lower. A `NaN`
+/// reference keeps the fixed floor.
+pub fn resume_local_floor(config: &RelocConfig, reference: Option<f32>) -> f32 {
+    let fixed = config.min_local_correlation;
+    match reference {
+        Some(r) if config.resume_local_fraction > 0.0 && r.is_finite() => {
+            fixed.min(config.resume_local_fraction * r)
+        }
+        _ => fixed,
+    }
+}
+
+/// The whole gate from `first_level`, with `min_local` in place of
+/// `min_local_correlation`.
 fn whole_gate_from(
     keyframe: &Keyframe,
     frame: &Pyramid,
     camera: &PinholeCamera,
     a: &Alignment,
     config: &RelocConfig,
-    first_level: usize,
+    (first_level, min_local): (usize, f32),
 ) -> Option<Correlations> {
     let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
     let both = (passes_gate(&a.quality, config) && gain_ok)
@@ -114,7 +136,7 @@ fn whole_gate_from(
     let c = both.map(|(c, _)| c);
     let passes = both.is_some_and(|(c, coarser_local)| {
         c.all >= config.min_correlation
-            && local_contrast_passes(&c, coarser_local, first_level, config)
+            && local_contrast_passes(&c, coarser_local, first_level, config, min_local)
     });
     if tracing::enabled!(target: "star::reloc::gate", tracing::Level::TRACE) {
         let world_from_camera = keyframe.world_from_keyframe * a.camera_from_keyframe.inverse();
@@ -157,16 +179,15 @@ fn local_contrast_passes(
     coarser_local: f32,
     first_level: usize,
     config: &RelocConfig,
+    min_local: f32,
 ) -> bool {
     // From level 0, or with no local contrast above the first level (too
     // few levels), the smallest over the levels holds the whole floor.
     if first_level == 0 || coarser_local.is_nan() {
-        return c.local >= config.min_local_correlation;
+        return c.local >= min_local;
     }
-    let first_floor = config
-        .min_local_correlation_at_map_detail
-        .min(config.min_local_correlation);
-    c.local >= first_floor && coarser_local >= config.min_local_correlation
+    let first_floor = config.min_local_correlation_at_map_detail.min(min_local);
+    c.local >= first_floor && coarser_local >= min_local
 }
 
 /// The first pyramid level the gate reads: the keyframe's
@@ -600,6 +621,23 @@ mod tests {
     use super::*;
     use crate::track::TrackerConfig;
 
+    #[test]
+    fn a_resume_floor_follows_the_frames_before_the_loss_only_downwards() {
+        let mut config = RelocConfig::default();
+        config.min_local_correlation = 0.7;
+        config.resume_local_fraction = 0.9;
+        // Blurred frames tracked at 0.66: a resume needs 0.9 of that.
+        let floor = resume_local_floor(&config, Some(0.66));
+        assert!((floor - 0.594).abs() < 1e-6, "{floor}");
+        // Sharp frames never raise it past the fixed floor.
+        assert_eq!(resume_local_floor(&config, Some(0.95)), 0.7);
+        // Nothing settled, not measured, or turned off: the fixed floor.
+        assert_eq!(resume_local_floor(&config, None), 0.7);
+        assert_eq!(resume_local_floor(&config, Some(f32::NAN)), 0.7);
+        config.resume_local_fraction = 0.0;
+        assert_eq!(resume_local_floor(&config, Some(0.66)), 0.7);
+    }
+
     /// A start scored `score` at place `start` of the order.
     fn scored(score: f32, start: usize) -> Scored {
         Scored {
@@ -716,9 +754,27 @@ mod tests {
             min_local_correlation_at_map_detail: 0.7,
             ..RelocConfig::default()
         };
-        assert!(!local_contrast_passes(&with_local_of(0.55), 0.75, 1, &off));
-        assert!(!local_contrast_passes(&with_local_of(0.69), 0.8, 1, &off));
-        assert!(local_contrast_passes(&with_local_of(0.71), 0.8, 1, &off));
+        assert!(!local_contrast_passes(
+            &with_local_of(0.55),
+            0.75,
+            1,
+            &off,
+            off.min_local_correlation
+        ));
+        assert!(!local_contrast_passes(
+            &with_local_of(0.69),
+            0.8,
+            1,
+            &off,
+            off.min_local_correlation
+        ));
+        assert!(local_contrast_passes(
+            &with_local_of(0.71),
+            0.8,
+            1,
+            &off,
+            off.min_local_correlation
+        ));
         // The default lowers the first level (a pose through it is then
         // verified against its rivals: `RivalRule::for_held`).
         let config = RelocConfig::default();
@@ -726,37 +782,87 @@ mod tests {
         let with_local = with_local_of;
         // From level 0 (a map as fine as the camera) the smallest of the
         // three levels holds min_local_correlation, as before.
-        assert!(!local_contrast_passes(&with_local(0.6), 0.8, 0, &config));
-        assert!(local_contrast_passes(&with_local(0.75), 0.8, 0, &config));
+        assert!(!local_contrast_passes(
+            &with_local(0.6),
+            0.8,
+            0,
+            &config,
+            config.min_local_correlation
+        ));
+        assert!(local_contrast_passes(
+            &with_local(0.75),
+            0.8,
+            0,
+            &config,
+            config.min_local_correlation
+        ));
         // At the map's detail: a true pose on 4 scanned rooms (0.57 at
         // level 1, 0.75 and 0.77 above) passes ...
-        assert!(local_contrast_passes(&with_local(0.57), 0.75, 1, &config));
+        assert!(local_contrast_passes(
+            &with_local(0.57),
+            0.75,
+            1,
+            &config,
+            config.min_local_correlation
+        ));
         // ... the place 2.4 m away (0.59, then 0.66 and 0.70) and the
         // 13 cm slide (0.24, 0.48, 0.63) do not.
-        assert!(!local_contrast_passes(&with_local(0.59), 0.66, 1, &config));
-        assert!(!local_contrast_passes(&with_local(0.24), 0.48, 1, &config));
+        assert!(!local_contrast_passes(
+            &with_local(0.59),
+            0.66,
+            1,
+            &config,
+            config.min_local_correlation
+        ));
+        assert!(!local_contrast_passes(
+            &with_local(0.24),
+            0.48,
+            1,
+            &config,
+            config.min_local_correlation
+        ));
         // The first level's own floor still holds; where the coarser
         // levels hold no local contrast (NaN), the first holds the whole.
-        assert!(!local_contrast_passes(&with_local(0.45), 0.9, 1, &config));
+        assert!(!local_contrast_passes(
+            &with_local(0.45),
+            0.9,
+            1,
+            &config,
+            config.min_local_correlation
+        ));
         assert!(!local_contrast_passes(
             &with_local(0.6),
             f32::NAN,
             1,
-            &config
+            &config,
+            config.min_local_correlation
         ));
         assert!(local_contrast_passes(
             &with_local(0.75),
             f32::NAN,
             1,
-            &config
+            &config,
+            config.min_local_correlation
         ));
         // A floor set above min_local_correlation does not raise the gate.
         let strict = RelocConfig {
             min_local_correlation_at_map_detail: 0.95,
             ..config.clone()
         };
-        assert!(local_contrast_passes(&with_local(0.72), 0.8, 1, &strict));
-        assert!(!local_contrast_passes(&with_local(0.69), 0.8, 1, &strict));
+        assert!(local_contrast_passes(
+            &with_local(0.72),
+            0.8,
+            1,
+            &strict,
+            strict.min_local_correlation
+        ));
+        assert!(!local_contrast_passes(
+            &with_local(0.69),
+            0.8,
+            1,
+            &strict,
+            strict.min_local_correlation
+        ));
     }
 
     #[test]
@@ -792,7 +898,15 @@ mod tests {
             "relocalization reads the levels the map holds"
         );
         assert!(
-            passes_resume_gate(&keyframe, &frame, &camera, &a, &config).is_none(),
+            passes_resume_gate(
+                &keyframe,
+                &frame,
+                &camera,
+                &a,
+                &config,
+                config.min_local_correlation
+            )
+            .is_none(),
             "resuming reads level 0"
         );
         config.gate_at_map_detail = false;
