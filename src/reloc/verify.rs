@@ -623,9 +623,11 @@ mod tests {
 
     #[test]
     fn a_resume_floor_follows_the_frames_before_the_loss_only_downwards() {
-        let mut config = RelocConfig::default();
-        config.min_local_correlation = 0.7;
-        config.resume_local_fraction = 0.9;
+        let mut config = RelocConfig {
+            min_local_correlation: 0.7,
+            resume_local_fraction: 0.9,
+            ..RelocConfig::default()
+        };
         // Blurred frames tracked at 0.66: a resume needs 0.9 of that.
         let floor = resume_local_floor(&config, Some(0.66));
         assert!((floor - 0.594).abs() < 1e-6, "{floor}");
