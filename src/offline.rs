@@ -92,6 +92,9 @@ pub struct OfflineReport {
     /// Frames that resumed tracking after a loss and were held, not output
     /// ([`crate::localizer::LoopStats::held_resumes`]).
     pub held_resumes: u64,
+    /// Keyframes asked for during short losses, following the camera
+    /// ([`crate::localizer::LoopStats::lost_keyframes`]).
+    pub lost_keyframes: u64,
     /// Relocalization attempts refused because two places passed the gate.
     pub reloc_ambiguous: u64,
     /// Passing rivals told apart by a decisive correlation.
@@ -295,6 +298,7 @@ pub fn localize_dataset_recorded(
         tracked: Vec::with_capacity(n),
         relocalizations: 0,
         held_resumes: 0,
+        lost_keyframes: 0,
         reloc_ambiguous: 0,
         reloc_decided: 0,
         losses: Default::default(),
@@ -399,6 +403,7 @@ pub fn localize_dataset_recorded(
     report.keyframes = stats.keyframes;
     report.relocalizations = stats.relocalizations;
     report.held_resumes = stats.held_resumes;
+    report.lost_keyframes = stats.lost_keyframes;
     report.reloc_ambiguous = stats.reloc_ambiguous;
     report.reloc_decided = stats.reloc_decided;
     report.losses = stats.losses;

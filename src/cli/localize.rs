@@ -250,8 +250,8 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
     );
     if let Some(line) = losses_line(&report.losses) {
         println!(
-            "  {line}; {} resumes held a frame for confirmation",
-            report.held_resumes
+            "  {line}; {} resumes held a frame for confirmation; {} keyframes followed the camera through short losses",
+            report.held_resumes, report.lost_keyframes
         );
     }
     if report.reloc_attempts > 0 || report.relocalizations > 0 {
