@@ -179,10 +179,18 @@ fn all_black_frames_are_lost_without_a_pose() {
     );
 }
 
-/// A frame that resumes tracking on its own after a loss is tracked but
-/// not output: the next frame must track too, as after a relocalization.
-#[test]
-fn a_resume_after_a_short_loss_is_output_from_the_next_tracked_frame() {
+/// What each frame gave: its state, whether a pose was output, and whether
+/// the loop was searching.
+type Outputs = Vec<(TrackState, bool, bool)>;
+
+/// Tracks the first `frames` frames of a fresh `ideal` sequence from its
+/// true first pose, with the frames in `black` replaced by black ones (a
+/// loss), each followed by a pause of `pause_ms` (0: none).
+fn localize_with_black_frames(
+    frames: usize,
+    black: std::ops::Range<usize>,
+    pause_ms: u64,
+) -> (Localizer, Outputs) {
     let tmp = tempfile::tempdir().expect("tmp");
     synth(tmp.path());
     let dataset = Dataset::open(tmp.path()).expect("open");
@@ -191,22 +199,34 @@ fn a_resume_after_a_short_loss_is_output_from_the_next_tracked_frame() {
         let f = dataset.load_frame(0).expect("frame");
         (f.width(), f.height())
     };
-    let black = vec![0u8; w * h];
-    // Frames 10 and 11 are lost (black); 12 resumes.
+    let black_pixels = vec![0u8; w * h];
     let mut outputs = Vec::new();
-    for i in 0..20 {
+    for i in 0..frames {
         let stamp_ns = (dataset.frames[i].timestamp_s * 1e9).round() as u64;
         let frame = dataset.load_frame(i).expect("frame");
-        let pixels = if (10..12).contains(&i) {
-            &black[..]
+        let lost = black.contains(&i);
+        let pixels = if lost {
+            &black_pixels[..]
         } else {
             frame.data()
         };
         let out = localizer
             .process_frame(pixels, w, h, w, stamp_ns)
             .expect("processed");
+        if lost && pause_ms > 0 {
+            std::thread::sleep(std::time::Duration::from_millis(pause_ms));
+        }
         outputs.push((out.state, out.world_from_camera.is_some(), out.searching));
     }
+    (localizer, outputs)
+}
+
+/// A frame that resumes tracking on its own after a loss is tracked but
+/// not output: the next frame must track too, as after a relocalization.
+#[test]
+fn a_resume_after_a_short_loss_is_output_from_the_next_tracked_frame() {
+    // Frames 10 and 11 are lost (black); 12 resumes.
+    let (localizer, outputs) = localize_with_black_frames(20, 10..12, 0);
     let tracking = (TrackState::Tracking, true, false);
     assert!(outputs[..10].iter().all(|o| *o == tracking), "{outputs:?}");
     assert!(
@@ -231,42 +251,21 @@ fn a_resume_after_a_short_loss_is_output_from_the_next_tracked_frame() {
 /// the loss (which `aggressive` leaves 30-40 degrees behind in 0.2 s).
 #[test]
 fn a_short_loss_asks_for_keyframes_near_the_camera() {
-    let tmp = tempfile::tempdir().expect("tmp");
-    synth(tmp.path());
-    let dataset = Dataset::open(tmp.path()).expect("open");
-    let mut localizer = start(tmp.path(), &dataset, first_pose(&dataset));
-    let (w, h) = {
-        let f = dataset.load_frame(0).expect("frame");
-        (f.width(), f.height())
-    };
-    let black = vec![0u8; w * h];
     // Frames 10 to 15 are lost (black, 0.12 s of capture time); each waits
     // a little so the render thread is free for the next request.
-    let mut outputs = Vec::new();
-    for i in 0..24 {
-        let stamp_ns = (dataset.frames[i].timestamp_s * 1e9).round() as u64;
-        let frame = dataset.load_frame(i).expect("frame");
-        let lost = (10..16).contains(&i);
-        let pixels = if lost { &black[..] } else { frame.data() };
-        let out = localizer
-            .process_frame(pixels, w, h, w, stamp_ns)
-            .expect("processed");
-        if lost {
-            std::thread::sleep(std::time::Duration::from_millis(40));
-        }
-        outputs.push(out.world_from_camera.is_some());
-    }
+    let (localizer, outputs) = localize_with_black_frames(24, 10..16, 40);
     let stats = localizer.stats();
     assert!(
         stats.lost_keyframes >= 1,
         "no keyframe asked for in 6 lost frames: {stats:?}"
     );
-    assert!(outputs[..10].iter().all(|&o| o), "{outputs:?}");
+    let sent: Vec<bool> = outputs.iter().map(|o| o.1).collect();
+    assert!(sent[..10].iter().all(|&o| o), "{outputs:?}");
     assert!(
-        !outputs[10..17].iter().any(|&o| o),
+        !sent[10..17].iter().any(|&o| o),
         "lost, then held: {outputs:?}"
     );
-    assert!(outputs[17..].iter().all(|&o| o), "resumed: {outputs:?}");
+    assert!(sent[17..].iter().all(|&o| o), "resumed: {outputs:?}");
 }
 
 #[test]
