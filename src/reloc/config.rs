@@ -203,7 +203,7 @@ pub struct RelocConfig {
     /// A frame resuming on its own needs local contrast of at least
     /// `min_local_correlation`, or this fraction of the reference the
     /// tracked frames before the loss set (the drop test's), where that is
-    /// lower: blurred frames track at 0.55-0.70 and could never resume
+    /// lower: blurred frames track at 0.55-0.70 and seldom resume
     /// against the fixed floor (docs/benchmarks.md, "A resume on blurred
     /// frames"). 0 keeps the fixed floor.
     pub resume_local_fraction: f32,
