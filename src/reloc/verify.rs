@@ -621,6 +621,12 @@ mod tests {
     use super::*;
     use crate::track::TrackerConfig;
 
+    /// [`local_contrast_passes`] with the config's own floor,
+    /// `min_local_correlation`.
+    fn passes_local(c: &Correlations, coarser: f32, level: usize, config: &RelocConfig) -> bool {
+        local_contrast_passes(c, coarser, level, config, config.min_local_correlation)
+    }
+
     #[test]
     fn a_resume_floor_follows_the_frames_before_the_loss_only_downwards() {
         let mut config = RelocConfig {
@@ -756,27 +762,9 @@ mod tests {
             min_local_correlation_at_map_detail: 0.7,
             ..RelocConfig::default()
         };
-        assert!(!local_contrast_passes(
-            &with_local_of(0.55),
-            0.75,
-            1,
-            &off,
-            off.min_local_correlation
-        ));
-        assert!(!local_contrast_passes(
-            &with_local_of(0.69),
-            0.8,
-            1,
-            &off,
-            off.min_local_correlation
-        ));
-        assert!(local_contrast_passes(
-            &with_local_of(0.71),
-            0.8,
-            1,
-            &off,
-            off.min_local_correlation
-        ));
+        assert!(!passes_local(&with_local_of(0.55), 0.75, 1, &off));
+        assert!(!passes_local(&with_local_of(0.69), 0.8, 1, &off));
+        assert!(passes_local(&with_local_of(0.71), 0.8, 1, &off));
         // The default lowers the first level (a pose through it is then
         // verified against its rivals: `RivalRule::for_held`).
         let config = RelocConfig::default();
@@ -784,87 +772,42 @@ mod tests {
         let with_local = with_local_of;
         // From level 0 (a map as fine as the camera) the smallest of the
         // three levels holds min_local_correlation, as before.
-        assert!(!local_contrast_passes(
+        assert!(!passes_local(&with_local(0.6), 0.8, 0, &config));
+        assert!(passes_local(&with_local(0.75), 0.8, 0, &config));
+        // A resume's lowered floor (`resume_local_floor`) holds in its place.
+        assert!(local_contrast_passes(
             &with_local(0.6),
             0.8,
             0,
             &config,
-            config.min_local_correlation
+            0.59
         ));
-        assert!(local_contrast_passes(
-            &with_local(0.75),
+        assert!(!local_contrast_passes(
+            &with_local(0.58),
             0.8,
             0,
             &config,
-            config.min_local_correlation
+            0.59
         ));
         // At the map's detail: a true pose on 4 scanned rooms (0.57 at
         // level 1, 0.75 and 0.77 above) passes ...
-        assert!(local_contrast_passes(
-            &with_local(0.57),
-            0.75,
-            1,
-            &config,
-            config.min_local_correlation
-        ));
+        assert!(passes_local(&with_local(0.57), 0.75, 1, &config));
         // ... the place 2.4 m away (0.59, then 0.66 and 0.70) and the
         // 13 cm slide (0.24, 0.48, 0.63) do not.
-        assert!(!local_contrast_passes(
-            &with_local(0.59),
-            0.66,
-            1,
-            &config,
-            config.min_local_correlation
-        ));
-        assert!(!local_contrast_passes(
-            &with_local(0.24),
-            0.48,
-            1,
-            &config,
-            config.min_local_correlation
-        ));
+        assert!(!passes_local(&with_local(0.59), 0.66, 1, &config));
+        assert!(!passes_local(&with_local(0.24), 0.48, 1, &config));
         // The first level's own floor still holds; where the coarser
         // levels hold no local contrast (NaN), the first holds the whole.
-        assert!(!local_contrast_passes(
-            &with_local(0.45),
-            0.9,
-            1,
-            &config,
-            config.min_local_correlation
-        ));
-        assert!(!local_contrast_passes(
-            &with_local(0.6),
-            f32::NAN,
-            1,
-            &config,
-            config.min_local_correlation
-        ));
-        assert!(local_contrast_passes(
-            &with_local(0.75),
-            f32::NAN,
-            1,
-            &config,
-            config.min_local_correlation
-        ));
+        assert!(!passes_local(&with_local(0.45), 0.9, 1, &config));
+        assert!(!passes_local(&with_local(0.6), f32::NAN, 1, &config));
+        assert!(passes_local(&with_local(0.75), f32::NAN, 1, &config));
         // A floor set above min_local_correlation does not raise the gate.
         let strict = RelocConfig {
             min_local_correlation_at_map_detail: 0.95,
             ..config.clone()
         };
-        assert!(local_contrast_passes(
-            &with_local(0.72),
-            0.8,
-            1,
-            &strict,
-            strict.min_local_correlation
-        ));
-        assert!(!local_contrast_passes(
-            &with_local(0.69),
-            0.8,
-            1,
-            &strict,
-            strict.min_local_correlation
-        ));
+        assert!(passes_local(&with_local(0.72), 0.8, 1, &strict));
+        assert!(!passes_local(&with_local(0.69), 0.8, 1, &strict));
     }
 
     #[test]
