@@ -40,6 +40,10 @@
 //! tracker renders a keyframe every 6 degrees or 8 % of the depth, at
 //! most 1 s apart: `--every 10` is 0.2 s at 50 Hz).
 //!
+//! The wgpu renderer is also timed with the occlusion cull chosen in flight
+//! (`set_occlusion_timed`, a hardware adapter's default), with the choice
+//! and its trial's medians.
+//!
 //! `--cpu-default` times only the CPU rasterizer with its default cull;
 //! `--gpu-only` only the wgpu renderer with its cull on (and the budget);
 //! `--interleaved` times only that (with `--gpu-only`, the wgpu renderer
@@ -336,6 +340,28 @@ fn bench_dataset(dir: &Path, only: Only) {
                 };
                 println!(
                     "  wgpu {} (cull {what}): median {median:.1} ms, p95 {p95:.1} ms over {n} renders{occlusion_counts}",
+                    adapter_label(),
+                );
+            }
+            if !only.gpu_only {
+                // The cull timed in flight, as a hardware adapter's renderer
+                // runs by default (`render::gpu::cull_timing`).
+                gpu.set_frustum_cull(true);
+                gpu.set_occlusion_timed();
+                let (median, p95, n) = time_renders(&mut gpu, &camera, &poses);
+                let decision = gpu.cull_decision().map_or_else(
+                    || "no trial finished".to_string(),
+                    |d| {
+                        format!(
+                            "kept {} (trial medians: {:.1} ms with the cull, {:.1} ms frustum only)",
+                            if d.occlusion { "the cull" } else { "the frustum cull alone" },
+                            d.with_cull_s * 1e3,
+                            d.frustum_only_s * 1e3
+                        )
+                    },
+                );
+                println!(
+                    "  wgpu {} (cull timed): median {median:.1} ms, p95 {p95:.1} ms over {n} renders; {decision}",
                     adapter_label(),
                 );
             }

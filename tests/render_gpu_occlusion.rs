@@ -151,3 +151,60 @@ fn occlusion_cull_never_changes_the_wgpu_image() {
         stats.triangles_drawn
     );
 }
+
+#[test]
+fn a_timed_occlusion_cull_switches_modes_without_changing_the_image() {
+    use star::render::gpu::cull_timing::BLOCK;
+    let mut preset = Preset::by_name("building").unwrap();
+    if let Some(spec) = preset.scene.building.as_mut() {
+        spec.rooms = 4;
+    }
+    let scene = preset_scene(&preset, 1);
+    // A trial (a block with the cull, one without) and a few renders after
+    // its decision.
+    let poses: Vec<Pose> = walk(&scene).into_iter().take(2 * BLOCK + 6).collect();
+    let mesh = Arc::new(scene.map.clone());
+    let camera: PinholeCamera = preset.camera.pinhole();
+    let Some(mut timed) = renderer(&mesh) else {
+        return;
+    };
+    let mut full = renderer(&mesh).unwrap();
+    full.set_frustum_cull(false);
+    let far = Some(DEFAULT_FAR_M);
+    timed.set_far_m(far);
+    full.set_far_m(far);
+    timed.set_occlusion_timed();
+    let (mut a, mut b) = (
+        RenderedView::for_camera(&camera),
+        RenderedView::for_camera(&camera),
+    );
+    for (k, pose) in poses.iter().enumerate() {
+        if k == 2 * BLOCK {
+            // The trial ends with the render before this one.
+            let d = timed
+                .cull_decision()
+                .expect("a trial of two blocks has finished");
+            assert!(d.with_cull_s > 0.0 && d.frustum_only_s > 0.0, "{d:?}");
+        } else if k < 2 * BLOCK {
+            assert!(timed.cull_decision().is_none(), "render {k}: decided early");
+        }
+        timed.render(pose, &camera, &mut a).unwrap();
+        full.render(pose, &camera, &mut b).unwrap();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert!(
+            bits(a.gray.data()) == bits(b.gray.data())
+                && bits(a.depth_m.data()) == bits(b.depth_m.data()),
+            "pose {k} ({pose:?}): the timed cull changed the image"
+        );
+    }
+    eprintln!("timed on this adapter: {:?}", timed.cull_decision());
+    // The block without the cull ran: the cull's own count is short of the
+    // renders by at least that block.
+    let stats = timed.occlusion_stats();
+    assert!(
+        stats.renders + BLOCK as u64 <= poses.len() as u64,
+        "{} renders, {} with the cull",
+        poses.len(),
+        stats.renders
+    );
+}

@@ -33,7 +33,7 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 
 use super::cpu::CpuRenderer;
-use super::gpu::{AdapterPreference, GpuRenderer};
+use super::gpu::{AdapterClass, AdapterPreference, GpuRenderer};
 use super::{RenderError, RenderedView, Renderer};
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::Mesh;
@@ -91,8 +91,11 @@ pub struct RenderConfig {
     /// first (exact: the image is the same; default on). The CPU
     /// rasterizer culls chunks, clusters and triangles between its
     /// batches; wgpu draws a resident mesh in two passes with the depth of
-    /// the first read back between them (`render::gpu` docs). Off: the
-    /// frustum and far limit only.
+    /// the first read back between them (`render::gpu` docs). On a
+    /// hardware adapter, where that readback may cost more than it saves,
+    /// wgpu times renders with and without the cull in flight and keeps
+    /// the faster (`render::gpu::cull_timing`); on lavapipe it is always
+    /// on. Off: the frustum and far limit only.
     pub occlusion_cull: bool,
     /// Level of detail (`render::lod`): runs of 4, 16 and 64 chunks also
     /// have coarser copies, their vertices pooled in cells of 2, 4 and 8
@@ -243,7 +246,15 @@ impl Active {
                     settings.lod_max_px,
                 )?;
                 r.set_far_m(settings.far_m);
-                r.set_occlusion_cull(!settings.no_occlusion_cull);
+                if settings.no_occlusion_cull {
+                    r.set_occlusion_cull(false);
+                } else if r.class() == AdapterClass::Hardware {
+                    // Whether the readback between passes pays depends on
+                    // the device: timed in flight.
+                    r.set_occlusion_timed();
+                } else {
+                    r.set_occlusion_cull(true);
+                }
                 Ok(Active::Gpu(Box::new(r)))
             }
             Stage::Cpu => {

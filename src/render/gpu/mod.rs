@@ -28,6 +28,7 @@
 //! `render::select` then falls back to the next renderer.
 
 pub mod adapter;
+pub mod cull_timing;
 mod draws;
 mod frame;
 mod occlusion;

@@ -22,9 +22,10 @@
 //! one a single pass would give (same triangles, same order).
 
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use super::adapter::{self, AdapterClass, AdapterPreference};
+use super::cull_timing::{CullDecision, CullTiming};
 use super::draws::{self, Draw};
 use super::frame::{FrameTargets, MapStatus};
 use super::occlusion::{self, BoxView, GpuOcclusion, OcclusionStats};
@@ -112,6 +113,9 @@ pub struct GpuRenderer {
     /// Whether clusters hidden behind what earlier passes drew are skipped
     /// (on by default; with the frustum cull, on a resident mesh).
     occlusion_cull: bool,
+    /// When set, `occlusion_cull` is chosen render by render by timing
+    /// both ways ([`GpuRenderer::set_occlusion_timed`]).
+    cull_timing: Option<CullTiming>,
     /// Counts of the last render's frustum test.
     stats: CullStats,
     /// Far limit along the optical axis, meters; `None`: none.
@@ -362,6 +366,7 @@ impl GpuRenderer {
             mesh: gpu_mesh,
             cull: true,
             occlusion_cull: true,
+            cull_timing: None,
             stats: CullStats::default(),
             far_m: None,
             frame: None,
@@ -399,6 +404,27 @@ impl GpuRenderer {
     /// drawn with the frustum cull only); see `super::occlusion`.
     pub fn set_occlusion_cull(&mut self, on: bool) {
         self.occlusion_cull = on;
+        self.cull_timing = None;
+    }
+
+    /// Uses the occlusion cull where it makes renders faster on this
+    /// device: renders are timed with it and with the frustum cull alone,
+    /// in short blocks, and the faster is kept until the next trial
+    /// (`super::cull_timing`). The image is the same either way. Only a
+    /// resident mesh has the cull; a streamed one is left as it is.
+    pub fn set_occlusion_timed(&mut self) {
+        if self.mesh.occlusion.is_some() {
+            self.occlusion_cull = true;
+            self.cull_timing = Some(CullTiming::new());
+        }
+    }
+
+    /// The last timed choice of the occlusion cull
+    /// ([`GpuRenderer::set_occlusion_timed`]), once a trial has finished.
+    pub fn cull_decision(&self) -> Option<CullDecision> {
+        self.cull_timing
+            .as_ref()
+            .and_then(CullTiming::last_decision)
     }
 
     /// Counts of the occlusion cull since start (all zero when it never
@@ -769,7 +795,24 @@ impl Renderer for GpuRenderer {
     ) -> Result<(), RenderError> {
         check_request(world_from_camera, camera)?;
         out.check_size(camera)?;
+        let timed = self.cull_timing.as_ref().map(CullTiming::next_uses_cull);
+        if let Some(on) = timed {
+            self.occlusion_cull = on;
+        }
+        let start = Instant::now();
         let pending = self.submit(world_from_camera, camera)?;
-        Ok(self.collect(pending, out)?)
+        self.collect(pending, out)?;
+        if let (Some(on), Some(timing)) = (timed, self.cull_timing.as_mut()) {
+            if let Some(d) = timing.record(on, start.elapsed().as_secs_f64()) {
+                tracing::info!(
+                    occlusion_cull = d.occlusion,
+                    with_cull_ms = d.with_cull_s * 1e3,
+                    frustum_only_ms = d.frustum_only_s * 1e3,
+                    trial = timing.trials(),
+                    "occlusion cull timed on this device"
+                );
+            }
+        }
+        Ok(())
     }
 }
