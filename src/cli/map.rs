@@ -1,6 +1,7 @@
-//! `star map info MESH` and `star map align MESH`: what a user's map is
-//! like before flying with it, and the `[map.world_from_mesh]` that makes
-//! it z-up.
+//! `star map info MESH`, `star map align MESH` and `star map plan MESH`:
+//! what a user's map is like before flying with it, the
+//! `[map.world_from_mesh]` that makes it z-up, and the map from above with
+//! its relocalization database (`crate::output::plan`).
 //!
 //! `info` loads the map as the tracker would (through `--config`'s
 //! `[map.world_from_mesh]` when given) and prints its size, colors, floor,
@@ -37,6 +38,37 @@ pub enum MapCommand {
     /// Find the floor of a mesh in any frame (RANSAC) and write the
     /// `[map.world_from_mesh]` that makes the map z-up.
     Align(AlignArgs),
+    /// Draw the map from above as a floor plan (PNG), with the
+    /// relocalization database's views and landmarks and flown
+    /// trajectories.
+    Plan(PlanArgs),
+}
+
+/// Arguments of `star map plan`.
+#[derive(Debug, clap::Args)]
+pub struct PlanArgs {
+    /// The map: .obj, .ply, .gltf or .glb.
+    pub mesh: PathBuf,
+    /// The PNG to write.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Configuration: its `[map.world_from_mesh]` places the mesh.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Relocalization database of this map: its views and landmarks are
+    /// drawn.
+    #[arg(long)]
+    pub reloc: Option<PathBuf>,
+    /// TUM trajectories to draw (ground truth, `star localize -o`, a flight
+    /// log's `trajectory.txt`); repeat for several.
+    #[arg(long)]
+    pub trajectory: Vec<PathBuf>,
+    /// Plan cell (one pixel), meters; larger for maps over 4000 cells a side.
+    #[arg(long, default_value_t = 0.05)]
+    pub cell_m: f64,
+    /// Height of the floor, world meters; found in the map when not given.
+    #[arg(long, allow_hyphen_values = true)]
+    pub floor_z: Option<f64>,
 }
 
 /// Arguments of `star map info`.
@@ -122,7 +154,117 @@ pub fn run(cmd: &MapCommand) -> Result<()> {
     match cmd {
         MapCommand::Info(args) => info(args),
         MapCommand::Align(args) => align(args),
+        MapCommand::Plan(args) => plan(args),
     }
+}
+
+fn plan(args: &PlanArgs) -> Result<()> {
+    use crate::output::plan::{plan_png, PlanInput, CELL_M_RANGE};
+    if !CELL_M_RANGE.contains(&args.cell_m) {
+        bail!("--cell-m {} is outside 0.005..=1 m", args.cell_m);
+    }
+    if let Some(z) = args.floor_z {
+        if !z.is_finite() {
+            bail!("--floor-z {z} is not a finite height");
+        }
+    }
+    let config = match &args.config {
+        Some(p) => Config::load(p)?,
+        None => Config::default(),
+    };
+    let trajectories = args
+        .trajectory
+        .iter()
+        .map(|p| {
+            crate::dataset::Trajectory::read(p)
+                .with_context(|| format!("reading trajectory {}", p.display()))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let (mesh, _) = load(&args.mesh, &config.map)?;
+    let floor_z_m = match args.floor_z {
+        Some(z) => z,
+        None => find_floor(&mesh)
+            .map(|f| f.z_m)
+            .map_err(|e| anyhow::anyhow!("{e}"))
+            .with_context(|| {
+                format!(
+                    "{}: no floor found (is the map z-up? `star map align`); give --floor-z",
+                    args.mesh.display()
+                )
+            })?,
+    };
+    let db = match &args.reloc {
+        Some(path) => {
+            let db = crate::reloc::RelocDatabase::read(path)
+                .with_context(|| format!("reading relocalization database {}", path.display()))?;
+            let fingerprint = crate::reloc::map_fingerprint(&mesh);
+            if db.map_fingerprint != fingerprint {
+                bail!(
+                    "{} was built from another map than {} (fingerprint {:016x}, the map's {:016x}): its views would be drawn in the wrong places",
+                    path.display(),
+                    args.mesh.display(),
+                    db.map_fingerprint,
+                    fingerprint
+                );
+            }
+            Some(db)
+        }
+        None => None,
+    };
+    let views_m: Vec<[f64; 3]> = db.as_ref().map_or_else(Vec::new, |db| {
+        db.entries
+            .iter()
+            .map(|e| {
+                let t = e.world_from_camera.translation.vector;
+                [t.x, t.y, t.z]
+            })
+            .collect()
+    });
+    let landmarks_m: Vec<[f32; 3]> = db.as_ref().map_or_else(Vec::new, |db| {
+        db.landmarks.iter().map(|l| l.world_m).collect()
+    });
+    let labels: Vec<String> = args
+        .trajectory
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect();
+    let tracks: Vec<(&str, &crate::dataset::Trajectory)> = labels
+        .iter()
+        .map(String::as_str)
+        .zip(trajectories.iter())
+        .collect();
+    let bar = spinner("drawing the plan");
+    let summary = plan_png(
+        &PlanInput {
+            mesh: &mesh,
+            floor_z_m,
+            cell_m: args.cell_m,
+            views_m: &views_m,
+            landmarks_m: &landmarks_m,
+            trajectories: &tracks,
+        },
+        &args.output,
+    );
+    bar.finish_and_clear();
+    let summary =
+        summary.with_context(|| format!("drawing the plan of {}", args.mesh.display()))?;
+    println!(
+        "map plan: {} ({}x{} px, {:.3} m a pixel); floor z = {floor_z_m:.3} m: {:.1} m² of floor, {:.1} m² of walls and furniture{}",
+        args.output.display(),
+        summary.width_px,
+        summary.height_px,
+        summary.cell_m,
+        summary.floor_m2,
+        summary.obstacle_m2,
+        match &db {
+            Some(_) => format!(
+                "; {} relocalization views ({} above no map: outside the building?) and {} landmarks drawn",
+                summary.views, summary.views_off_map, summary.landmarks
+            ),
+            None => String::new(),
+        }
+    );
+    Ok(())
 }
 
 fn spinner(message: &str) -> ProgressBar {

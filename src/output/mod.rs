@@ -8,7 +8,8 @@
 //! recorder thread, which writes `trajectory.txt`, `frames.csv` and PNGs,
 //! rotates files by size and stops at a free-space floor; reading the log
 //! back ([`read_frames_log`], [`FrameLogSummary`]); the residual and view
-//! strip ([`view`]); the trajectory plot ([`plot`]); with the cargo
+//! strip ([`view`]); the trajectory plot ([`plot`]); the floor plan of a
+//! map with its relocalization database ([`plan`]); with the cargo
 //! feature `rerun`, the live view in Rerun (`rerun_log`, `--rerun`). Takes the localizer's
 //! per-frame output and keyframe, the MAVLink link's send log and TUM
 //! trajectories; gives out files.
@@ -16,6 +17,7 @@
 pub mod config;
 pub mod files;
 pub mod frames_log;
+pub mod plan;
 pub mod plot;
 pub mod record;
 mod record_writer;

@@ -23,7 +23,7 @@ use super::frames_log::LogEvent;
 /// The font, embedded: printable ASCII and a few symbols of DejaVu Sans.
 const FONT_TTF: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans-subset.ttf");
 /// The family name the plots ask for.
-const FONT: &str = "sans-serif";
+pub(super) const FONT: &str = "sans-serif";
 
 /// Smallest and largest picture, pixels.
 pub const MIN_SIZE_PX: (u32, u32) = (400, 300);
@@ -97,7 +97,7 @@ pub fn gap_events(estimate: &Trajectory) -> Vec<LogEvent> {
     events
 }
 
-fn register_font() -> Result<(), PlotError> {
+pub(super) fn register_font() -> Result<(), PlotError> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED
         .get_or_init(|| plotters::style::register_font(FONT, FontStyle::Normal, FONT_TTF).is_ok());
@@ -162,7 +162,10 @@ pub fn plot_png(
 
 /// Writes the plot with the best PNG compression (flat colors compress
 /// well: a 1600x900 plot is about 100 KB).
-fn write_png(path: &Path, image: &image::RgbImage) -> Result<(), crate::dataset::DatasetError> {
+pub(super) fn write_png(
+    path: &Path,
+    image: &image::RgbImage,
+) -> Result<(), crate::dataset::DatasetError> {
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     use image::ImageEncoder;
     let encode_err = |message: String| crate::dataset::DatasetError::Encode {
