@@ -25,6 +25,19 @@ fn star(args: &[&str]) -> Output {
         .expect("run star")
 }
 
+/// `star map plan MESH -o PNG` with `extra` arguments.
+fn plan(mesh: &Path, png: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "map",
+        "plan",
+        mesh.to_str().unwrap(),
+        "-o",
+        png.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    star(&args)
+}
+
 fn text(o: &Output) -> String {
     format!(
         "{}{}",
@@ -83,19 +96,18 @@ fn a_plan_draws_the_database_and_the_trajectory_and_refuses_bad_input() {
     )
     .expect("trajectory");
     let png = dir.path().join("plan.png");
-    let out = star(&[
-        "map",
-        "plan",
-        obj.to_str().unwrap(),
-        "-o",
-        png.to_str().unwrap(),
-        "--reloc",
-        db.to_str().unwrap(),
-        "--trajectory",
-        trajectory.to_str().unwrap(),
-        "--floor-z",
-        "0",
-    ]);
+    let out = plan(
+        &obj,
+        &png,
+        &[
+            "--reloc",
+            db.to_str().unwrap(),
+            "--trajectory",
+            trajectory.to_str().unwrap(),
+            "--floor-z",
+            "0",
+        ],
+    );
     let said = text(&out);
     assert!(out.status.success(), "map plan: {said}");
     let views = format!("{} relocalization views", database.entries.len());
@@ -122,17 +134,11 @@ fn a_plan_draws_the_database_and_the_trajectory_and_refuses_bad_input() {
         p[0] += 1.0;
     }
     let other = write_obj(&moved, dir.path(), "moved").expect("write");
-    let out = star(&[
-        "map",
-        "plan",
-        other.to_str().unwrap(),
-        "-o",
-        png.to_str().unwrap(),
-        "--reloc",
-        db.to_str().unwrap(),
-        "--floor-z",
-        "0",
-    ]);
+    let out = plan(
+        &other,
+        &png,
+        &["--reloc", db.to_str().unwrap(), "--floor-z", "0"],
+    );
     assert!(!out.status.success());
     assert!(
         text(&out).contains("was built from another map"),
@@ -140,15 +146,7 @@ fn a_plan_draws_the_database_and_the_trajectory_and_refuses_bad_input() {
         text(&out)
     );
 
-    let out = star(&[
-        "map",
-        "plan",
-        obj.to_str().unwrap(),
-        "-o",
-        png.to_str().unwrap(),
-        "--cell-m",
-        "0",
-    ]);
+    let out = plan(&obj, &png, &["--cell-m", "0"]);
     assert!(!out.status.success());
     assert!(
         text(&out).contains("--cell-m 0 is outside"),
@@ -156,15 +154,7 @@ fn a_plan_draws_the_database_and_the_trajectory_and_refuses_bad_input() {
         text(&out)
     );
 
-    let out = star(&[
-        "map",
-        "plan",
-        obj.to_str().unwrap(),
-        "-o",
-        png.to_str().unwrap(),
-        "--floor-z",
-        "50",
-    ]);
+    let out = plan(&obj, &png, &["--floor-z", "50"]);
     assert!(!out.status.success());
     assert!(
         text(&out).contains("nothing of the map lies within 0.1 m of the floor"),

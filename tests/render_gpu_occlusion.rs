@@ -79,6 +79,16 @@ fn walk(scene: &star::synth::Scene) -> Vec<Pose> {
     out
 }
 
+/// The `building` preset with 4 rooms, seed 1.
+fn four_rooms() -> (Preset, star::synth::Scene) {
+    let mut preset = Preset::by_name("building").unwrap();
+    if let Some(spec) = preset.scene.building.as_mut() {
+        spec.rooms = 4;
+    }
+    let scene = preset_scene(&preset, 1);
+    (preset, scene)
+}
+
 fn renderer(mesh: &Arc<star::map::Mesh>) -> Option<GpuRenderer> {
     match GpuRenderer::new(Arc::clone(mesh), AdapterPreference::Software) {
         Ok(r) => Some(r),
@@ -94,11 +104,7 @@ fn renderer(mesh: &Arc<star::map::Mesh>) -> Option<GpuRenderer> {
 
 #[test]
 fn occlusion_cull_never_changes_the_wgpu_image() {
-    let mut preset = Preset::by_name("building").unwrap();
-    if let Some(spec) = preset.scene.building.as_mut() {
-        spec.rooms = 4;
-    }
-    let scene = preset_scene(&preset, 1);
+    let (preset, scene) = four_rooms();
     let poses = walk(&scene);
     assert!(poses.len() > 60, "a walk of {} poses", poses.len());
     let mesh = Arc::new(scene.map.clone());
@@ -155,11 +161,7 @@ fn occlusion_cull_never_changes_the_wgpu_image() {
 #[test]
 fn a_timed_occlusion_cull_switches_modes_without_changing_the_image() {
     use star::render::gpu::cull_timing::BLOCK;
-    let mut preset = Preset::by_name("building").unwrap();
-    if let Some(spec) = preset.scene.building.as_mut() {
-        spec.rooms = 4;
-    }
-    let scene = preset_scene(&preset, 1);
+    let (preset, scene) = four_rooms();
     // A trial (a block with the cull, one without) and a few renders after
     // its decision.
     let poses: Vec<Pose> = walk(&scene).into_iter().take(2 * BLOCK + 6).collect();

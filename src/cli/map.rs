@@ -183,15 +183,12 @@ fn plan(args: &PlanArgs) -> Result<()> {
     let (mesh, _) = load(&args.mesh, &config.map)?;
     let floor_z_m = match args.floor_z {
         Some(z) => z,
-        None => find_floor(&mesh)
-            .map(|f| f.z_m)
-            .map_err(|e| anyhow::anyhow!("{e}"))
-            .with_context(|| {
-                format!(
-                    "{}: no floor found (is the map z-up? `star map align`); give --floor-z",
-                    args.mesh.display()
-                )
-            })?,
+        None => find_floor(&mesh).map(|f| f.z_m).with_context(|| {
+            format!(
+                "{}: no floor found (is the map z-up? `star map align`); give --floor-z",
+                args.mesh.display()
+            )
+        })?,
     };
     let db = match &args.reloc {
         Some(path) => {

@@ -17,6 +17,7 @@
 
 use std::path::Path;
 
+use nalgebra::Vector3;
 use plotters::prelude::*;
 
 use super::plot::{register_font, write_png, FONT};
@@ -160,27 +161,25 @@ impl PlanGrid {
             let p = |i: u32| {
                 mesh.positions
                     .get(i as usize)
-                    .map_or([f64::NAN; 3], |v| v.map(f64::from))
+                    .map_or(Vector3::repeat(f64::NAN), |v| {
+                        Vector3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))
+                    })
             };
             let (a, b, c) = (p(tri[0]), p(tri[1]), p(tri[2]));
-            let (tz_lo, tz_hi) = (a[2].min(b[2]).min(c[2]), a[2].max(b[2]).max(c[2]));
+            let (tz_lo, tz_hi) = (a.z.min(b.z).min(c.z), a.z.max(b.z).max(c.z));
             if !(tz_hi >= z_lo && tz_lo <= z_hi) {
                 continue;
             }
-            let (ab, ac) = (sub(b, a), sub(c, a));
-            let n = cross(ab, ac);
-            let norm = dot(n, n).sqrt();
-            let horizontal = norm > 0.0 && (n[2] / norm).abs() >= 0.7;
-            let edge = dot(ab, ab)
-                .max(dot(ac, ac))
-                .max(dot(sub(c, b), sub(c, b)))
-                .sqrt();
+            let (ab, ac) = (b - a, c - a);
+            let n = ab.cross(&ac);
+            let horizontal = n.norm() > 0.0 && (n.z / n.norm()).abs() >= 0.7;
+            let edge = ab.norm().max(ac.norm()).max((c - b).norm());
             let k = ((edge / step_m).ceil() as usize).clamp(1, MAX_EDGE_SAMPLES);
             for i in 0..=k {
                 for j in 0..=k - i {
                     let (s, t) = (i as f64 / k as f64, j as f64 / k as f64);
-                    let q = [0, 1, 2].map(|d| a[d] + s * ab[d] + t * ac[d]);
-                    let dz = q[2] - floor_z_m;
+                    let q = a + s * ab + t * ac;
+                    let dz = q.z - floor_z_m;
                     let class = if horizontal && dz.abs() <= FLOOR_BAND_M {
                         Cell::Floor
                     } else if dz > FLOOR_BAND_M && dz <= OBSTACLE_TOP_M {
@@ -188,7 +187,7 @@ impl PlanGrid {
                     } else {
                         continue;
                     };
-                    if let Some(cell) = grid.cell_mut(q[0], q[1]) {
+                    if let Some(cell) = grid.cell_mut(q.x, q.y) {
                         any = true;
                         if *cell != Cell::Obstacle {
                             *cell = class;
@@ -444,22 +443,6 @@ fn draw_legend(
     }
     root.present()?;
     Ok(())
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 #[cfg(test)]
