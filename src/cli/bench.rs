@@ -117,6 +117,10 @@ pub enum BenchCommand {
         /// there (the database of `star bench integrity --database`).
         #[arg(long, requires = "dataset")]
         database: Option<PathBuf>,
+        /// Also draw the map from above (PNG) with the database's views and
+        /// each whole-map query marked by its outcome (`star map plan`).
+        #[arg(long)]
+        plan: Option<PathBuf>,
     },
 }
 
@@ -165,6 +169,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             seed,
             dataset,
             database,
+            plan,
         } => {
             let source = dataset
                 .as_ref()
@@ -172,7 +177,13 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
                     dataset: dataset.clone(),
                     database: database.clone(),
                 });
-            crate::bench::reloc::run(config.as_deref(), *queries, *seed, source.as_ref())
+            crate::bench::reloc::run(
+                config.as_deref(),
+                *queries,
+                *seed,
+                source.as_ref(),
+                plan.as_deref(),
+            )
         }
     }
 }

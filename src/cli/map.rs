@@ -239,6 +239,7 @@ fn plan(args: &PlanArgs) -> Result<()> {
             views_m: &views_m,
             landmarks_m: &landmarks_m,
             trajectories: &tracks,
+            marks: &[],
         },
         &args.output,
     );

@@ -35,7 +35,9 @@ pub const CELL_M_RANGE: std::ops::RangeInclusive<f64> = 0.005..=1.0;
 pub const MAX_SIDE_CELLS: usize = 4000;
 /// Pixels around the plan and below it for the legend.
 const MARGIN_PX: u32 = 12;
-const LEGEND_PX: u32 = 86;
+/// The legend: the scale bar's band, then rows of two items.
+const LEGEND_TOP_PX: u32 = 34;
+const LEGEND_ROW_PX: u32 = 18;
 /// Narrowest picture, so the legend fits.
 const MIN_WIDTH_PX: u32 = 640;
 /// Most samples along a triangle's edge (a 100 m edge at 5 cm cells is
@@ -84,6 +86,20 @@ pub struct PlanInput<'a> {
     pub landmarks_m: &'a [[f32; 3]],
     /// Trajectories to draw, with their labels.
     pub trajectories: &'a [(&'a str, &'a Trajectory)],
+    /// Places to mark, by kind (`star bench reloc --plan`: each query's
+    /// outcome), drawn last.
+    pub marks: &'a [MarkKind<'a>],
+}
+
+/// Places of one kind, marked with rings of one color.
+#[derive(Debug, Clone, Copy)]
+pub struct MarkKind<'a> {
+    /// Legend label (the count is added).
+    pub label: &'a str,
+    /// Ring color.
+    pub color: [u8; 3],
+    /// World x, y of each place, m.
+    pub positions_m: &'a [[f64; 2]],
 }
 
 /// What a drawn plan holds.
@@ -273,6 +289,17 @@ impl Canvas {
         }
     }
 
+    /// A square ring of half-side `r`, two pixels thick.
+    fn ring(&mut self, (x, y): (u32, u32), r: i64, color: [u8; 3]) {
+        for dy in -r..=r {
+            for dx in -r..=r {
+                if dx.abs() >= r - 1 || dy.abs() >= r - 1 {
+                    self.put(i64::from(x) + dx, i64::from(y) + dy, color);
+                }
+            }
+        }
+    }
+
     /// A line two pixels wide.
     fn line(&mut self, a: (u32, u32), b: (u32, u32), color: [u8; 3]) {
         let (x0, y0, x1, y1) = (
@@ -297,7 +324,13 @@ pub fn plan_png(input: &PlanInput<'_>, path: &Path) -> Result<PlanSummary, PlanE
     register_font().map_err(|_| PlanError::Font)?;
     let grid = PlanGrid::from_mesh(input.mesh, input.floor_z_m, input.cell_m)?;
     let width = (grid.size.0 as u32 + 2 * MARGIN_PX).max(MIN_WIDTH_PX);
-    let height = grid.size.1 as u32 + 2 * MARGIN_PX + LEGEND_PX;
+    let items = 2
+        + usize::from(!input.landmarks_m.is_empty())
+        + usize::from(!input.views_m.is_empty())
+        + input.trajectories.len()
+        + input.marks.len();
+    let legend_px = LEGEND_TOP_PX + LEGEND_ROW_PX * items.div_ceil(2) as u32;
+    let height = grid.size.1 as u32 + 2 * MARGIN_PX + legend_px;
     let mut canvas = Canvas {
         width,
         height,
@@ -369,7 +402,15 @@ pub fn plan_png(input: &PlanInput<'_>, path: &Path) -> Result<PlanSummary, PlanE
             last = here;
         }
     }
-    draw_legend(&mut canvas, input, &grid, &summary).map_err(|e| PlanError::Draw(e.to_string()))?;
+    for kind in input.marks {
+        for p in kind.positions_m {
+            if let Some(px) = grid.pixel(p[0], p[1]) {
+                canvas.ring(px, 4, kind.color);
+            }
+        }
+    }
+    draw_legend(&mut canvas, input, &grid, (&summary, legend_px))
+        .map_err(|e| PlanError::Draw(e.to_string()))?;
     let image = image::RgbImage::from_raw(width, height, canvas.rgb)
         .ok_or_else(|| PlanError::Draw("the picture buffer has the wrong size".into()))?;
     write_png(path, &image)?;
@@ -380,13 +421,13 @@ fn draw_legend(
     canvas: &mut Canvas,
     input: &PlanInput<'_>,
     grid: &PlanGrid,
-    summary: &PlanSummary,
+    (summary, legend_px): (&PlanSummary, u32),
 ) -> Result<(), Box<dyn std::error::Error>> {
     let (width, height) = (canvas.width, canvas.height);
     let root = BitMapBackend::with_buffer(&mut canvas.rgb, (width, height)).into_drawing_area();
     let text = |size: u32| (FONT, size).into_font().color(&BLACK);
     let rgb = |c: [u8; 3]| RGBColor(c[0], c[1], c[2]);
-    let top = (height - LEGEND_PX + 8) as i32;
+    let top = (height - legend_px) as i32;
     let x0 = MARGIN_PX as i32;
     // Scale bar: the round length nearest a fifth of the plan's width.
     let plan_w_m = grid.size.0 as f64 * grid.cell_m;
@@ -430,11 +471,17 @@ fn draw_legend(
     for (k, (label, _)) in input.trajectories.iter().enumerate() {
         items.push((rgb(TRACKS[k % TRACKS.len()]), (*label).to_string()));
     }
+    for kind in input.marks {
+        items.push((
+            rgb(kind.color),
+            format!("{} ({})", kind.label, kind.positions_m.len()),
+        ));
+    }
     let columns = 2;
     let column_px = ((width - 2 * MARGIN_PX) / columns) as i32;
     for (k, (color, label)) in items.iter().enumerate() {
         let (col, row) = ((k % columns as usize) as i32, (k / columns as usize) as i32);
-        let (x, y) = (x0 + col * column_px, top + 22 + row * 18);
+        let (x, y) = (x0 + col * column_px, top + 22 + row * LEGEND_ROW_PX as i32);
         root.draw(&Rectangle::new(
             [(x, y + 2), (x + 12, y + 12)],
             color.filled(),
@@ -560,6 +607,11 @@ mod tests {
             views_m: &[[0.5, 0.5, 1.2], [99.0, 0.5, 1.2], [6.0, 1.5, 1.2]],
             landmarks_m: &[[2.0, 0.02, 1.0]],
             trajectories: &[("truth", &track)],
+            marks: &[MarkKind {
+                label: "refused",
+                color: [200, 0, 200],
+                positions_m: &[[3.0, 1.5]],
+            }],
         };
         let summary = plan_png(&input, &path).expect("drawn");
         assert_eq!(
@@ -587,6 +639,9 @@ mod tests {
         // Half orange over the wall.
         assert_eq!(at(2.0, 0.02), [150, 86, 29]);
         assert_eq!(at(1.25, 2.5), TRACKS[0]);
+        // The mark's ring, 4 cells right of its place; its center is left.
+        assert_eq!(at(3.2, 1.5), [200, 0, 200]);
+        assert_eq!(at(3.0, 1.5), FLOOR);
         assert_eq!(at(3.5, 1.0), FLOOR);
         assert_eq!(at(4.0, 1.0), OBSTACLE);
     }

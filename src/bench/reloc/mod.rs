@@ -85,6 +85,7 @@ pub fn run(
     queries: usize,
     seed: u64,
     source: Option<&DatasetSource>,
+    plan: Option<&std::path::Path>,
 ) -> Result<()> {
     if queries == 0 {
         anyhow::bail!("--queries must be at least 1");
@@ -105,6 +106,8 @@ pub fn run(
         + bench.config.reloc.max_yaw_rate_deg_s * near_lost_s)
         .min(180.0);
     let mut frames: Vec<Vec<crate::reloc::Descriptor>> = Vec::new();
+    // Where each whole-map query was, by its outcome, for `--plan`.
+    let mut cold: [Vec<[f64; 2]>; 3] = Default::default();
     while done < queries && tries < queries * 100 {
         tries += 1;
         let Some(query) = bench.draw_query(&mut rng, done + 1)? else {
@@ -125,9 +128,18 @@ pub fn run(
             }
             let Some(outcome) = bench.recover(&query, prior, tally) else {
                 tally.rejected += 1;
+                if prior.is_none() {
+                    cold[1].push([query.position_m.x, query.position_m.y]);
+                }
                 continue;
             };
             if prior.is_none() {
+                let k = match tally::judge(&query, &outcome) {
+                    tally::QueryResult::Success => 0,
+                    tally::QueryResult::Refused => 1,
+                    tally::QueryResult::Wrong => 2,
+                };
+                cold[k].push([query.position_m.x, query.position_m.y]);
                 if !scales.is_empty() {
                     frames.push(bench.reloc.landmarks_mut().last_query().to_vec());
                 }
@@ -150,6 +162,9 @@ pub fn run(
         done,
     );
     tally::search_timing(&bench.db, bench.config.reloc.top_k as usize, seed);
+    if let Some(path) = plan {
+        draw_plan(path, &bench, seed, source, &cold)?;
+    }
     if !scales.is_empty() {
         let lm = &bench.db.landmarks;
         let n = lm.len().max(1) as f32;
@@ -193,4 +208,74 @@ fn dataset_bench(config_path: Option<&std::path::Path>, source: &DatasetSource) 
         source.database.as_deref(),
     )?;
     Bench::from_dataset(config, dataset, mesh, db)
+}
+
+/// `--plan`: the map from above with the database's views and each
+/// whole-map query marked by its outcome.
+fn draw_plan(
+    path: &std::path::Path,
+    bench: &Bench,
+    seed: u64,
+    source: Option<&DatasetSource>,
+    cold: &[Vec<[f64; 2]>; 3],
+) -> Result<()> {
+    use crate::output::plan::{plan_png, MarkKind, PlanInput};
+    use anyhow::Context;
+    let mesh = match source {
+        Some(s) => crate::bench::integrity::map_of(&s.dataset)?,
+        None => {
+            let preset =
+                crate::synth::preset::Preset::by_name("realistic").context("preset `realistic`")?;
+            crate::synth::sequence::preset_scene(&preset, seed).map
+        }
+    };
+    let floor_z_m = crate::map::floor::find_floor(&mesh)
+        .map(|f| f.z_m)
+        .context("the plan: no floor found in the map")?;
+    let views_m: Vec<[f64; 3]> = bench
+        .db
+        .entries
+        .iter()
+        .map(|e| {
+            let t = e.world_from_camera.translation.vector;
+            [t.x, t.y, t.z]
+        })
+        .collect();
+    let marks = [
+        MarkKind {
+            label: "whole-map query: relocalized within 5 cm, 2 deg",
+            color: [44, 160, 44],
+            positions_m: &cold[0],
+        },
+        MarkKind {
+            label: "whole-map query: refused",
+            color: [148, 103, 189],
+            positions_m: &cold[1],
+        },
+        MarkKind {
+            label: "whole-map query: wrong pose accepted",
+            color: [214, 39, 40],
+            positions_m: &cold[2],
+        },
+    ];
+    let summary = plan_png(
+        &PlanInput {
+            mesh: &mesh,
+            floor_z_m,
+            cell_m: 0.05,
+            views_m: &views_m,
+            landmarks_m: &[],
+            trajectories: &[],
+            marks: &marks,
+        },
+        path,
+    )
+    .with_context(|| format!("drawing the plan {}", path.display()))?;
+    println!(
+        "  plan: {} ({}x{} px): the database's views and the whole-map queries by outcome",
+        path.display(),
+        summary.width_px,
+        summary.height_px
+    );
+    Ok(())
 }

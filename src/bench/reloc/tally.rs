@@ -131,6 +131,39 @@ pub(super) struct Tally {
     pub(super) geometric_prior: usize,
 }
 
+/// A recovered pose within this of the truth is a success, meters...
+pub(super) const SUCCESS_M: f64 = 0.05;
+/// ...and degrees.
+pub(super) const SUCCESS_DEG: f64 = 2.0;
+
+/// What one search gave, against the truth.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum QueryResult {
+    /// A pose within [`SUCCESS_M`] and [`SUCCESS_DEG`] of the truth.
+    Success,
+    /// No pose.
+    Refused,
+    /// A pose farther off: a wrong accept.
+    Wrong,
+}
+
+/// Judges `outcome` against `query`'s truth.
+pub(super) fn judge(query: &QueryFrame, outcome: &Outcome) -> QueryResult {
+    match &outcome.verdict {
+        None => QueryResult::Refused,
+        Some(v) => {
+            let err = query.truth.inverse() * v.world_from_camera;
+            if err.translation.vector.norm() <= SUCCESS_M
+                && err.rotation.angle().to_degrees() <= SUCCESS_DEG
+            {
+                QueryResult::Success
+            } else {
+                QueryResult::Wrong
+            }
+        }
+    }
+}
+
 impl Tally {
     /// An empty tally for `rank_candidates` (`reloc.rank_candidates`).
     pub(super) fn new(rank_candidates: u32) -> Self {
@@ -148,7 +181,7 @@ impl Tally {
                 let err = query.truth.inverse() * v.world_from_camera;
                 let err_m = err.translation.vector.norm();
                 let err_deg = err.rotation.angle().to_degrees();
-                if err_m <= 0.05 && err_deg <= 2.0 {
+                if judge(query, outcome) == QueryResult::Success {
                     self.success += 1;
                     self.success_ncc
                         .push((v.correlation, v.trimmed_correlation));
