@@ -1,6 +1,7 @@
 //! `star bench reloc --dataset`: relocalization queried with a dataset's
 //! own frames against the database over the region it flies through, the
-//! way the `scanned` figure is taken; and the bench options' bad input.
+//! way the `scanned` figure is taken; its `--plan` picture; and the bench
+//! options' bad input.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -64,8 +65,12 @@ fn a_dataset_s_own_frames_relocalize_and_none_is_accepted_off() {
     assert_eq!(count_after(whole, "accepted but off:"), 0, "{out}");
     let success = count_after(whole, "success (accepted, within 5 cm / 2 deg):");
     assert!(success >= 4, "{success} of 6 relocalized:\n{out}");
-    // The second run reads the database written by the first.
-    let second = star(&args);
+    // The second run reads the database written by the first, and draws
+    // the plan of its queries (`--plan`), which changes no verdict.
+    let png = tmp.path().join("queries.png");
+    let mut with_plan = args.to_vec();
+    with_plan.extend_from_slice(&["--plan", png.to_str().unwrap()]);
+    let second = star(&with_plan);
     assert!(second.status.success(), "{}", text(&second));
     let out2 = String::from_utf8_lossy(&second.stdout).to_string();
     let verdicts = |out: &str| -> Vec<String> {
@@ -78,6 +83,13 @@ fn a_dataset_s_own_frames_relocalize_and_none_is_accepted_off() {
         verdicts(&out),
         verdicts(&out2),
         "the same database and seed gave other verdicts"
+    );
+    assert!(out2.contains("  plan: "), "{out2}");
+    let image = image::open(&png).expect("the plan is a PNG").to_rgb8();
+    // Every relocalized query is ringed in green.
+    assert!(
+        image.pixels().any(|p| p.0 == [44, 160, 44]),
+        "no relocalized query drawn"
     );
 }
 

@@ -7,9 +7,10 @@
 //! +y up: the floor (horizontal surfaces within [`FLOOR_BAND_M`] of its
 //! height) light gray, walls and furniture (any surface from
 //! [`FLOOR_BAND_M`] to [`OBSTACLE_TOP_M`] above the floor: what a vehicle
-//! flying there would meet) dark, landmarks as orange pixels, the
-//! database's views as blue dots, trajectories as lines, a legend and a
-//! scale bar below. Every triangle is sampled at half a cell, so a large
+//! flying there would meet) dark, landmarks tinting their cells orange, the
+//! database's views as blue dots, trajectories as lines, places of given
+//! kinds as rings (`star bench reloc --plan`: each query by its outcome), a
+//! legend and a scale bar below. Every triangle is sampled at half a cell, so a large
 //! wall and a 2 cm scan draw alike. What it shows at a glance, and a table
 //! does not: where the database has no views (no relocalization there),
 //! which walls carry landmarks, and where a flight went against the

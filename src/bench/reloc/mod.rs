@@ -9,7 +9,9 @@
 //! service lost for as long as gives a 2 m reach, facing the truth's
 //! heading); [`diagnose`] explains a whole-map query
 //! (`STAR_BENCH_VERBOSE`); [`tally`] keeps and prints the figures and times
-//! the search.
+//! the search. `--plan PNG` draws the map from above with the database's
+//! views and each whole-map query ringed by its outcome
+//! (`crate::output::plan`).
 //!
 //! Builds a database for the map mesh of the `realistic` preset's scene
 //! (CPU renderer), then queries random free poses rendered from the truth
