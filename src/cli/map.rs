@@ -208,15 +208,9 @@ fn plan(args: &PlanArgs) -> Result<()> {
         }
         None => None,
     };
-    let views_m: Vec<[f64; 3]> = db.as_ref().map_or_else(Vec::new, |db| {
-        db.entries
-            .iter()
-            .map(|e| {
-                let t = e.world_from_camera.translation.vector;
-                [t.x, t.y, t.z]
-            })
-            .collect()
-    });
+    let views_m = db
+        .as_ref()
+        .map_or_else(Vec::new, crate::output::plan::database_views_m);
     let landmarks_m: Vec<[f32; 3]> = db.as_ref().map_or_else(Vec::new, |db| {
         db.landmarks.iter().map(|l| l.world_m).collect()
     });

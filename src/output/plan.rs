@@ -103,6 +103,18 @@ pub struct MarkKind<'a> {
     pub positions_m: &'a [[f64; 2]],
 }
 
+/// The positions of `db`'s views, world meters, as [`PlanInput::views_m`]
+/// takes them.
+pub fn database_views_m(db: &crate::reloc::RelocDatabase) -> Vec<[f64; 3]> {
+    db.entries
+        .iter()
+        .map(|e| {
+            let t = e.world_from_camera.translation.vector;
+            [t.x, t.y, t.z]
+        })
+        .collect()
+}
+
 /// What a drawn plan holds.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PlanSummary {
@@ -136,6 +148,17 @@ pub enum Cell {
     Obstacle,
 }
 
+impl Cell {
+    /// Its color in the picture.
+    fn color(self) -> [u8; 3] {
+        match self {
+            Cell::Unmapped => UNMAPPED,
+            Cell::Floor => FLOOR,
+            Cell::Obstacle => OBSTACLE,
+        }
+    }
+}
+
 /// The map's cells seen from above.
 #[derive(Debug, Clone)]
 pub struct PlanGrid {
@@ -156,7 +179,6 @@ impl PlanGrid {
         if !CELL_M_RANGE.contains(&cell_m) {
             return Err(PlanError::Cell(cell_m));
         }
-        let empty = PlanError::Empty { floor_z_m };
         let (lo, hi) = mesh.bounds().ok_or(PlanError::Empty { floor_z_m })?;
         let (lo, hi) = (lo.map(f64::from), hi.map(f64::from));
         let extent = (hi[0] - lo[0]).max(hi[1] - lo[1]);
@@ -216,7 +238,7 @@ impl PlanGrid {
         if any {
             Ok(grid)
         } else {
-            Err(empty)
+            Err(PlanError::Empty { floor_z_m })
         }
     }
 
@@ -350,17 +372,12 @@ pub fn plan_png(input: &PlanInput<'_>, path: &Path) -> Result<PlanSummary, PlanE
     let cell_m2 = grid.cell_m * grid.cell_m;
     for (i, cell) in grid.cells.iter().enumerate() {
         let (cx, cy) = (i % grid.size.0, i / grid.size.0);
-        let color = match cell {
-            Cell::Unmapped => UNMAPPED,
-            Cell::Floor => {
-                summary.floor_m2 += cell_m2;
-                FLOOR
-            }
-            Cell::Obstacle => {
-                summary.obstacle_m2 += cell_m2;
-                OBSTACLE
-            }
-        };
+        match cell {
+            Cell::Unmapped => {}
+            Cell::Floor => summary.floor_m2 += cell_m2,
+            Cell::Obstacle => summary.obstacle_m2 += cell_m2,
+        }
+        let color = cell.color();
         canvas.put(
             i64::from(MARGIN_PX) + cx as i64,
             i64::from(MARGIN_PX) + (grid.size.1 - 1 - cy) as i64,
@@ -372,11 +389,7 @@ pub fn plan_png(input: &PlanInput<'_>, path: &Path) -> Result<PlanSummary, PlanE
     for l in input.landmarks_m {
         let (x, y) = (f64::from(l[0]), f64::from(l[1]));
         if let (Some(px), Some(cell)) = (grid.pixel(x, y), grid.at(x, y)) {
-            let base = match cell {
-                Cell::Unmapped => UNMAPPED,
-                Cell::Floor => FLOOR,
-                Cell::Obstacle => OBSTACLE,
-            };
+            let base = cell.color();
             let tint = [0, 1, 2].map(|k| ((u16::from(base[k]) + u16::from(LANDMARK[k])) / 2) as u8);
             canvas.dot(px, 0, tint);
             summary.landmarks += 1;

@@ -234,15 +234,7 @@ fn draw_plan(
     let floor_z_m = crate::map::floor::find_floor(&mesh)
         .map(|f| f.z_m)
         .context("the plan: no floor found in the map")?;
-    let views_m: Vec<[f64; 3]> = bench
-        .db
-        .entries
-        .iter()
-        .map(|e| {
-            let t = e.world_from_camera.translation.vector;
-            [t.x, t.y, t.z]
-        })
-        .collect();
+    let views_m = crate::output::plan::database_views_m(&bench.db);
     let marks = [
         MarkKind {
             label: "whole-map query: relocalized within 5 cm, 2 deg",

@@ -153,8 +153,8 @@ impl CullTiming {
                     };
                     return None;
                 }
-                let first = self.trial_first();
-                if block == first {
+                // A trial opens with the mode in use.
+                if block == self.occlusion {
                     // The other block next.
                     self.phase = Phase::Block {
                         occlusion: !block,
@@ -165,11 +165,6 @@ impl CullTiming {
                 Some(self.decide())
             }
         }
-    }
-
-    /// The mode whose block opens the current trial.
-    fn trial_first(&self) -> bool {
-        self.occlusion
     }
 
     fn decide(&mut self) -> CullDecision {
