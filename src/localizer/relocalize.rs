@@ -34,13 +34,14 @@
 use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
 use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
-use crate::reloc::twins::{prior_prefers_a_twin, twin_pose, TwinCheck};
+use crate::reloc::twins::{plan, twin_pose, TwinPlan, TwinRefusal};
+use crate::reloc::{is_landmark_index, MAX_LANDMARK_ELSEWHERE};
 use crate::reloc::{
     passes_gate, passes_resume_gate, resume_local_floor, start_yaws_rad, Candidate, MAX_TOP_K,
 };
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
-    Verdict, Verified, LANDMARK_CANDIDATE,
+    Verdict, Verified,
 };
 use crate::track::correlation::plain_and_local;
 use crate::track::{Aligner, Keyframe, Pyramid};
@@ -329,7 +330,7 @@ impl Localizer {
         let prior = self
             .last
             .map(|(_, pose)| MotionPrior::new(&pose, self.lost_s(capture_ns), reloc.config()));
-        let rule = RivalRule::new(prior);
+        let rule = reloc.rival_rule(prior);
         // The landmark pose (features matched to the map's landmarks, then
         // PnP) is tried first, wherever it is (one candidate, a few renders;
         // on a scanned map it is the candidate that passes, and trying the
@@ -414,7 +415,7 @@ impl Localizer {
                     "relocalization candidate passed the gate"
                 );
                 if rule
-                    .for_held(v.lowered_first_level)
+                    .for_held(v.lowered_first_level, v.local_correlation)
                     .accepts_alone(&v.world_from_camera)
                 {
                     self.accept_relocalization(v, kf, capture_ns, reloc.config().verify_frames);
@@ -430,7 +431,7 @@ impl Localizer {
             self.reloc = Some(reloc);
             return;
         };
-        let rule = rule.for_held(v.lowered_first_level);
+        let rule = rule.for_held(v.lowered_first_level, v.local_correlation);
         // Away from where the prior can vouch for it (no prior, outside the
         // reach of the last position, or turned beyond the heading bound):
         // held while its rivals among the candidates of every step are
@@ -444,6 +445,17 @@ impl Localizer {
                 &query,
                 candidates.get_mut(n..).unwrap_or(&mut []),
             );
+        }
+        // Beyond the prior's reach (a cold start): the landmark poses at the
+        // other places the frame's corners fit come first among the rivals.
+        if !rule.prior_reaches(&v.world_from_camera) {
+            let m = MAX_LANDMARK_ELSEWHERE.min(candidates.len() - n);
+            candidates.copy_within(0..n, m);
+            let added = reloc.landmark_rivals(&v.world_from_camera, &mut candidates[..m]);
+            if added < m {
+                candidates.copy_within(m..m + n, added);
+            }
+            n += added;
         }
         let mut rivals = [0usize; LISTED_RIVALS];
         let n_rivals = rule.rivals(
@@ -586,7 +598,7 @@ impl Localizer {
                 world_from_camera: found
                     .as_ref()
                     .map_or(candidate.world_from_camera, |(v, _)| v.world_from_camera),
-                from_landmarks: candidate.ranked.index == LANDMARK_CANDIDATE,
+                from_landmarks: is_landmark_index(candidate.ranked.index),
                 accepted: found.is_some(),
             };
         }
@@ -704,12 +716,14 @@ impl Localizer {
         None
     }
 
-    /// Whether the map's geometry refuses `held` (a pose the prior of
-    /// `rule` cannot vouch for, aligned against `kf`): its view fits at many
-    /// places, a twin stands within the prior's reach
-    /// ([`prior_prefers_a_twin`]), or the frame passes the looser gate at
-    /// one of its geometric twins ([`crate::reloc::twins`]). A twin the
-    /// render thread could not render was not ruled out, and refuses too.
+    /// Whether the map's geometry refuses `held` (aligned against `kf`; a
+    /// pose whose place the prior of `rule` cannot vouch for) by the plan
+    /// of [`crate::reloc::twins::plan`]: its view fits at many places, a
+    /// twin stands within the prior's reach while the held pose does not,
+    /// or the frame passes the looser gate at one of the twins the plan
+    /// lists, moved or turned. A twin the render thread could not render
+    /// was not ruled out, and refuses too. On a map without twin checks,
+    /// never.
     fn geometric_twins_refuse(
         &mut self,
         reloc: &mut Relocalizer,
@@ -717,23 +731,26 @@ impl Localizer {
         kf: &Keyframe,
         capture_ns: u64,
     ) -> bool {
+        if !reloc.twins_mut().has_map() {
+            return false;
+        }
         let check = reloc.twins_mut().check(kf);
         let twins = reloc.twins_mut();
-        if prior_prefers_a_twin(
+        let planned = match plan(
             rule,
             &held.world_from_camera,
+            check,
             (twins.found(), twins.turned()),
         ) {
-            tracing::info!(
-                capture_ns,
-                held = ?held.world_from_camera.translation.vector,
-                "relocalization refused: the view's geometry stands again where the motion prior expects the vehicle"
-            );
-            return true;
-        }
-        let n = match check {
-            TwinCheck::Unique => return false,
-            TwinCheck::Degenerate => {
+            TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin) => {
+                tracing::info!(
+                    capture_ns,
+                    held = ?held.world_from_camera.translation.vector,
+                    "relocalization refused: the view's geometry stands again where the motion prior expects the vehicle"
+                );
+                return true;
+            }
+            TwinPlan::Refuse(TwinRefusal::Degenerate) => {
                 tracing::info!(
                     capture_ns,
                     held = ?held.world_from_camera.translation.vector,
@@ -741,12 +758,9 @@ impl Localizer {
                 );
                 return true;
             }
-            TwinCheck::Check(n) => n,
+            TwinPlan::Check(planned) => planned,
         };
-        for k in 0..n {
-            let Some(twin) = reloc.twins_mut().found().get(k).copied() else {
-                break;
-            };
+        for twin in planned {
             let pose = twin_pose(&held.world_from_camera, &twin);
             let (found, refused) =
                 self.try_reloc_candidate(reloc.twins_mut().loose(), &pose, None, capture_ns);
@@ -767,6 +781,7 @@ impl Localizer {
                     held = ?held.world_from_camera.translation.vector,
                     twin = ?r.world_from_camera.translation.vector,
                     twin_score = twin.score,
+                    twin_yaw_deg = twin.yaw_rad.to_degrees(),
                     "relocalization refused: the frame passes at a place where the map's geometry repeats"
                 );
                 return true;
@@ -804,7 +819,7 @@ impl Localizer {
 
 /// Candidates one attempt can hold: the landmark pose and the views of
 /// the two view steps (near the last position, the whole map).
-const MAX_ATTEMPT_CANDIDATES: usize = 2 * MAX_TOP_K + 1;
+const MAX_ATTEMPT_CANDIDATES: usize = 2 * MAX_TOP_K + 1 + MAX_LANDMARK_ELSEWHERE;
 /// How far apart two passing poses must be to be two places, m (the
 /// remembered symmetries; `reloc::rivals::RIVAL_MIN_M`).
 const AMBIGUITY_RADIUS_M: f64 = crate::reloc::rivals::RIVAL_MIN_M;

@@ -72,6 +72,9 @@ pub const MIN_FREE_FRACTION: f32 = 0.8;
 const FREE_MARGIN: f32 = 0.1;
 /// Two offsets closer than this are one, meters.
 const SAME_OFFSET_M: f64 = 0.3;
+/// [`MapOccupancy::score_at`] takes the best offset within this of the one
+/// asked, meters (a relocalized pose is a few centimeters off).
+pub const SCORE_SLACK_M: f64 = 0.1;
 
 /// A translation under which a view's surfaces stand in the map again
 /// (after a turn of the view about its camera's vertical axis, when the
@@ -251,53 +254,12 @@ impl MapOccupancy {
         out: &mut heapless::Vec<Twin, N>,
     ) {
         out.clear();
-        let (sin, cos) = yaw_rad.sin_cos();
         if self.is_empty()
             || scratch.scores.len() < (2 * self.coarse.nx + 1) * (2 * self.coarse.ny + 1)
         {
             return;
         }
-        let stride = points_world.len().div_ceil(MAX_POINTS).max(1);
-        scratch.points.clear();
-        scratch.coarse_points.clear();
-        for p in points_world.iter().step_by(stride) {
-            // Only points on the map's steep surfaces where they are.
-            let Some(g) = self
-                .grid_point(p)
-                .filter(|g| self.fine.at(g.x, g.y) & g.bit != 0)
-            else {
-                continue;
-            };
-            // Turned about the camera: possibly off the grid, which the
-            // offsets bring back.
-            let g = if yaw_rad == 0.0 {
-                g
-            } else {
-                let d = p - camera_world;
-                let q =
-                    camera_world + Vector3::new(cos * d.x - sin * d.y, sin * d.x + cos * d.y, d.z);
-                let m = [
-                    q.x - self.origin_m[0],
-                    q.y - self.origin_m[1],
-                    q.z - self.z0_m,
-                ];
-                GridPoint {
-                    x: (m[0] / CELL_M).floor() as isize,
-                    y: (m[1] / CELL_M).floor() as isize,
-                    bit: g.bit,
-                    m,
-                }
-            };
-            if scratch.points.len() < MAX_POINTS {
-                scratch.points.push(g);
-                scratch.coarse_points.push(GridPoint {
-                    x: g.x.div_euclid(COARSE as isize),
-                    y: g.y.div_euclid(COARSE as isize),
-                    ..g
-                });
-            }
-        }
-        let n = scratch.points.len();
+        let n = self.prepare_points(camera_world, points_world, yaw_rad, scratch);
         if n < MIN_POINTS {
             return;
         }
@@ -387,6 +349,104 @@ impl MapOccupancy {
                 insert(out, twin);
             }
         }
+    }
+
+    /// Fills `scratch`'s points with those of `points_world` (evenly
+    /// skipped to [`MAX_POINTS`]) that lie on the map's steep surfaces
+    /// where they are, turned by `yaw_rad` about `camera_world`'s vertical;
+    /// returns how many.
+    fn prepare_points(
+        &self,
+        camera_world: &Vector3<f64>,
+        points_world: &[Vector3<f64>],
+        yaw_rad: f64,
+        scratch: &mut TwinScratch,
+    ) -> usize {
+        let (sin, cos) = yaw_rad.sin_cos();
+        let stride = points_world.len().div_ceil(MAX_POINTS).max(1);
+        scratch.points.clear();
+        scratch.coarse_points.clear();
+        for p in points_world.iter().step_by(stride) {
+            // Only points on the map's steep surfaces where they are.
+            let Some(g) = self
+                .grid_point(p)
+                .filter(|g| self.fine.at(g.x, g.y) & g.bit != 0)
+            else {
+                continue;
+            };
+            // Turned about the camera: possibly off the grid, which the
+            // offsets bring back.
+            let g = if yaw_rad == 0.0 {
+                g
+            } else {
+                let d = p - camera_world;
+                let q =
+                    camera_world + Vector3::new(cos * d.x - sin * d.y, sin * d.x + cos * d.y, d.z);
+                let m = [
+                    q.x - self.origin_m[0],
+                    q.y - self.origin_m[1],
+                    q.z - self.z0_m,
+                ];
+                GridPoint {
+                    x: (m[0] / CELL_M).floor() as isize,
+                    y: (m[1] / CELL_M).floor() as isize,
+                    bit: g.bit,
+                    m,
+                }
+            };
+            if scratch.points.len() < MAX_POINTS {
+                scratch.points.push(g);
+                scratch.coarse_points.push(GridPoint {
+                    x: g.x.div_euclid(COARSE as isize),
+                    y: g.y.div_euclid(COARSE as isize),
+                    ..g
+                });
+            }
+        }
+        scratch.points.len()
+    }
+
+    /// How well the view of [`Self::twins_turned`] fits at one given turn
+    /// and offset (the best within [`SCORE_SLACK_M`] of it): the fraction of
+    /// its points on the map's surfaces there (as [`Twin::score`]) and the
+    /// fraction of its rays through free space; `None` when the view has
+    /// fewer than [`MIN_POINTS`] points or the moved camera leaves the
+    /// grid. For diagnosis: why a place was, or was not, a twin.
+    pub fn score_at(
+        &self,
+        camera_world: &Vector3<f64>,
+        points_world: &[Vector3<f64>],
+        (yaw_rad, offset_m): (f64, [f64; 2]),
+        scratch: &mut TwinScratch,
+    ) -> Option<(f32, f32)> {
+        if self.is_empty() {
+            return None;
+        }
+        let n = self.prepare_points(camera_world, points_world, yaw_rad, scratch);
+        if n < MIN_POINTS {
+            return None;
+        }
+        let camera = self.grid_point(camera_world)?;
+        let (cx, cy) = (
+            (offset_m[0] / CELL_M).round() as isize,
+            (offset_m[1] / CELL_M).round() as isize,
+        );
+        let slack = (SCORE_SLACK_M / CELL_M).round() as isize;
+        let mut best = (0usize, cx, cy);
+        for fy in cy - slack..=cy + slack {
+            for fx in cx - slack..=cx + slack {
+                let hits = scratch
+                    .points
+                    .iter()
+                    .filter(|p| self.fine.at(p.x + fx, p.y + fy) & p.bit != 0)
+                    .count();
+                if hits > best.0 {
+                    best = (hits, fx, fy);
+                }
+            }
+        }
+        let free = self.free_fraction(&camera, &scratch.points, (best.1, best.2))?;
+        Some((best.0 as f32 / n as f32, free))
     }
 
     /// Of the points at least [`MIN_RAY_M`] from `camera`, the fraction

@@ -149,6 +149,21 @@ pub struct RelocConfig {
     /// "A turned look-alike through the lowered first level"). Set it to
     /// `min_local_correlation` to turn the split off.
     pub min_local_correlation_at_map_detail: f32,
+    /// On a map checked for geometric twins (`geometric_twins`: a scan's
+    /// vertex colors, its light baked in), the least local contrast
+    /// ([`crate::reloc::Verified::local_correlation`]) of a pose accepted
+    /// on the motion prior alone; below it, the places near it that could
+    /// rival it are verified first ([`crate::reloc::rivals`]). On the
+    /// scanned floor's 3 000-frame flight (50 window searches) a turned
+    /// look-alike 1.4 m and 90 degrees from the truth passed at 0.714 and
+    /// was taken on the prior alone; right poses there read 0.74-0.93, 15
+    /// of 40 under 0.8 (docs/building-scale.md, "The prior alone on a
+    /// scanned map"). No figure keeps the two apart (wrong poses that
+    /// passed anywhere on that flight reached 0.81): this is where the
+    /// time of the rival check is spent, not a gate. Set it to
+    /// `min_local_correlation` to accept on the prior alone as before, or
+    /// above 1 to verify the rivals of every pose.
+    pub prior_alone_min_local_correlation: f32,
     /// Acceptance gate: range of the photometric gain (camera / map) of the
     /// candidate alignment. A wrong pose on a look-alike surface fits by
     /// crushing the contrast (gains of 0.3-0.5 seen before the correlation
@@ -275,6 +290,7 @@ impl Default for RelocConfig {
             twin_checked_min_inlier_ratio: 0.5,
             min_local_correlation: 0.7,
             min_local_correlation_at_map_detail: 0.5,
+            prior_alone_min_local_correlation: 0.8,
             min_gain: 0.25,
             max_gain: 4.0,
             refine_min_inlier_ratio: 0.4,
@@ -346,7 +362,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 36] = [
+        let checks: [(&'static str, bool, String); 37] = [
             (
                 "yaw_steps",
                 (1..=360).contains(&self.yaw_steps),
@@ -449,6 +465,14 @@ impl RelocConfig {
                 format!(
                     "expected -1..=1, found {}",
                     self.min_local_correlation_at_map_detail
+                ),
+            ),
+            (
+                "prior_alone_min_local_correlation",
+                self.prior_alone_min_local_correlation.is_finite(),
+                format!(
+                    "expected a number, found {}",
+                    self.prior_alone_min_local_correlation
                 ),
             ),
             (

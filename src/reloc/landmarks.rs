@@ -513,6 +513,97 @@ impl LandmarkLocator {
         None
     }
 
+    /// The landmark poses of the last query ([`Self::locate_in`]) at the
+    /// places over the whole map where its matches gather, other than
+    /// `held`'s ([`super::rivals::elsewhere`]): the other rooms the
+    /// frame's corners fit, each solved on its own landmarks as in the
+    /// search's second pass (with the ratio test, else without), best
+    /// first by inliers, as many as `out` holds.
+    ///
+    /// Why: in a floor of look-alike rooms the landmark pose can fall on a
+    /// look-alike, and the rivals the descriptor ranks need not include
+    /// the true room. On the scanned floor 6 of 50 cold starts (seed 2)
+    /// took a room 24 or 40 m from the truth, where the frame passed the
+    /// gate (docs/building-scale.md, "The landmarks' other places").
+    pub fn poses_elsewhere<const N: usize>(
+        &mut self,
+        held: &Pose,
+        out: &mut heapless::Vec<Located, N>,
+    ) {
+        out.clear();
+        let n = self.n_query.min(self.matches.len());
+        if self.index.is_empty() || n == 0 {
+            return;
+        }
+        self.index
+            .best_two_everywhere(&self.query[..n], &mut self.matches[..n]);
+        for &(best_d, best_i, second_d, second_i) in &self.matches[..n] {
+            for (d, i) in [(best_d, best_i), (second_d, second_i)] {
+                if d > self.max_hamming {
+                    continue;
+                }
+                if let Some(p) = self.positions_m.get(i as usize) {
+                    self.places.vote(p);
+                }
+            }
+        }
+        let min_votes = self.params.min_inliers as u32;
+        let n_places = self.places.places(min_votes).len();
+        let mut centers = [Vector2::<f32>::zeros(); MAX_PLACES];
+        for (c, p) in centers.iter_mut().zip(self.places.places_found()) {
+            *c = p.center_m;
+        }
+        // Its own seeds: the next query's are those it would have had.
+        let seed = 0x5354_4152_5249_5600 ^ self.calls;
+        for (k, center) in centers[..n_places].iter().enumerate() {
+            self.index.best_two_near(
+                &self.query[..n],
+                [center.x, center.y],
+                PLACE_REACH_M,
+                &mut self.matches[..n],
+            );
+            let place_seed = seed.rotate_left(29) ^ ((k as u64) << 8);
+            let (strict, strict_kept) = self.solve_pass(n, true, MatchPass::Place, place_seed);
+            let found = match strict {
+                Some(f) => Some(f),
+                None => {
+                    self.solve_pass_unless(
+                        n,
+                        false,
+                        MatchPass::Place,
+                        place_seed ^ 1,
+                        Some(strict_kept),
+                    )
+                    .0
+                }
+            };
+            let Some(found) =
+                found.filter(|f| super::rivals::elsewhere(held, &f.world_from_camera))
+            else {
+                continue;
+            };
+            // Best first; one per place (poses within a meter are one).
+            if out
+                .iter()
+                .any(|o| !super::rivals::elsewhere(&o.world_from_camera, &found.world_from_camera))
+            {
+                continue;
+            }
+            let at = out
+                .iter()
+                .position(|o| o.inliers < found.inliers)
+                .unwrap_or(out.len());
+            if out.len() == N {
+                if at == N {
+                    continue;
+                }
+                out.pop();
+            }
+            // Room was made above.
+            let _ = out.insert(at, found);
+        }
+    }
+
     /// RANSAC PnP on the current matches (with or without the ratio
     /// test): the pose, if any, and how many matches it was given.
     fn solve_pass(

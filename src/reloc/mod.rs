@@ -81,7 +81,8 @@ pub use grid::{above_floor, AlongTrajectory, BuildError};
 pub use prior::MotionPrior;
 pub use region::SearchRegion;
 pub use search::{
-    Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE, MAX_TOP_K,
+    is_landmark_index, Candidate, Query, Ranked, Relocalizer, SearchIndex, LANDMARK_CANDIDATE,
+    LANDMARK_ELSEWHERE, MAX_LANDMARK_ELSEWHERE, MAX_TOP_K,
 };
 pub use verify::{
     passes_gate, passes_resume_gate, passes_whole_gate, resume_local_floor, start_yaws_rad,

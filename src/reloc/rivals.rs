@@ -144,6 +144,12 @@ pub struct RivalRule {
     /// does not vouch for it, and its rivals are verified as on a cold
     /// start ([`Self::for_held`]).
     pub lowered: bool,
+    /// The least local contrast of a pose accepted on the prior alone
+    /// ([`Self::with_alone_floor`]; -inf: any that passed the gate).
+    pub alone_min_local: f32,
+    /// The pose held read less local contrast than that
+    /// ([`Self::for_held`]): its near rivals are verified first.
+    pub weak: bool,
 }
 
 impl RivalRule {
@@ -152,21 +158,44 @@ impl RivalRule {
         Self {
             prior,
             lowered: false,
+            alone_min_local: f32::NEG_INFINITY,
+            weak: false,
         }
     }
 
-    /// The rule for a pose `lowered_first_level` or not ([`Self::lowered`]).
+    /// The rule where a pose is accepted on the prior alone only with at
+    /// least `min_local` local contrast (`[reloc]
+    /// prior_alone_min_local_correlation` on a scanned map,
+    /// [`crate::reloc::Relocalizer::rival_rule`]).
     ///
-    /// Why: the first level's lowered floor lets true poses on a scanned
-    /// map through where the map's colors are blurred, and a look-alike
-    /// with them. On the scanned floor of look-alike rooms a window search
-    /// took a turned look-alike 1.4 m and 90 degrees from the truth on the
-    /// prior alone (0.53-0.57 at the first level; the true place, 0.88,
-    /// was never tried). Verified against its rivals, the true place
-    /// correlates decisively better.
-    pub fn for_held(&self, lowered_first_level: bool) -> Self {
+    /// Why: on a scanned map a look-alike passes the gate with figures
+    /// right poses also read. On the scanned floor a window search took a
+    /// turned look-alike 1.4 m and 90 degrees from the truth on the prior
+    /// alone (local contrast 0.714 over every level), and the truth was no
+    /// geometric twin of it (its view fit there at 0.66; a twin needs
+    /// 0.9). Verified as its rival, the truth correlates decisively better.
+    pub fn with_alone_floor(self, min_local: f32) -> Self {
+        Self {
+            alone_min_local: min_local,
+            ..self
+        }
+    }
+
+    /// The rule for a pose held: `lowered_first_level` or not
+    /// ([`Self::lowered`]), with `local_correlation` of local contrast
+    /// ([`Self::weak`] below the rule's floor).
+    ///
+    /// Why the lowered floor: it lets true poses on a scanned map through
+    /// where the map's colors are blurred, and a look-alike with them. On
+    /// the scanned floor of look-alike rooms a window search took a turned
+    /// look-alike 1.4 m and 90 degrees from the truth on the prior alone
+    /// (0.53-0.57 at the first level; the true place, 0.88, was never
+    /// tried). Verified against its rivals, the true place correlates
+    /// decisively better.
+    pub fn for_held(&self, lowered_first_level: bool, local_correlation: f32) -> Self {
         Self {
             lowered: lowered_first_level,
+            weak: !(local_correlation >= self.alone_min_local),
             ..*self
         }
     }
@@ -177,11 +206,19 @@ impl RivalRule {
         self.prior.is_some_and(|p| p.reaches(pose))
     }
 
-    /// Whether a pose that passed the gate may be accepted without any
-    /// rival check: it lies within the prior's reach ([`Self::prior_reaches`])
-    /// and did not pass through the lowered floor ([`Self::lowered`]).
-    pub fn accepts_alone(&self, accepted: &Pose) -> bool {
+    /// Whether the prior vouches for the place of a pose that passed the
+    /// gate: it lies within the prior's reach ([`Self::prior_reaches`]) and
+    /// did not pass through the lowered floor ([`Self::lowered`]). Its
+    /// geometric twins are then not checked.
+    pub fn vouches_for_place(&self, accepted: &Pose) -> bool {
         !self.lowered && self.prior_reaches(accepted)
+    }
+
+    /// Whether a pose that passed the gate may be accepted without any
+    /// rival check: the prior vouches for its place
+    /// ([`Self::vouches_for_place`]) and it is not [`Self::weak`].
+    pub fn accepts_alone(&self, accepted: &Pose) -> bool {
+        !self.weak && self.vouches_for_place(accepted)
     }
 
     /// How many rivals `accepted` must beat, and within what score margin.
@@ -191,7 +228,7 @@ impl RivalRule {
                 max: MAX_RIVALS,
                 margin: RIVAL_SCORE_MARGIN,
             },
-            Some(p) if p.reaches(accepted) => Budget {
+            Some(p) if p.reaches(accepted) && !self.weak => Budget {
                 max: 0,
                 margin: 0.0,
             },
@@ -378,7 +415,7 @@ mod tests {
         // degrees, within the prior's reach.
         let accepted = pose(1.4, 90.0);
         assert!(rule.accepts_alone(&accepted));
-        let lowered = rule.for_held(true);
+        let lowered = rule.for_held(true, 0.75);
         assert!(!lowered.accepts_alone(&accepted));
         assert!(lowered.prior_reaches(&accepted));
         assert_eq!(
@@ -406,7 +443,38 @@ mod tests {
             Judgment::Ambiguous
         );
         // A pose not through the lowered floor keeps the rule as it was.
-        assert_eq!(rule.for_held(false), rule);
+        assert_eq!(rule.for_held(false, 0.75), rule);
+    }
+
+    #[test]
+    fn on_a_scanned_map_a_weak_pose_within_reach_has_its_near_rivals_checked() {
+        // The scanned floor's window wrong accept: 1.4 m off, turned 90
+        // degrees, within the prior's reach, local contrast 0.714.
+        let accepted = pose(1.4, 90.0);
+        let scanned = near_origin().with_alone_floor(0.8);
+        let weak = scanned.for_held(false, 0.714);
+        assert!(weak.vouches_for_place(&accepted));
+        assert!(!weak.accepts_alone(&accepted));
+        assert_eq!(
+            weak.budget(&accepted),
+            Budget {
+                max: NEAR_MAX_RIVALS,
+                margin: NEAR_RIVAL_SCORE_MARGIN
+            }
+        );
+        // The truth at the origin, scored near the look-alike: its rival.
+        let candidates = [at(1, 1.4, 0.9), at(2, 0.0, 0.8)];
+        let mut out = [usize::MAX; LISTED_RIVALS];
+        let n = weak.rivals(&candidates, &accepted, &[], &mut out);
+        assert_eq!(&out[..n], &[1]);
+        // At the floor or above, the prior alone as on any map; and a map
+        // that is no scan has no floor.
+        assert!(scanned.for_held(false, 0.8).accepts_alone(&accepted));
+        assert!(near_origin()
+            .for_held(false, 0.714)
+            .accepts_alone(&accepted));
+        // A figure that is not a number is no confidence.
+        assert!(!scanned.for_held(false, f32::NAN).accepts_alone(&accepted));
     }
 
     #[test]

@@ -84,6 +84,18 @@ pub const MAX_TOP_K: usize = 64;
 /// database entry).
 pub const LANDMARK_CANDIDATE: u32 = u32::MAX - 1;
 
+/// [`Ranked::index`] of the first landmark pose at another place
+/// ([`Relocalizer::landmark_rivals`]); the k-th is this less k.
+pub const LANDMARK_ELSEWHERE: u32 = u32::MAX - 2;
+/// Most landmark poses at other places one attempt verifies as rivals.
+pub const MAX_LANDMARK_ELSEWHERE: usize = 3;
+
+/// Whether a candidate's index is a landmark pose's: the one found
+/// ([`LANDMARK_CANDIDATE`]) or one at another place.
+pub fn is_landmark_index(index: u32) -> bool {
+    index <= LANDMARK_CANDIDATE && index > LANDMARK_ELSEWHERE - MAX_LANDMARK_ELSEWHERE as u32
+}
+
 /// Fewest stored coarse points a candidate needs to be aligned when
 /// ranking (fewer score lowest).
 const COARSE_MIN_POINTS: usize = 30;
@@ -171,6 +183,20 @@ impl Relocalizer {
         self
     }
 
+    /// The rival rule of an attempt under `prior` (none: a cold start) on
+    /// this map: on a scan (held poses checked for geometric twins), a pose
+    /// is accepted on the prior alone only with `[reloc]
+    /// prior_alone_min_local_correlation` of local contrast
+    /// ([`super::rivals::RivalRule::with_alone_floor`]).
+    pub fn rival_rule(&self, prior: Option<super::prior::MotionPrior>) -> super::rivals::RivalRule {
+        let rule = super::rivals::RivalRule::new(prior);
+        if self.twins.has_map() {
+            rule.with_alone_floor(self.config.prior_alone_min_local_correlation)
+        } else {
+            rule
+        }
+    }
+
     /// The geometric twins of held poses ([`Self::with_map`]).
     pub fn twins_mut(&mut self) -> &mut super::twins::GeometricTwins {
         &mut self.twins
@@ -247,6 +273,32 @@ impl Relocalizer {
             score: f32::INFINITY,
         };
         Some((candidate, found))
+    }
+
+    /// The landmark poses of the last [`Self::landmark_candidate`] at the
+    /// other places where the frame's corners fit over the whole map
+    /// ([`LandmarkLocator::poses_elsewhere`]), as candidates to verify as
+    /// rivals of `held` (precise poses, scored as the landmark pose is),
+    /// written to `out`; returns how many (at most
+    /// [`MAX_LANDMARK_ELSEWHERE`]).
+    pub fn landmark_rivals(&mut self, held: &Pose, out: &mut [Candidate]) -> usize {
+        let mut found = heapless::Vec::<Located, MAX_LANDMARK_ELSEWHERE>::new();
+        self.landmarks.poses_elsewhere(held, &mut found);
+        let mut n = 0;
+        for (k, (f, slot)) in found.iter().zip(out.iter_mut()).enumerate() {
+            *slot = Candidate {
+                ranked: Ranked {
+                    distance: 0,
+                    index: LANDMARK_ELSEWHERE - k as u32,
+                    shift: 0,
+                },
+                world_from_camera: f.world_from_camera,
+                yaw_rad: None,
+                score: f32::INFINITY,
+            };
+            n += 1;
+        }
+        n
     }
 
     /// The `top_k` entries in `region` nearest to `query` by Hamming

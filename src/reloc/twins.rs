@@ -207,6 +207,18 @@ impl GeometricTwins {
         }
     }
 
+    /// How well the view of the last [`Self::check`] fits at `twin`'s turn
+    /// and offset ([`MapOccupancy::score_at`]): its score and free-space
+    /// fraction, for diagnosis (why a place was not among the twins).
+    pub fn score_of(&mut self, camera_world: &Vector3<f64>, twin: &Twin) -> Option<(f32, f32)> {
+        self.occupancy.score_at(
+            camera_world,
+            &self.points,
+            (twin.yaw_rad, twin.offset_m),
+            &mut self.scratch,
+        )
+    }
+
     /// The turned twins of the last [`Self::check`], best first.
     pub fn turned(&self) -> &[Twin] {
         &self.turned
@@ -215,6 +227,22 @@ impl GeometricTwins {
     /// The twins of the last [`Self::check`], best first.
     pub fn found(&self) -> &[Twin] {
         &self.found
+    }
+}
+
+/// The turn and offset that take `held` to `other` as [`twin_pose`] would
+/// (the turn about the vertical from heading to heading; score 0): for
+/// diagnosis, `other` a known true place.
+pub fn twin_between(held: &Pose, other: &Pose) -> Twin {
+    let heading = |p: &Pose| {
+        let axis = p.rotation * Vector3::z();
+        axis.y.atan2(axis.x)
+    };
+    let d = other.translation.vector - held.translation.vector;
+    Twin {
+        offset_m: [d.x, d.y],
+        yaw_rad: (heading(other) - heading(held)).rem_euclid(std::f64::consts::TAU),
+        score: 0.0,
     }
 }
 
@@ -249,6 +277,77 @@ pub fn prior_prefers_a_twin(
             .iter()
             .chain(turned)
             .any(|t| rule.prior_reaches(&twin_pose(held, t)))
+}
+
+/// Turned twins the frame is checked at, at most, for a pose the prior
+/// cannot vouch for (the best of [`GeometricTwins::turned`]).
+pub const TURNED_CHECKS: usize = 2;
+/// Most twins one [`TwinPlan`] checks.
+pub const MAX_PLANNED: usize = TWIN_CHECKS + TURNED_CHECKS;
+
+/// Why the geometry refuses a held pose without a render.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TwinRefusal {
+    /// A twin stands within the prior's reach while the held pose does not
+    /// ([`prior_prefers_a_twin`]).
+    PriorPrefersATwin,
+    /// Its view fits at [`DEGENERATE_TWINS`] places or more.
+    Degenerate,
+}
+
+/// What the geometry asks of a held pose before it is accepted: one rule,
+/// for the service and `star bench reloc` alike.
+#[derive(Debug, Clone, PartialEq)]
+pub enum TwinPlan {
+    /// Refused without a render.
+    Refuse(TwinRefusal),
+    /// Check the frame at these twins, in order, through
+    /// [`GeometricTwins::loose`]: the pose is refused when the frame passes
+    /// at one of them at another place ([`super::rivals::elsewhere`]).
+    /// Empty: accepted.
+    Check(heapless::Vec<Twin, MAX_PLANNED>),
+}
+
+/// The [`TwinPlan`] of `held` under `rule`, from its [`GeometricTwins::check`]
+/// (`check`, `found`, `turned`).
+///
+/// - A pose whose place the prior vouches for
+///   ([`RivalRule::vouches_for_place`]) is not checked.
+/// - One it cannot vouch for is refused when a twin stands within the
+///   prior's reach ([`prior_prefers_a_twin`]) or its view is degenerate,
+///   else checked at its best [`TWIN_CHECKS`] moved twins, then at its best
+///   [`TURNED_CHECKS`] turned ones: a room built again elsewhere turned
+///   round is as much a twin as one moved (`tests/reloc_twins.rs`).
+///
+/// [`RivalRule::vouches_for_place`]: super::rivals::RivalRule::vouches_for_place
+pub fn plan(
+    rule: &super::rivals::RivalRule,
+    held: &Pose,
+    check: TwinCheck,
+    (found, turned): (&[Twin], &[Twin]),
+) -> TwinPlan {
+    let mut out = heapless::Vec::new();
+    if rule.vouches_for_place(held) {
+        return TwinPlan::Check(out);
+    }
+    if prior_prefers_a_twin(rule, held, (found, turned)) {
+        return TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin);
+    }
+    let moved = match check {
+        TwinCheck::Unique => 0,
+        TwinCheck::Degenerate => return TwinPlan::Refuse(TwinRefusal::Degenerate),
+        TwinCheck::Check(n) => n.min(TWIN_CHECKS),
+    };
+    for t in found
+        .iter()
+        .take(moved)
+        .chain(turned.iter().take(TURNED_CHECKS))
+    {
+        if out.push(*t).is_err() {
+            break;
+        }
+    }
+    TwinPlan::Check(out)
 }
 
 /// Relocalization's gate under `config` on a map whose held poses are
@@ -427,6 +526,92 @@ mod tests {
         ));
         // A held pose the prior vouches for is not in question.
         assert!(!prior_prefers_a_twin(&rule, &truth, (&[], &[to_truth])));
+    }
+
+    #[test]
+    fn the_plan_checks_the_twins_the_prior_cannot_tell_apart() {
+        use super::super::prior::MotionPrior;
+        use super::super::rivals::RivalRule;
+        use crate::geometry::look::camera_rotation;
+        let config = RelocConfig::default();
+        let truth = Pose::from_parts(
+            Translation3::new(22.1, 12.9, 1.4),
+            camera_rotation(0.0, 0.0, 0.0),
+        );
+        let twin = |x: f64, y: f64, yaw_rad: f64| Twin {
+            offset_m: [x, y],
+            yaw_rad,
+            score: 0.9,
+        };
+        // Lost for 0.5 s: a reach of 2 m and more than a quarter turn.
+        let window = RivalRule::new(Some(MotionPrior::new(&truth, 0.5, &config)));
+        // Held 1.4 m away and turned a quarter, within the reach: the prior
+        // vouches for its place, nothing is checked, on a scanned map too
+        // (there its rivals are verified instead).
+        let held = Pose::from_parts(
+            Translation3::new(22.1, 11.5, 1.4),
+            camera_rotation(std::f64::consts::FRAC_PI_2, 0.0, 0.0),
+        );
+        assert!(window.vouches_for_place(&held));
+        let to_truth = twin(0.0, 1.4, -std::f64::consts::FRAC_PI_2);
+        let far = twin(40.0, 0.0, 0.0);
+        let planned = |rule: &RivalRule, check, found: &[Twin], turned: &[Twin]| match plan(
+            rule,
+            &held,
+            check,
+            (found, turned),
+        ) {
+            TwinPlan::Check(list) => Ok(list.to_vec()),
+            TwinPlan::Refuse(why) => Err(why),
+        };
+        for rule in [window, window.with_alone_floor(0.8).for_held(false, 0.7)] {
+            assert_eq!(
+                planned(&rule, TwinCheck::Degenerate, &[far], &[to_truth]),
+                Ok(vec![])
+            );
+        }
+        // A cold start: the best moved twins, then the best turned ones.
+        let cold = RivalRule::new(None);
+        let moved: Vec<Twin> = (0..5)
+            .map(|k| twin(10.0 * f64::from(k + 1), 0.0, 0.0))
+            .collect();
+        let turned: Vec<Twin> = (0..4)
+            .map(|k| twin(0.0, 10.0 * f64::from(k + 1), std::f64::consts::PI))
+            .collect();
+        let list = planned(&cold, TwinCheck::Check(TWIN_CHECKS), &moved, &turned);
+        let mut expected = moved[..TWIN_CHECKS].to_vec();
+        expected.extend_from_slice(&turned[..TURNED_CHECKS]);
+        assert_eq!(list, Ok(expected));
+        // With no moved twin, the turned ones are still checked.
+        assert_eq!(
+            planned(&cold, TwinCheck::Unique, &[], &turned[..1]),
+            Ok(turned[..1].to_vec())
+        );
+        assert_eq!(
+            planned(&cold, TwinCheck::Degenerate, &moved, &turned),
+            Err(TwinRefusal::Degenerate)
+        );
+        // Through the lowered first level the prior does not vouch for it:
+        // checked as on a cold start.
+        let lowered = window.for_held(true, 0.75);
+        assert_eq!(
+            planned(&lowered, TwinCheck::Check(1), &[far], &[to_truth]),
+            Ok(vec![far, to_truth])
+        );
+        // Held beyond the reach, with a twin within it: refused outright.
+        let beyond = Pose::from_parts(
+            Translation3::new(62.1, 12.9, 1.4),
+            camera_rotation(0.0, 0.0, 0.0),
+        );
+        assert!(matches!(
+            plan(
+                &window,
+                &beyond,
+                TwinCheck::Check(1),
+                (&[twin(-40.0, 0.0, 0.0)], &[])
+            ),
+            TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin)
+        ));
     }
 
     /// A room (walls on four sides, one alcove near a corner) and, 30 m

@@ -33,6 +33,9 @@ pub struct Verified {
     pub trimmed_correlation: f32,
     /// Smallest fraction of points the trimming kept.
     pub kept: f32,
+    /// Smallest correlation of local contrast over the gated levels
+    /// ([`crate::track::Correlations::local`]).
+    pub local_correlation: f32,
     /// It passed only through the first level's lowered floor
     /// (`min_local_correlation_at_map_detail`): its local contrast there
     /// is below `min_local_correlation`. Such a pose is never accepted on
@@ -388,6 +391,7 @@ pub fn verify_candidate(
                     correlation: ncc.all,
                     trimmed_correlation: ncc.trimmed,
                     kept: ncc.kept,
+                    local_correlation: ncc.local,
                     lowered_first_level: ncc.local < config.min_local_correlation,
                 });
             }

@@ -5,7 +5,7 @@
 //! - [`textured_room`]: a 6 x 5 x 3 m room of single quads with four
 //!   textures and two boxes (z up), for the GPU/CPU agreement test;
 //! - [`twin_map`]: a mesh built twice, the copy shifted and shaded, for
-//!   the look-alike tests.
+//!   the look-alike tests ([`copy_map`]: the copy turned as well).
 //!
 //! The benchmarks include this file on its own
 //! (`#[path = "../tests/common/room.rs"] mod room;`), so it depends on
@@ -261,14 +261,22 @@ pub fn twin_map(
     offset_x_m: f32,
     shade: impl Fn([f32; 3], f32) -> f32,
 ) -> star::map::Mesh {
+    copy_map(mesh, |p| [p[0] + offset_x_m, p[1], p[2]], shade)
+}
+
+/// `mesh` and a copy of it whose vertex at `p` stands at `place(p)` (a
+/// rigid motion: a copy moved, or turned and moved), its gray given by
+/// `shade` as in [`twin_map`].
+pub fn copy_map(
+    mesh: &star::map::Mesh,
+    place: impl Fn([f32; 3]) -> [f32; 3],
+    shade: impl Fn([f32; 3], f32) -> f32,
+) -> star::map::Mesh {
     let mut twin = mesh.clone();
     let n_vertices = mesh.positions.len() as u32;
     let n_indices = mesh.indices.len() as u32;
-    twin.positions.extend(
-        mesh.positions
-            .iter()
-            .map(|p| [p[0] + offset_x_m, p[1], p[2]]),
-    );
+    twin.positions
+        .extend(mesh.positions.iter().map(|&p| place(p)));
     twin.gray.extend(
         mesh.positions
             .iter()

@@ -12,12 +12,13 @@ use std::time::Instant;
 
 use crate::geometry::{PinholeCamera, Pose};
 use crate::map::repeats::Twin;
+use crate::reloc::is_landmark_index;
 use crate::reloc::prior::{landmark_regions, sources, Source};
-use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
-use crate::reloc::twins::{twin_pose, TwinCheck, DEGENERATE_TWINS};
+use crate::reloc::rivals::{elsewhere, Judgment, LISTED_RIVALS};
+use crate::reloc::twins::{plan, twin_pose, TwinCheck, TwinPlan, TwinRefusal, DEGENERATE_TWINS};
 use crate::reloc::{
     try_candidate, Candidate, MotionPrior, Query, RelocConfig, SearchRegion, Verified,
-    LANDMARK_CANDIDATE,
+    LANDMARK_CANDIDATE, MAX_LANDMARK_ELSEWHERE,
 };
 use crate::track::{Aligner, Keyframe, Pyramid};
 
@@ -75,7 +76,7 @@ impl Bench {
         prior: Option<MotionPrior>,
         tally: &mut Tally,
     ) -> Option<Outcome> {
-        let rule = RivalRule::new(prior);
+        let rule = self.reloc.rival_rule(prior);
         // The region of the retrieval figures: the first views step's.
         let region = prior.map_or(SearchRegion::Everywhere, |p| p.region());
         let t_query = Instant::now();
@@ -144,7 +145,7 @@ impl Bench {
                 tried.push(c.ranked.index);
                 verdict = self.try_one(&c, tally);
                 if verdict.is_some() {
-                    verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
+                    verdict_from_landmarks = is_landmark_index(c.ranked.index);
                     break 'steps;
                 }
             }
@@ -155,19 +156,34 @@ impl Bench {
             Some(v)
                 if self.check_rivals
                     && !rule
-                        .for_held(v.lowered_first_level)
+                        .for_held(v.lowered_first_level, v.local_correlation)
                         .accepts_alone(&v.world_from_camera) =>
             {
-                let rule = rule.for_held(v.lowered_first_level);
+                let rule = rule.for_held(v.lowered_first_level, v.local_correlation);
                 // The held keyframe is the last spare one until the next
                 // render: its view's geometric twins now.
-                let mut held_twins = self.twin_check();
+                let mut held_twins = self.twin_check(&query.truth);
                 for source in steps {
                     let rank_ms = self.gather(source, landmark, &descriptor, &mut candidates);
                     if !region_searched && matches!(source, Source::Views(_)) {
                         tally.rank_ms.push(rank_ms);
                         region_searched = true;
                     }
+                }
+                // Beyond the prior's reach: the landmark poses at the other
+                // places the frame's corners fit come first among the rivals.
+                if !rule.prior_reaches(&v.world_from_camera) {
+                    let mut elsewhere_found = [Candidate::default(); MAX_LANDMARK_ELSEWHERE];
+                    let m = self
+                        .reloc
+                        .landmark_rivals(&v.world_from_camera, &mut elsewhere_found);
+                    tally.landmark_rivals += m;
+                    // After the landmark pose, which the figures read first.
+                    let at = candidates
+                        .iter()
+                        .position(|c| c.ranked.index != LANDMARK_CANDIDATE)
+                        .unwrap_or(candidates.len());
+                    candidates.splice(at..at, elsewhere_found[..m].iter().copied());
                 }
                 let mut rivals = [0usize; LISTED_RIVALS];
                 let n = rule.rivals(&candidates, &v.world_from_camera, &tried, &mut rivals);
@@ -200,13 +216,13 @@ impl Bench {
                             tally.decisive_rival += 1;
                             held = r;
                             verdict = Some(r);
-                            verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
-                            held_twins = self.twin_check();
+                            verdict_from_landmarks = is_landmark_index(c.ranked.index);
+                            held_twins = self.twin_check(&query.truth);
                         }
                         Judgment::PriorChooses => {
                             tally.prior_chose += 1;
                             verdict = Some(r);
-                            verdict_from_landmarks = c.ranked.index == LANDMARK_CANDIDATE;
+                            verdict_from_landmarks = is_landmark_index(c.ranked.index);
                             break;
                         }
                         Judgment::Ambiguous => {
@@ -218,7 +234,7 @@ impl Bench {
                 }
                 // Still held beyond the prior's reach: its geometric twins.
                 if let Some(held) = verdict.filter(|v| !rule.accepts_alone(&v.world_from_camera)) {
-                    if !self.twins_pass(&held, held_twins, &rule, tally) {
+                    if !self.twins_pass(&held, held_twins, (&rule, &query.truth), tally) {
                         verdict = None;
                     }
                 }
@@ -272,7 +288,7 @@ impl Bench {
         }
         if let Some(first) = candidates
             .iter()
-            .find(|c| c.ranked.index != LANDMARK_CANDIDATE)
+            .find(|c| !is_landmark_index(c.ranked.index))
         {
             tally
                 .descriptor_m
@@ -418,7 +434,7 @@ impl Bench {
 
     /// The geometric twins of the keyframe just accepted (the last spare
     /// one), up to [`crate::reloc::twins::TWIN_CHECKS`] to check.
-    fn twin_check(&mut self) -> HeldTwins {
+    fn twin_check(&mut self, truth: &Pose) -> HeldTwins {
         let Some(kf) = self.spare.last() else {
             return (
                 TwinCheck::Unique,
@@ -428,6 +444,23 @@ impl Bench {
         };
         let twins = self.reloc.twins_mut();
         let check = twins.check(kf);
+        // Where the held pose is another place, how well its view fits at
+        // the truth (why the truth was, or was not, a twin).
+        let held = kf.world_from_keyframe;
+        if twins.has_map() && elsewhere(&held, truth) {
+            let to_truth = crate::reloc::twins::twin_between(&held, truth);
+            let fit = twins.score_of(&held.translation.vector, &to_truth);
+            tracing::debug!(
+                yaw_deg = to_truth.yaw_rad.to_degrees(),
+                offset_m = ?to_truth.offset_m,
+                score = fit.map(|f| f.0),
+                free = fit.map(|f| f.1),
+                check = ?check,
+                found = twins.found().len(),
+                turned = twins.turned().len(),
+                "held at another place: the truth as its geometric twin"
+            );
+        }
         (
             check,
             twins.found().iter().copied().collect(),
@@ -436,36 +469,39 @@ impl Bench {
     }
 
     /// Whether `held` survives its geometric twins (`check`, from
-    /// [`Self::twin_check`] when it was accepted): false when its view is
-    /// degenerate, when a twin stands within the prior's reach of `rule`
-    /// (as [`crate::reloc::twins::prior_prefers_a_twin`]), or when the
-    /// frame passes the looser gate at a twin.
+    /// [`Self::twin_check`] when it was accepted), by the plan of
+    /// [`crate::reloc::twins::plan`] under `rule`: false when it refuses
+    /// outright, or when the frame passes the looser gate at a twin it
+    /// lists, at another place.
     fn twins_pass(
         &mut self,
         held: &Verified,
         (check, found, turned): HeldTwins,
-        rule: &crate::reloc::rivals::RivalRule,
+        (rule, truth): (&crate::reloc::rivals::RivalRule, &Pose),
         tally: &mut Tally,
     ) -> bool {
-        if crate::reloc::twins::prior_prefers_a_twin(
-            rule,
-            &held.world_from_camera,
-            (&found, &turned),
-        ) {
-            tally.geometric_prior += 1;
-            return false;
-        }
-        let n = match check {
-            TwinCheck::Unique => return true,
-            TwinCheck::Degenerate => {
+        let planned = match plan(rule, &held.world_from_camera, check, (&found, &turned)) {
+            TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin) => {
+                tally.geometric_prior += 1;
+                return false;
+            }
+            TwinPlan::Refuse(TwinRefusal::Degenerate) => {
                 tally.geometric_degenerate += 1;
                 return false;
             }
-            TwinCheck::Check(n) => n,
+            TwinPlan::Check(planned) => planned,
         };
-        for twin in found.iter().take(n) {
+        for twin in &planned {
             tally.geometric_checked += 1;
             let pose = twin_pose(&held.world_from_camera, twin);
+            let off = truth.inverse() * pose;
+            tracing::debug!(
+                yaw_deg = twin.yaw_rad.to_degrees(),
+                score = twin.score,
+                off_truth_m = off.translation.vector.norm(),
+                off_truth_deg = off.rotation.angle().to_degrees(),
+                "geometric twin checked"
+            );
             let passed = self.try_at(Gate::Loose, (&pose, None), u32::MAX, tally);
             if passed.is_some_and(|r| elsewhere(&held.world_from_camera, &r.world_from_camera)) {
                 tally.geometric_refused += 1;

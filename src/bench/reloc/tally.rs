@@ -113,6 +113,14 @@ pub(super) struct Tally {
     /// verified, the accepted poses they refused as ambiguous, and the
     /// rivals within the prior's reach taken instead of a pose beyond it.
     pub(super) rivals_tried: usize,
+    /// Landmark poses at other places listed as rivals
+    /// ([`crate::reloc::Relocalizer::landmark_rivals`]).
+    pub(super) landmark_rivals: usize,
+    /// Accepted poses that passed only through the first level's lowered
+    /// floor ([`crate::reloc::Verified::lowered_first_level`]): right, and
+    /// wrong.
+    pub(super) lowered_right: usize,
+    pub(super) lowered_wrong: usize,
     pub(super) ambiguous: usize,
     pub(super) prior_chose: usize,
     /// Rivals that passed at another place where one of the two correlated
@@ -181,7 +189,12 @@ impl Tally {
                 let err = query.truth.inverse() * v.world_from_camera;
                 let err_m = err.translation.vector.norm();
                 let err_deg = err.rotation.angle().to_degrees();
-                if judge(query, outcome) == QueryResult::Success {
+                let right = judge(query, outcome) == QueryResult::Success;
+                if v.lowered_first_level {
+                    self.lowered_right += usize::from(right);
+                    self.lowered_wrong += usize::from(!right);
+                }
+                if right {
                     self.success += 1;
                     self.success_ncc
                         .push((v.correlation, v.trimmed_correlation));
@@ -197,7 +210,7 @@ impl Tally {
                             err_m,
                             err_deg,
                             format!(
-                                "truth at ({:.2}, {:.2}, {:.2}) m, accepted at ({:.2}, {:.2}, {:.2}) m{}; inliers {:.2}, visible {:.2}, residual {:.1}, correlation {:.2}, trimmed {:.2} keeping {:.2}, gain {:.2}",
+                                "truth at ({:.2}, {:.2}, {:.2}) m, accepted at ({:.2}, {:.2}, {:.2}) m{}; inliers {:.2}, visible {:.2}, residual {:.1}, correlation {:.2}, trimmed {:.2} keeping {:.2}, local contrast {:.2}{}, gain {:.2}",
                                 t.x,
                                 t.y,
                                 t.z,
@@ -211,6 +224,8 @@ impl Tally {
                                 v.correlation,
                                 v.trimmed_correlation,
                                 v.kept,
+                                v.local_correlation,
+                                if v.lowered_first_level { " (through the lowered first level)" } else { "" },
                                 v.alignment.gain
                             ),
                         ));
@@ -252,8 +267,13 @@ impl Tally {
             100.0 * self.success_given_near as f64 / self.retrieved_near.max(1) as f64
         );
         println!(
-            "    look-alike places: {} rivals at another place verified, {} poses refused because one passed too (counted in no pose), {} beyond the prior's reach replaced by a rival within it, {} passing rivals told apart by a decisive correlation ({} of them the better place)",
-            self.rivals_tried, self.ambiguous, self.prior_chose, self.decisive, self.decisive_rival
+            "    look-alike places: {} rivals at another place verified ({} landmark poses at other places listed), {} poses refused because one passed too (counted in no pose), {} beyond the prior's reach replaced by a rival within it, {} passing rivals told apart by a decisive correlation ({} of them the better place)",
+            self.rivals_tried,
+            self.landmark_rivals,
+            self.ambiguous,
+            self.prior_chose,
+            self.decisive,
+            self.decisive_rival
         );
         println!(
             "    geometric twins: {} poses refused because their view fits at {} or more places; {} because a twin stands within the prior's reach; {} twins checked, {} poses refused because the frame passed the looser gate at one (all counted in no pose)",
@@ -262,6 +282,10 @@ impl Tally {
             self.geometric_prior,
             self.geometric_checked,
             self.geometric_refused
+        );
+        println!(
+            "    accepted through the first level's lowered floor: {} right, {} off",
+            self.lowered_right, self.lowered_wrong
         );
         let elsewhere = self.wrong.iter().filter(|w| w.0 > 1.0).count();
         if !self.wrong.is_empty() {
