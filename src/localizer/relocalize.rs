@@ -406,6 +406,18 @@ impl Localizer {
                     }
                     continue;
                 };
+                if !rule
+                    .for_held(v.lowered_first_level, v.local_correlation)
+                    .may_hold(&v.world_from_camera)
+                {
+                    tracing::debug!(
+                        candidate = c,
+                        local = v.local_correlation,
+                        "passed only through the lowered first level, beyond the prior's reach: not held"
+                    );
+                    self.worker.recycle(kf);
+                    continue;
+                }
                 tracing::info!(
                     candidate = c,
                     coarse_score = candidate.score,

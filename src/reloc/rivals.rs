@@ -214,6 +214,28 @@ impl RivalRule {
         !self.lowered && self.prior_reaches(accepted)
     }
 
+    /// Whether a pose that passed the gate may be held at all: not one that
+    /// passed only through the first level's lowered floor
+    /// ([`Self::lowered`]) beyond the prior's reach (or on a cold start).
+    /// The search goes on to the next candidate instead.
+    ///
+    /// Why: on the scanned floor's 3 000-frame flight, of 200 searches
+    /// (cold and near the last position, `star bench reloc` seeds 1 and
+    /// 2), no right pose was accepted through the lowered floor, and every
+    /// wrong cold accept left by the rival and twin checks was: rooms 8,
+    /// 11, 24 and 40 m from the truth, whose view's geometry fit there at
+    /// only 0.64-0.85 (a twin needs 0.9), the true room never verified as a
+    /// rival. Their figures (local contrast 0.57, plain correlation 0.46,
+    /// inliers 0.79-0.83) lie among those of the right cold starts the
+    /// floor gives on 4 scanned rooms without look-alikes (0.57-0.70,
+    /// 0.40-0.58, 0.50-0.77), and the frame's corners fit nowhere else in
+    /// either: nothing tells them apart without a prior, so a cold start
+    /// waits for a frame that passes the whole gate (docs/building-scale.md,
+    /// "The lowered first level on a cold start").
+    pub fn may_hold(&self, held: &Pose) -> bool {
+        !self.lowered || self.prior_reaches(held)
+    }
+
     /// Whether a pose that passed the gate may be accepted without any
     /// rival check: the prior vouches for its place
     /// ([`Self::vouches_for_place`]) and it is not [`Self::weak`].

@@ -280,8 +280,15 @@ impl Relocalizer {
     /// ([`LandmarkLocator::poses_elsewhere`]), as candidates to verify as
     /// rivals of `held` (precise poses, scored as the landmark pose is),
     /// written to `out`; returns how many (at most
-    /// [`MAX_LANDMARK_ELSEWHERE`]).
+    /// [`MAX_LANDMARK_ELSEWHERE`]). Only on a map checked for geometric
+    /// twins (a scan): on the textured `building` floor the rivals the
+    /// search already lists tell its look-alikes apart (0 wrong in 100
+    /// cold starts either way), and these cost its cold start 183 -> 260
+    /// ms median (docs/building-scale.md, "The landmarks' other places").
     pub fn landmark_rivals(&mut self, held: &Pose, out: &mut [Candidate]) -> usize {
+        if !self.twins.has_map() {
+            return 0;
+        }
         let mut found = heapless::Vec::<Located, MAX_LANDMARK_ELSEWHERE>::new();
         self.landmarks.poses_elsewhere(held, &mut found);
         let mut n = 0;

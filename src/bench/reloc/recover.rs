@@ -143,7 +143,13 @@ impl Bench {
                     continue;
                 }
                 tried.push(c.ranked.index);
-                verdict = self.try_one(&c, tally);
+                verdict = self.try_one(&c, tally).filter(|v| {
+                    let holds = rule
+                        .for_held(v.lowered_first_level, v.local_correlation)
+                        .may_hold(&v.world_from_camera);
+                    tally.lowered_skipped += usize::from(!holds);
+                    holds
+                });
                 if verdict.is_some() {
                     verdict_from_landmarks = is_landmark_index(c.ranked.index);
                     break 'steps;
@@ -276,6 +282,13 @@ impl Bench {
             landmark_off_deg = landmark_off.1,
             accepted = verdict.is_some(),
             from_landmarks = verdict_from_landmarks,
+            off_m =
+                verdict.map(|v| (v.world_from_camera.translation.vector - query.position_m).norm()),
+            lowered = verdict.map(|v| v.lowered_first_level),
+            local = verdict.map(|v| v.local_correlation),
+            plain = verdict.map(|v| v.correlation),
+            inliers = verdict.map(|v| v.alignment.quality.inlier_ratio),
+            gain = verdict.map(|v| v.alignment.gain),
             truth_x_m = query.position_m.x,
             truth_y_m = query.position_m.y,
             truth_z_m = query.position_m.z,

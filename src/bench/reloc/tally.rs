@@ -121,6 +121,9 @@ pub(super) struct Tally {
     /// wrong.
     pub(super) lowered_right: usize,
     pub(super) lowered_wrong: usize,
+    /// Poses that passed only through the lowered floor beyond the prior's
+    /// reach, not held ([`crate::reloc::rivals::RivalRule::may_hold`]).
+    pub(super) lowered_skipped: usize,
     pub(super) ambiguous: usize,
     pub(super) prior_chose: usize,
     /// Rivals that passed at another place where one of the two correlated
@@ -284,8 +287,8 @@ impl Tally {
             self.geometric_refused
         );
         println!(
-            "    accepted through the first level's lowered floor: {} right, {} off",
-            self.lowered_right, self.lowered_wrong
+            "    accepted through the first level's lowered floor: {} right, {} off; {} passed only through it beyond the prior's reach, not held",
+            self.lowered_right, self.lowered_wrong, self.lowered_skipped
         );
         let elsewhere = self.wrong.iter().filter(|w| w.0 > 1.0).count();
         if !self.wrong.is_empty() {
