@@ -94,8 +94,15 @@ fn locating_from_landmarks_allocates_nothing() {
     let everywhere = locator.locate(&frame, w, h, w, SearchRegion::Everywhere);
     let everywhere_comparisons = locator.comparisons();
     let both = locator.locate_in(&frame, w, h, w, &regions);
+    // The poses at the other places the corners fit (rivals on a scan).
+    let mut elsewhere = heapless::Vec::<star::reloc::landmarks::Located, 3>::new();
+    locator.poses_elsewhere(&pose, &mut elsewhere);
     let allocations = stop_counting();
     assert_eq!(allocations, 0, "allocations while locating");
+    // One room: whatever it gives stands at least a meter from the pose.
+    assert!(elsewhere
+        .iter()
+        .all(|f| star::reloc::rivals::elsewhere(&pose, &f.world_from_camera)));
 
     // It searched, and over the whole map with fewer comparisons than
     // brute force.

@@ -164,6 +164,19 @@ pub struct RelocConfig {
     /// `min_local_correlation` to accept on the prior alone as before, or
     /// above 1 to verify the rivals of every pose.
     pub prior_alone_min_local_correlation: f32,
+    /// Whether a pose that passes the gate only through the first level's
+    /// lowered floor (`min_local_correlation_at_map_detail`) may be held
+    /// beyond the motion prior's reach: on a cold start, after a kidnap, or
+    /// away from a start hint. Off by default: on the scanned floor of
+    /// look-alike rooms every wrong cold accept that the rivals and the
+    /// twins left came through that floor (rooms 8-40 m from the truth),
+    /// and its figures are those of right poses on a scan without
+    /// look-alikes. On such a map (4 scanned rooms, each its own design)
+    /// it gives about a quarter of the cold starts, and the first pose
+    /// after a cold start, a kidnap or a wrong hint comes sooner
+    /// (docs/building-scale.md, "The lowered first level on a cold
+    /// start"). Turn it on only for a map whose places do not repeat.
+    pub lowered_floor_without_prior: bool,
     /// Acceptance gate: range of the photometric gain (camera / map) of the
     /// candidate alignment. A wrong pose on a look-alike surface fits by
     /// crushing the contrast (gains of 0.3-0.5 seen before the correlation
@@ -291,6 +304,7 @@ impl Default for RelocConfig {
             min_local_correlation: 0.7,
             min_local_correlation_at_map_detail: 0.5,
             prior_alone_min_local_correlation: 0.8,
+            lowered_floor_without_prior: false,
             min_gain: 0.25,
             max_gain: 4.0,
             refine_min_inlier_ratio: 0.4,

@@ -13,10 +13,15 @@
 //! landmark pose and the descriptor's, with their coarse-alignment
 //! scores), the ones already tried, and the pose that passed; gives:
 //!
-//! - whether that pose may be accepted without rivals
+//! - whether that pose may be held at all ([`RivalRule::may_hold`]): not
+//!   one that passed only through its first level's lowered floor beyond
+//!   the prior's reach (or on a cold start);
+//! - whether it may be accepted without rivals
 //!   ([`RivalRule::accepts_alone`]): only within the prior's reach in
-//!   position and heading, and never a pose that passed the gate only
-//!   through its first level's lowered floor ([`RivalRule::for_held`]);
+//!   position and heading, never a pose that passed the gate only
+//!   through its first level's lowered floor ([`RivalRule::for_held`]),
+//!   and on a scan only with enough local contrast
+//!   ([`RivalRule::with_alone_floor`]);
 //! - how many rivals to verify and how near the best score they must be
 //!   ([`RivalRule::budget`]): [`MAX_RIVALS`] within
 //!   [`RIVAL_SCORE_MARGIN`] without a prior or outside its radius (look-
@@ -25,7 +30,10 @@
 //!   heading bound (the twins are out of reach: only the place's own
 //!   symmetry can fool the gate);
 //! - which candidates are rivals ([`RivalRule::rivals`], built on
-//!   [`RivalRule::is_rival`]): more than [`RIVAL_MIN_M`] from the pose,
+//!   [`RivalRule::is_rival`]; on a scan the caller puts the landmark poses
+//!   at the other places the frame fits first,
+//!   [`crate::reloc::Relocalizer::landmark_rivals`]): more than
+//!   [`RIVAL_MIN_M`] from the pose,
 //!   not tried yet in this attempt, scored within the margin of the best
 //!   candidate near the pose (a landmark pose elsewhere always
 //!   qualifies), in the candidates' order, best first, one per place
@@ -150,6 +158,9 @@ pub struct RivalRule {
     /// The pose held read less local contrast than that
     /// ([`Self::for_held`]): its near rivals are verified first.
     pub weak: bool,
+    /// A pose through the lowered floor may be held beyond the prior's
+    /// reach (`[reloc] lowered_floor_without_prior`, [`Self::may_hold`]).
+    pub lowered_without_prior: bool,
 }
 
 impl RivalRule {
@@ -160,6 +171,16 @@ impl RivalRule {
             lowered: false,
             alone_min_local: f32::NEG_INFINITY,
             weak: false,
+            lowered_without_prior: false,
+        }
+    }
+
+    /// The rule where a pose through the lowered floor may (`allowed`) or
+    /// may not be held beyond the prior's reach ([`Self::may_hold`]).
+    pub fn with_lowered_without_prior(self, allowed: bool) -> Self {
+        Self {
+            lowered_without_prior: allowed,
+            ..self
         }
     }
 
@@ -231,9 +252,10 @@ impl RivalRule {
     /// 0.40-0.58, 0.50-0.77), and the frame's corners fit nowhere else in
     /// either: nothing tells them apart without a prior, so a cold start
     /// waits for a frame that passes the whole gate (docs/building-scale.md,
-    /// "The lowered first level on a cold start").
+    /// "The lowered first level on a cold start"). A map whose places do
+    /// not repeat may allow it ([`Self::with_lowered_without_prior`]).
     pub fn may_hold(&self, held: &Pose) -> bool {
-        !self.lowered || self.prior_reaches(held)
+        !self.lowered || self.prior_reaches(held) || self.lowered_without_prior
     }
 
     /// Whether a pose that passed the gate may be accepted without any
@@ -466,6 +488,15 @@ mod tests {
         );
         // A pose not through the lowered floor keeps the rule as it was.
         assert_eq!(rule.for_held(false, 0.75), rule);
+        // Within the prior's reach it is held; beyond it, or on a cold
+        // start, only where the map's places do not repeat (the setting).
+        assert!(lowered.may_hold(&accepted));
+        let far = pose(30.0, 0.0);
+        assert!(!lowered.may_hold(&far));
+        let cold = RivalRule::new(None).for_held(true, 0.6);
+        assert!(!cold.may_hold(&accepted));
+        assert!(cold.with_lowered_without_prior(true).may_hold(&accepted));
+        assert!(RivalRule::new(None).for_held(false, 0.6).may_hold(&far));
     }
 
     #[test]

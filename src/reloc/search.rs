@@ -187,9 +187,12 @@ impl Relocalizer {
     /// this map: on a scan (held poses checked for geometric twins), a pose
     /// is accepted on the prior alone only with `[reloc]
     /// prior_alone_min_local_correlation` of local contrast
-    /// ([`super::rivals::RivalRule::with_alone_floor`]).
+    /// ([`super::rivals::RivalRule::with_alone_floor`]); a pose through the
+    /// lowered first level is held beyond the prior's reach only with
+    /// `[reloc] lowered_floor_without_prior`.
     pub fn rival_rule(&self, prior: Option<super::prior::MotionPrior>) -> super::rivals::RivalRule {
-        let rule = super::rivals::RivalRule::new(prior);
+        let rule = super::rivals::RivalRule::new(prior)
+            .with_lowered_without_prior(self.config.lowered_floor_without_prior);
         if self.twins.has_map() {
             rule.with_alone_floor(self.config.prior_alone_min_local_correlation)
         } else {
