@@ -458,9 +458,10 @@ impl Bench {
         let twins = self.reloc.twins_mut();
         let check = twins.check(kf);
         // Where the held pose is another place, how well its view fits at
-        // the truth (why the truth was, or was not, a twin).
+        // the truth (why the truth was, or was not, a twin); only when
+        // logged, since it runs inside the timed search.
         let held = kf.world_from_keyframe;
-        if twins.has_map() && elsewhere(&held, truth) {
+        if tracing::enabled!(tracing::Level::DEBUG) && twins.has_map() && elsewhere(&held, truth) {
             let to_truth = crate::reloc::twins::twin_between(&held, truth);
             let fit = twins.score_of(&held.translation.vector, &to_truth);
             tracing::debug!(
