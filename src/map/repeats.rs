@@ -663,6 +663,37 @@ mod tests {
     }
 
     #[test]
+    fn the_fit_at_a_given_offset_is_the_twins_there_and_low_elsewhere() {
+        let mut mesh = Mesh::default();
+        furniture(&mut mesh, 0.3, 0.4);
+        furniture(&mut mesh, 12.3, 0.4);
+        // The same cabinets 6 m away, moved apart: a look-alike, not a twin.
+        walls(&mut mesh, (6.3, 0.4, 7.5, 1.0), 1.8);
+        walls(&mut mesh, (9.9, 2.9, 10.3, 3.8), 0.9);
+        walls(&mut mesh, (-1.0, -1.0, 20.0, 5.0), 3.0);
+        let map = MapOccupancy::build(&mesh);
+        let mut scratch = map.scratch();
+        let (c, v) = (camera(0.3, 0.4), view(0.3, 0.4));
+        // A few centimeters off the copy's offset: within the slack.
+        let (copy, copy_free) = map
+            .score_at(&c, &v, (0.0, [12.04, -0.03]), &mut scratch)
+            .expect("the copy is on the grid");
+        assert!(copy >= MIN_SCORE, "{copy}");
+        assert!(copy_free >= MIN_FREE_FRACTION, "{copy_free}");
+        let (alike, _) = map
+            .score_at(&c, &v, (0.0, [6.0, 0.0]), &mut scratch)
+            .expect("the look-alike is on the grid");
+        assert!(alike < MIN_SCORE && alike < copy, "{alike}");
+        // Off the grid, or too few points: nothing.
+        assert!(map
+            .score_at(&c, &v, (0.0, [500.0, 0.0]), &mut scratch)
+            .is_none());
+        assert!(map
+            .score_at(&c, &v[..MIN_POINTS - 1], (0.0, [12.0, 0.0]), &mut scratch)
+            .is_none());
+    }
+
+    #[test]
     fn a_layout_built_once_has_no_twin() {
         let mut mesh = Mesh::default();
         furniture(&mut mesh, 0.3, 0.4);
