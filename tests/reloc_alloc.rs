@@ -94,11 +94,17 @@ fn locating_from_landmarks_allocates_nothing() {
     let everywhere = locator.locate(&frame, w, h, w, SearchRegion::Everywhere);
     let everywhere_comparisons = locator.comparisons();
     let both = locator.locate_in(&frame, w, h, w, &regions);
-    // The poses at the other places the corners fit (rivals on a scan).
-    let mut elsewhere = heapless::Vec::<star::reloc::landmarks::Located, 3>::new();
-    locator.poses_elsewhere(&pose, &mut elsewhere);
     let allocations = stop_counting();
     assert_eq!(allocations, 0, "allocations while locating");
+    // The poses at the other places the corners fit (rivals on a scan):
+    // nothing allocated, and the search's own matches left as they were.
+    let recall = locator.recall_of_last();
+    let mut elsewhere = heapless::Vec::<star::reloc::landmarks::Located, 3>::new();
+    start_counting();
+    locator.poses_elsewhere(&pose, &mut elsewhere);
+    let allocations = stop_counting();
+    assert_eq!(allocations, 0, "allocations while solving other places");
+    assert_eq!(locator.recall_of_last(), recall);
     // One room: whatever it gives stands at least a meter from the pose.
     assert!(elsewhere
         .iter()

@@ -535,6 +535,8 @@ impl LandmarkLocator {
         if self.index.is_empty() || n == 0 {
             return;
         }
+        // The search's own matches are kept (`recall_of_last` reads them).
+        self.region_matches[..n].copy_from_slice(&self.matches[..n]);
         self.index
             .best_two_everywhere(&self.query[..n], &mut self.matches[..n]);
         for &(best_d, best_i, second_d, second_i) in &self.matches[..n] {
@@ -602,6 +604,7 @@ impl LandmarkLocator {
             // Room was made above.
             let _ = out.insert(at, found);
         }
+        self.matches[..n].copy_from_slice(&self.region_matches[..n]);
     }
 
     /// RANSAC PnP on the current matches (with or without the ratio
