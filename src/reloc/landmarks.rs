@@ -539,22 +539,7 @@ impl LandmarkLocator {
         self.region_matches[..n].copy_from_slice(&self.matches[..n]);
         self.index
             .best_two_everywhere(&self.query[..n], &mut self.matches[..n]);
-        for &(best_d, best_i, second_d, second_i) in &self.matches[..n] {
-            for (d, i) in [(best_d, best_i), (second_d, second_i)] {
-                if d > self.max_hamming {
-                    continue;
-                }
-                if let Some(p) = self.positions_m.get(i as usize) {
-                    self.places.vote(p);
-                }
-            }
-        }
-        let min_votes = self.params.min_inliers as u32;
-        let n_places = self.places.places(min_votes).len();
-        let mut centers = [Vector2::<f32>::zeros(); MAX_PLACES];
-        for (c, p) in centers.iter_mut().zip(self.places.places_found()) {
-            *c = p.center_m;
-        }
+        let (centers, n_places) = self.vote_places(n);
         // Its own seeds: the next query's are those it would have had.
         let seed = 0x5354_4152_5249_5600 ^ self.calls;
         for (k, center) in centers[..n_places].iter().enumerate() {
@@ -605,6 +590,29 @@ impl LandmarkLocator {
             let _ = out.insert(at, found);
         }
         self.matches[..n].copy_from_slice(&self.region_matches[..n]);
+    }
+
+    /// The places where the first `n` current matches, best and runner-up,
+    /// gather on the floor plan ([`PlaceVote`]): their centers, most votes
+    /// first, and how many.
+    fn vote_places(&mut self, n: usize) -> ([Vector2<f32>; MAX_PLACES], usize) {
+        for &(best_d, best_i, second_d, second_i) in &self.matches[..n] {
+            for (d, i) in [(best_d, best_i), (second_d, second_i)] {
+                if d > self.max_hamming {
+                    continue;
+                }
+                if let Some(p) = self.positions_m.get(i as usize) {
+                    self.places.vote(p);
+                }
+            }
+        }
+        let min_votes = self.params.min_inliers as u32;
+        let n_places = self.places.places(min_votes).len();
+        let mut centers = [Vector2::<f32>::zeros(); MAX_PLACES];
+        for (c, p) in centers.iter_mut().zip(self.places.places_found()) {
+            *c = p.center_m;
+        }
+        (centers, n_places)
     }
 
     /// RANSAC PnP on the current matches (with or without the ratio
@@ -665,22 +673,7 @@ impl LandmarkLocator {
     /// nothing. Keeps the region's matches in `region_matches`.
     fn solve_places(&mut self, n: usize, region: &SearchRegion, seed: u64) -> Option<Located> {
         self.region_matches[..n].copy_from_slice(&self.matches[..n]);
-        for &(best_d, best_i, second_d, second_i) in &self.matches[..n] {
-            for (d, i) in [(best_d, best_i), (second_d, second_i)] {
-                if d > self.max_hamming {
-                    continue;
-                }
-                if let Some(p) = self.positions_m.get(i as usize) {
-                    self.places.vote(p);
-                }
-            }
-        }
-        let min_votes = self.params.min_inliers as u32;
-        let n_places = self.places.places(min_votes).len();
-        let mut centers = [Vector2::<f32>::zeros(); MAX_PLACES];
-        for (c, p) in centers.iter_mut().zip(self.places.places_found()) {
-            *c = p.center_m;
-        }
+        let (centers, n_places) = self.vote_places(n);
         // Each place's matches once, for both passes.
         let stride = self.matches.len();
         for (k, center) in centers[..n_places].iter().enumerate() {
