@@ -112,6 +112,27 @@ impl Checker {
         kf
     }
 
+    /// Asserts that the frame, aligned from `at` through `gate`, passes
+    /// within 5 cm of `truth` and so at another place than `held` (frame
+    /// `i` of the flight, for the messages).
+    fn assert_passes_at_truth(
+        &mut self,
+        s: &Scene,
+        gate: &star::reloc::RelocConfig,
+        (at, truth, held): (&Pose, &Pose, &Pose),
+        i: usize,
+    ) {
+        let passed = self.passes_at(s, gate, at).unwrap_or_else(|| {
+            panic!("frame {i}: the frame fails the looser gate at its true place")
+        });
+        let off_m = (passed.translation.vector - truth.translation.vector).norm();
+        assert!(
+            off_m < 0.05,
+            "frame {i}: passed {off_m:.3} m from the truth"
+        );
+        assert!(elsewhere(held, &passed));
+    }
+
     /// The frame aligned from `at` through `gate`: where it passed.
     fn passes_at(&mut self, s: &Scene, gate: &star::reloc::RelocConfig, at: &Pose) -> Option<Pose> {
         let Self {
@@ -170,17 +191,7 @@ fn a_frame_held_in_the_wrong_copy_of_a_room_passes_at_its_geometric_twin() {
             .copied()
             .unwrap_or_else(|| panic!("frame {i}: the copy is not a twin: {:?}", twins.found()));
         let at = twin_pose(&held, &twin);
-        let passed = checker
-            .passes_at(&s, twins.loose(), &at)
-            .unwrap_or_else(|| {
-                panic!("frame {i}: the frame fails the looser gate at its true place")
-            });
-        let off_m = (passed.translation.vector - truth.translation.vector).norm();
-        assert!(
-            off_m < 0.05,
-            "frame {i}: passed {off_m:.3} m from the truth"
-        );
-        assert!(elsewhere(&held, &passed));
+        checker.assert_passes_at_truth(&s, twins.loose(), (&at, &truth, &held), i);
         checked += 1;
     }
     assert_eq!(checked, 3);
@@ -233,16 +244,6 @@ fn a_frame_held_in_a_turned_copy_of_its_room_is_checked_at_its_turned_twin() {
                     twins.turned()
                 )
             });
-        let passed = checker
-            .passes_at(&s, twins.loose(), &at)
-            .unwrap_or_else(|| {
-                panic!("frame {i}: the frame fails the looser gate at its true place")
-            });
-        let off_m = (passed.translation.vector - truth.translation.vector).norm();
-        assert!(
-            off_m < 0.05,
-            "frame {i}: passed {off_m:.3} m from the truth"
-        );
-        assert!(elsewhere(&held, &passed));
+        checker.assert_passes_at_truth(&s, twins.loose(), (&at, &truth, &held), i);
     }
 }
