@@ -24,7 +24,7 @@ use crate::track::{Aligner, Keyframe, Pyramid};
 
 use super::query::QueryFrame;
 use super::setup::Bench;
-use super::tally::Tally;
+use super::tally::{is_right, Tally};
 
 /// Which gate [`Bench::try_at`] verifies through.
 #[derive(Debug, Clone, Copy)]
@@ -233,6 +233,10 @@ impl Bench {
                         }
                         Judgment::Ambiguous => {
                             tally.ambiguous += 1;
+                            tally.ambiguous_with_truth += usize::from(
+                                is_right(query, &held.world_from_camera)
+                                    || is_right(query, &r.world_from_camera),
+                            );
                             verdict = None;
                             break;
                         }

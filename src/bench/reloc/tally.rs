@@ -4,6 +4,7 @@
 
 use std::time::Instant;
 
+use crate::geometry::Pose;
 use crate::offline::median_p99;
 use crate::reloc::{Query, Ranked, SearchIndex, SearchRegion, MAX_TOP_K};
 use crate::rng::SplitMix64;
@@ -125,6 +126,9 @@ pub(super) struct Tally {
     /// reach, not held ([`crate::reloc::rivals::RivalRule::may_hold`]).
     pub(super) lowered_skipped: usize,
     pub(super) ambiguous: usize,
+    /// Of those, the ones where the held pose or the rival was the truth
+    /// ([`is_right`]): a right pose lost to a look-alike that passed too.
+    pub(super) ambiguous_with_truth: usize,
     pub(super) prior_chose: usize,
     /// Rivals that passed at another place where one of the two correlated
     /// decisively better ([`crate::reloc::rivals::DECISIVE_MARGIN`]), and
@@ -162,17 +166,16 @@ pub(super) enum QueryResult {
 pub(super) fn judge(query: &QueryFrame, outcome: &Outcome) -> QueryResult {
     match &outcome.verdict {
         None => QueryResult::Refused,
-        Some(v) => {
-            let err = query.truth.inverse() * v.world_from_camera;
-            if err.translation.vector.norm() <= SUCCESS_M
-                && err.rotation.angle().to_degrees() <= SUCCESS_DEG
-            {
-                QueryResult::Success
-            } else {
-                QueryResult::Wrong
-            }
-        }
+        Some(v) if is_right(query, &v.world_from_camera) => QueryResult::Success,
+        Some(_) => QueryResult::Wrong,
     }
+}
+
+/// Whether `world_from_camera` is within [`SUCCESS_M`] and
+/// [`SUCCESS_DEG`] of `query`'s truth.
+pub(super) fn is_right(query: &QueryFrame, world_from_camera: &Pose) -> bool {
+    let err = query.truth.inverse() * world_from_camera;
+    err.translation.vector.norm() <= SUCCESS_M && err.rotation.angle().to_degrees() <= SUCCESS_DEG
 }
 
 impl Tally {
@@ -270,10 +273,11 @@ impl Tally {
             100.0 * self.success_given_near as f64 / self.retrieved_near.max(1) as f64
         );
         println!(
-            "    look-alike places: {} rivals at another place verified ({} landmark poses at other places listed), {} poses refused because one passed too (counted in no pose), {} beyond the prior's reach replaced by a rival within it, {} passing rivals told apart by a decisive correlation ({} of them the better place)",
+            "    look-alike places: {} rivals at another place verified ({} landmark poses at other places listed), {} poses refused because one passed too ({} of them with the truth as one of the two; counted in no pose), {} beyond the prior's reach replaced by a rival within it, {} passing rivals told apart by a decisive correlation ({} of them the better place)",
             self.rivals_tried,
             self.landmark_rivals,
             self.ambiguous,
+            self.ambiguous_with_truth,
             self.prior_chose,
             self.decisive,
             self.decisive_rival
