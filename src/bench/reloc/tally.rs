@@ -388,3 +388,35 @@ impl Tally {
         );
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+    use super::*;
+
+    #[test]
+    fn a_pose_is_right_within_5_cm_and_2_degrees_of_the_truth() {
+        let truth = Pose::from_parts(
+            Translation3::new(3.0, -2.0, 1.4),
+            UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1),
+        );
+        let query = QueryFrame {
+            truth,
+            position_m: truth.translation.vector,
+        };
+        let moved = |x_m: f64, yaw_deg: f64| {
+            truth
+                * Pose::from_parts(
+                    Translation3::new(x_m, 0.0, 0.0),
+                    UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw_deg.to_radians()),
+                )
+        };
+        assert!(is_right(&query, &truth));
+        assert!(is_right(&query, &moved(0.049, 1.9)));
+        assert!(!is_right(&query, &moved(0.051, 0.0)));
+        assert!(!is_right(&query, &moved(0.0, 2.1)));
+        // A look-alike place: right in its own room, 12 m away.
+        assert!(!is_right(&query, &moved(12.0, 0.0)));
+    }
+}
