@@ -23,7 +23,12 @@ Then the pairs of places that both passed in one search (their local and
 plain correlations), and what a gate whose inlier floor is divided by the
 gain would let through: right and wrong alignments.
 
-Usage: scripts/reloc_search_losses.py LOG [LOG...]
+Usage: scripts/reloc_search_losses.py [--twin-checked] LOG [LOG...]
+
+`--twin-checked`: the map is checked for geometric twins (a scan: `star
+bench reloc` says "map occupancy built"), where the gate's inlier and
+plain floors are `twin_checked_min_inlier_ratio` (0.5) and
+`twin_checked_min_correlation` (0.2).
 """
 
 import math
@@ -38,8 +43,11 @@ POSITION = re.compile(r"position_m=\[([^\]]*)\]")
 RIGHT_M = 0.05
 WRONG_M = 0.30
 ELSEWHERE_M = 1.0
-# `[reloc]` defaults (config/star.toml).
+# `[reloc]` defaults (config/star.toml); `--twin-checked` lowers the first
+# and MIN_PLAIN as the twin-checked gate does (`reloc::twins`).
 MIN_INLIERS = 0.6
+TWIN_CHECKED_MIN_INLIERS = 0.5
+TWIN_CHECKED_MIN_PLAIN = 0.2
 MIN_VISIBLE = 0.5
 MAX_RESIDUAL = 12.0
 GAIN = (0.25, 4.0)
@@ -80,8 +88,9 @@ def parse(path):
     return queries
 
 
-def cheap_failures(a, min_inliers=MIN_INLIERS):
+def cheap_failures(a, min_inliers=None):
     """The gate's cheap figures (and first-level correlations) `a` fails."""
+    min_inliers = FLOORS["inliers"] if min_inliers is None else min_inliers
     why = []
     if a["inliers"] < min_inliers:
         why.append("inliers")
@@ -91,7 +100,7 @@ def cheap_failures(a, min_inliers=MIN_INLIERS):
         why.append("residual")
     if not GAIN[0] <= a["gain"] <= GAIN[1]:
         why.append("gain")
-    if not a["plain"] >= MIN_PLAIN:
+    if not a["plain"] >= FLOORS["plain"]:
         why.append("plain")
     if not a["local"] >= MIN_LOCAL_FIRST:
         why.append("local")
@@ -125,12 +134,19 @@ def losses(queries):
     return out, examples
 
 
+FLOORS = {"inliers": MIN_INLIERS, "plain": MIN_PLAIN}
+
+
 def main():
-    if len(sys.argv) < 2:
+    args = sys.argv[1:]
+    if "--twin-checked" in args:
+        args.remove("--twin-checked")
+        FLOORS.update(inliers=TWIN_CHECKED_MIN_INLIERS, plain=TWIN_CHECKED_MIN_PLAIN)
+    if not args:
         sys.exit(__doc__)
     pairs = []
     scaled = Counter()
-    for path in sys.argv[1:]:
+    for path in args:
         queries = parse(path)
         if not queries:
             sys.exit(f"{path}: no `query` lines (run with the log filter in this script's docs)")
@@ -152,7 +168,7 @@ def main():
             for a in aligned:
                 e = math.dist(a["position"], truth)
                 old = not cheap_failures(a)
-                new = not cheap_failures(a, MIN_INLIERS / max(1.0, a["gain"]))
+                new = not cheap_failures(a, FLOORS["inliers"] / max(1.0, a["gain"]))
                 if new and not old:
                     scaled["right" if e < RIGHT_M else "wrong" if e > WRONG_M else "between"] += 1
     print(f"\npairs of places that both passed in one search: {len(pairs)}")
@@ -164,7 +180,7 @@ def main():
         )
     print(
         "\nan inlier floor of %.2f / max(1, gain) would pass, beyond today's gate: %d right, %d wrong, %d between"
-        % (MIN_INLIERS, scaled["right"], scaled["wrong"], scaled["between"])
+        % (FLOORS["inliers"], scaled["right"], scaled["wrong"], scaled["between"])
     )
 
 

@@ -114,7 +114,7 @@ impl Localizer {
         if self.verify_left > 0 {
             // Verifying a relocalization: through its own gate.
             let gate = relocalization_gate_config(&self.reloc, &self.start_gate).unwrap_or(config);
-            return passes_gate(&a.quality, gate);
+            return passes_gate(&a.quality, a.gain, gate);
         }
         if self.state == TrackState::Tracking {
             return true;

@@ -177,6 +177,16 @@ pub struct RelocConfig {
     /// (docs/building-scale.md, "The lowered first level on a cold
     /// start"). Turn it on only for a map whose places do not repeat.
     pub lowered_floor_without_prior: bool,
+    /// Whether the gate's inlier floor (`min_inlier_ratio`, or
+    /// `twin_checked_min_inlier_ratio` on a twin-checked map) is divided by
+    /// the alignment's photometric gain where the camera sees the map
+    /// brighter (gain above 1): the map's own errors (baked light, scan
+    /// noise) reach the frame scaled by the gain, and fewer points stay
+    /// within the aligner's fixed inlier threshold. On the scanned floor
+    /// the true pose aligned at inlier ratios 0.38-0.48 under gains of
+    /// 1.4-2.5 with good correlations (docs/building-scale.md, "Where the
+    /// scanned floor's searches are lost").
+    pub inlier_floor_follows_gain: bool,
     /// Acceptance gate: range of the photometric gain (camera / map) of the
     /// candidate alignment. A wrong pose on a look-alike surface fits by
     /// crushing the contrast (gains of 0.3-0.5 seen before the correlation
@@ -305,6 +315,7 @@ impl Default for RelocConfig {
             min_local_correlation_at_map_detail: 0.5,
             prior_alone_min_local_correlation: 0.8,
             lowered_floor_without_prior: false,
+            inlier_floor_follows_gain: true,
             min_gain: 0.25,
             max_gain: 4.0,
             refine_min_inlier_ratio: 0.4,

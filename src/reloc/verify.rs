@@ -47,12 +47,24 @@ pub struct Verified {
     pub lowered_first_level: bool,
 }
 
-/// True when `q` passes the relocalization gate of `config`.
-pub fn passes_gate(q: &AlignQuality, config: &RelocConfig) -> bool {
-    q.inlier_ratio >= config.min_inlier_ratio
+/// True when `q`, aligned at photometric gain `gain` (camera / map), passes
+/// the relocalization gate of `config` ([`inlier_floor`]).
+pub fn passes_gate(q: &AlignQuality, gain: f32, config: &RelocConfig) -> bool {
+    q.inlier_ratio >= inlier_floor(config, gain)
         && q.visible_ratio >= config.min_visible_ratio
         && q.residual_rms <= config.max_residual_gray
         && q.residual_rms.is_finite()
+}
+
+/// The gate's inlier floor at photometric gain `gain`: `min_inlier_ratio`,
+/// divided by the gain where it is above 1 and `inlier_floor_follows_gain`
+/// is set (a gain that is not finite keeps the floor).
+pub fn inlier_floor(config: &RelocConfig, gain: f32) -> f32 {
+    if config.inlier_floor_follows_gain && gain > 1.0 && gain.is_finite() {
+        config.min_inlier_ratio / gain
+    } else {
+        config.min_inlier_ratio
+    }
 }
 
 /// The whole gate for an alignment `a` of `frame` against `keyframe`: the
@@ -125,7 +137,7 @@ fn whole_gate_from(
     (first_level, min_local): (usize, f32),
 ) -> Option<Correlations> {
     let gain_ok = (config.min_gain..=config.max_gain).contains(&a.gain);
-    let both = (passes_gate(&a.quality, config) && gain_ok)
+    let both = (passes_gate(&a.quality, a.gain, config) && gain_ok)
         .then(|| {
             min_correlations_and_coarser_local(
                 keyframe,
@@ -629,6 +641,39 @@ mod tests {
     /// `min_local_correlation`.
     fn passes_local(c: &Correlations, coarser: f32, level: usize, config: &RelocConfig) -> bool {
         local_contrast_passes(c, coarser, level, config, config.min_local_correlation)
+    }
+
+    #[test]
+    fn the_inlier_floor_follows_a_gain_above_1_only_when_set() {
+        let on = RelocConfig {
+            min_inlier_ratio: 0.5,
+            inlier_floor_follows_gain: true,
+            ..RelocConfig::default()
+        };
+        let off = RelocConfig {
+            inlier_floor_follows_gain: false,
+            ..on.clone()
+        };
+        assert_eq!(inlier_floor(&on, 2.0), 0.25);
+        assert_eq!(inlier_floor(&on, 1.0), 0.5);
+        // A camera that sees the map darker keeps the floor.
+        assert_eq!(inlier_floor(&on, 0.5), 0.5);
+        for gain in [f32::NAN, f32::INFINITY] {
+            assert_eq!(inlier_floor(&on, gain), 0.5);
+        }
+        assert_eq!(inlier_floor(&off, 2.0), 0.5);
+        // The scanned floor's true pose under a brighter camera: 0.40 of its
+        // points within the inlier threshold at a gain of 2.1.
+        let q = AlignQuality {
+            inlier_ratio: 0.40,
+            visible_ratio: 1.0,
+            residual_rms: 11.4,
+            correlation: 0.77,
+            ..AlignQuality::default()
+        };
+        assert!(passes_gate(&q, 2.1, &on));
+        assert!(!passes_gate(&q, 2.1, &off));
+        assert!(!passes_gate(&q, 1.1, &on));
     }
 
     #[test]
