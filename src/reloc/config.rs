@@ -185,7 +185,8 @@ pub struct RelocConfig {
     /// within the aligner's fixed inlier threshold. On the scanned floor
     /// the true pose aligned at inlier ratios 0.38-0.48 under gains of
     /// 1.4-2.5 with good correlations (docs/building-scale.md, "Where the
-    /// scanned floor's searches are lost").
+    /// scanned floor's searches are lost"). Gains above 2.5 count as 2.5
+    /// (`reloc::verify::INLIER_FLOOR_MAX_GAIN`).
     pub inlier_floor_follows_gain: bool,
     /// Acceptance gate: range of the photometric gain (camera / map) of the
     /// candidate alignment. A wrong pose on a look-alike surface fits by

@@ -56,12 +56,18 @@ pub fn passes_gate(q: &AlignQuality, gain: f32, config: &RelocConfig) -> bool {
         && q.residual_rms.is_finite()
 }
 
+/// The largest gain the inlier floor follows ([`inlier_floor`]): the true
+/// poses it was measured on aligned at gains up to 2.5; beyond, the floor
+/// stays at its value there.
+pub const INLIER_FLOOR_MAX_GAIN: f32 = 2.5;
+
 /// The gate's inlier floor at photometric gain `gain`: `min_inlier_ratio`,
-/// divided by the gain where it is above 1 and `inlier_floor_follows_gain`
-/// is set (a gain that is not finite keeps the floor).
+/// divided by the gain (at most [`INLIER_FLOOR_MAX_GAIN`]) where it is
+/// above 1 and `inlier_floor_follows_gain` is set (a gain that is not
+/// finite keeps the floor).
 pub fn inlier_floor(config: &RelocConfig, gain: f32) -> f32 {
     if config.inlier_floor_follows_gain && gain > 1.0 && gain.is_finite() {
-        config.min_inlier_ratio / gain
+        config.min_inlier_ratio / gain.min(INLIER_FLOOR_MAX_GAIN)
     } else {
         config.min_inlier_ratio
     }
@@ -662,6 +668,8 @@ mod tests {
             assert_eq!(inlier_floor(&on, gain), 0.5);
         }
         assert_eq!(inlier_floor(&off, 2.0), 0.5);
+        // Beyond the gains it was measured at, the floor stops falling.
+        assert_eq!(inlier_floor(&on, 4.0), 0.5 / INLIER_FLOOR_MAX_GAIN);
         // The scanned floor's true pose under a brighter camera: 0.40 of its
         // points within the inlier threshold at a gain of 2.1.
         let q = AlignQuality {
