@@ -19,7 +19,9 @@
 //! overrides it (0: none). Likewise the level of detail, `[render]
 //! lod_max_px` (default 2 px; `STAR_BENCH_LOD_PX=X` overrides it, 0: full
 //! detail): the default cull is timed with it and without it (full
-//! detail), the other culls at full detail.
+//! detail), the other culls at full detail. And `[render]
+//! cull_back_faces` (default off; `STAR_BENCH_CULL_BACK=1` or `0`
+//! overrides it), for every renderer and cull.
 //!
 //! `STAR_BENCH_GPU_BUDGET_MB=X` (MB, 10^6 bytes) also times the wgpu
 //! renderer (cull on) with `[render] gpu_budget_mb = X`: a map larger than
@@ -153,6 +155,24 @@ fn load(dir: &Path) -> Loaded {
     (mesh, camera, poses, far_m, lod_px)
 }
 
+/// Whether `dir`'s renders cull back faces: `STAR_BENCH_CULL_BACK` (`1` or
+/// `0`), else its `star.toml`'s `[render] cull_back_faces`, else off.
+fn cull_back_faces(dir: &Path) -> bool {
+    match std::env::var("STAR_BENCH_CULL_BACK").as_deref() {
+        Ok("1") => true,
+        Ok("0") => false,
+        Ok(other) => panic!("STAR_BENCH_CULL_BACK={other}: expected 1 or 0"),
+        Err(_) => {
+            let config_path = dir.join("star.toml");
+            config_path.exists()
+                && Config::load(&config_path)
+                    .expect("star.toml")
+                    .render
+                    .cull_back_faces
+        }
+    }
+}
+
 /// Median and p95 of `samples_ms` (sorted in place).
 fn median_p95(samples_ms: &mut [f64]) -> (f64, f64) {
     samples_ms.sort_by(f64::total_cmp);
@@ -197,10 +217,11 @@ fn bench_dataset(dir: &Path, only: Only) {
     let rss_before_mb = status_mb("VmRSS:");
     let t = Instant::now();
     let (mesh, camera, poses, far_m, lod_px) = load(dir);
+    let cull_back = cull_back_faces(dir);
     let triangles = mesh.triangle_count();
     let texels: usize = mesh.textures.iter().map(|t| t.texels.len()).sum();
     println!(
-        "{}: {} triangles, {} vertices, {} textures ({:.1} Mtexels), {} poses, {}x{}, far limit {:?} m, level of detail {lod_px} px",
+        "{}: {} triangles, {} vertices, {} textures ({:.1} Mtexels), {} poses, {}x{}, far limit {:?} m, level of detail {lod_px} px, back faces {}",
         dir.display(),
         triangles,
         mesh.positions.len(),
@@ -210,6 +231,7 @@ fn bench_dataset(dir: &Path, only: Only) {
         camera.width,
         camera.height,
         far_m,
+        if cull_back { "culled" } else { "drawn" },
     );
     println!(
         "  map loaded in {:.2} s; resident memory {:.0} MB (+{:.0} MB for the map)",
@@ -223,6 +245,7 @@ fn bench_dataset(dir: &Path, only: Only) {
         let t = Instant::now();
         let mut cpu = CpuRenderer::with_lod(Arc::clone(&mesh), lod_px).expect("valid mesh");
         cpu.set_far_m(far_m);
+        cpu.set_cull_back_faces(cull_back);
         let built_s = t.elapsed().as_secs_f64();
         println!(
             "  cpu renderer: {:.0} MB for the chunked mesh and textures ({} coarse chunks); resident memory {:.0} MB",
@@ -290,6 +313,7 @@ fn bench_dataset(dir: &Path, only: Only) {
     match GpuRenderer::new_configured(Arc::clone(&mesh), adapter(), 0, lod_px) {
         Ok(mut gpu) => {
             gpu.set_far_m(far_m);
+            gpu.set_cull_back_faces(cull_back);
             let built_s = t.elapsed().as_secs_f64();
             let mut out = RenderedView::for_camera(&camera);
             if let Some(p) = poses.first() {
@@ -367,7 +391,7 @@ fn bench_dataset(dir: &Path, only: Only) {
             }
             drop(gpu);
             if let Some(budget_mb) = gpu_budget_mb() {
-                bench_gpu_budget(&mesh, &camera, &poses, far_m, budget_mb);
+                bench_gpu_budget(&mesh, &camera, &poses, far_m, budget_mb, cull_back);
             }
         }
         Err(e) => println!("  wgpu {}: no adapter, skipped ({e})", adapter_label()),
@@ -410,6 +434,7 @@ fn bench_gpu_budget(
     poses: &[Pose],
     far_m: Option<f64>,
     budget_mb: f64,
+    cull_back: bool,
 ) {
     let budget_bytes = (budget_mb * 1e6) as u64;
     let mut gpu = match GpuRenderer::new_with_budget(Arc::clone(mesh), adapter(), budget_bytes) {
@@ -423,6 +448,7 @@ fn bench_gpu_budget(
         }
     };
     gpu.set_far_m(far_m);
+    gpu.set_cull_back_faces(cull_back);
     let mut out = RenderedView::for_camera(camera);
     for p in poses {
         gpu.render(p, camera, &mut out).expect("render");
@@ -474,14 +500,17 @@ fn bench_interleaved(dirs: &[PathBuf], gpu: bool) {
         .iter()
         .map(|dir| {
             let (mesh, camera, poses, far_m, lod_px) = load(dir);
+            let cull_back = cull_back_faces(dir);
             let renderer: Box<dyn Renderer> = if gpu {
                 let mut r = GpuRenderer::new_configured(Arc::new(mesh), adapter(), 0, lod_px)
                     .expect("a wgpu adapter of STAR_BENCH_ADAPTER's class");
                 r.set_far_m(far_m);
+                r.set_cull_back_faces(cull_back);
                 Box::new(r)
             } else {
                 let mut r = CpuRenderer::with_lod(Arc::new(mesh), lod_px).expect("valid mesh");
                 r.set_far_m(far_m);
+                r.set_cull_back_faces(cull_back);
                 Box::new(r)
             };
             let out = RenderedView::for_camera(&camera);

@@ -406,3 +406,60 @@ fn textured_levels_of_detail_agree_with_cpu_rasterizer() {
     }];
     levels_agree(mesh, 3, "textured receding wall, levels of detail");
 }
+
+/// The receding wall and, above it, its copy wound the other way: with back
+/// faces culled exactly one of the two is drawn, by both renderers alike;
+/// with both sides drawn, both.
+#[test]
+fn back_faces_are_culled_alike_by_both_renderers() {
+    let lower = receding_wall(80, 8);
+    let mut mesh = lower.clone();
+    let base = mesh.positions.len() as u32;
+    mesh.positions
+        .extend(lower.positions.iter().map(|p| [p[0], p[1], p[2] + 2.4]));
+    mesh.gray.extend_from_slice(&lower.gray);
+    mesh.indices.extend(
+        lower
+            .indices
+            .chunks_exact(3)
+            .flat_map(|t| [t[0] + base, t[2] + base, t[1] + base]),
+    );
+    let mesh = Arc::new(mesh);
+    let Some((mut gpu, mut cpu)) = renderers(Arc::clone(&mesh), false) else {
+        return;
+    };
+    let camera: PinholeCamera = CameraConfig::default().intrinsics;
+    let mut out_gpu = RenderedView::for_camera(&camera);
+    let mut out_cpu = RenderedView::for_camera(&camera);
+    let covered = |v: &RenderedView, upper: bool| {
+        v.depth_m
+            .data()
+            .iter()
+            .enumerate()
+            .filter(|(i, d)| {
+                RenderedView::is_hit(**d) && ((*i / camera.width as usize) < 256) == upper
+            })
+            .count()
+    };
+    let pose = look([0.0, -6.0, 2.4], 0.1, 0.0);
+    cpu.render(&pose, &camera, &mut out_cpu)
+        .expect("cpu render");
+    let (upper_both, lower_both) = (covered(&out_cpu, true), covered(&out_cpu, false));
+    assert!(
+        upper_both > 20_000 && lower_both > 20_000,
+        "{upper_both} {lower_both}"
+    );
+    cpu.set_cull_back_faces(true);
+    gpu.set_cull_back_faces(true);
+    cpu.render(&pose, &camera, &mut out_cpu)
+        .expect("cpu render");
+    gpu.render(&pose, &camera, &mut out_gpu)
+        .expect("gpu render");
+    let (upper, lower) = (covered(&out_cpu, true), covered(&out_cpu, false));
+    // One wall is gone whole, the other is as it was.
+    assert!(
+        (upper == 0 && lower == lower_both) || (lower == 0 && upper == upper_both),
+        "culled: upper {upper} of {upper_both}, lower {lower} of {lower_both}"
+    );
+    assert_agreement("back faces culled", compare(&out_gpu, &out_cpu));
+}

@@ -5,7 +5,9 @@
 //! bit, with the chunk cull (view frustum cut at the far limit) and
 //! without it (every chunk drawn, the far limit applied per pixel only):
 //! on the CPU rasterizer from all 50, on the wgpu renderer (lavapipe where
-//! it is installed) from 12 of them.
+//! it is installed) from 12 of them. Every tenth pose (every fourth of
+//! wgpu's) is compared again with back faces culled in both renders
+//! (`[render] cull_back_faces`): the chunk cull still changes nothing.
 
 #![allow(clippy::expect_used, clippy::unwrap_used)]
 
@@ -115,6 +117,18 @@ fn culling_never_drops_a_visible_triangle_of_the_building() {
             assert_eq!(full.cull_stats().visible_chunks, stats.chunks);
             drawn += stats.visible_fraction();
         }
+        if k % 10 == 0 {
+            culled.set_cull_back_faces(true);
+            full.set_cull_back_faces(true);
+            culled.render(pose, &camera, &mut a).unwrap();
+            full.render(pose, &camera, &mut b).unwrap();
+            assert!(
+                a.gray.data() == b.gray.data() && a.depth_m.data() == b.depth_m.data(),
+                "pose {k}, back faces culled: the chunk cull changed the image"
+            );
+            culled.set_cull_back_faces(false);
+            full.set_cull_back_faces(false);
+        }
         let hits = a.depth_m.data().iter().filter(|&&d| d > 0.0).count();
         assert!(
             hits > a.depth_m.data().len() / 2,
@@ -143,6 +157,18 @@ fn culling_never_drops_a_visible_triangle_of_the_building() {
                 a.gray.data() == b.gray.data() && a.depth_m.data() == b.depth_m.data(),
                 "wgpu, pose {k}, far {limit:?}: the cull changed the image"
             );
+        }
+        if k % 16 == 0 {
+            culled.set_cull_back_faces(true);
+            full.set_cull_back_faces(true);
+            culled.render(pose, &camera, &mut a).unwrap();
+            full.render(pose, &camera, &mut b).unwrap();
+            assert!(
+                a.gray.data() == b.gray.data() && a.depth_m.data() == b.depth_m.data(),
+                "wgpu, pose {k}, back faces culled: the cull changed the image"
+            );
+            culled.set_cull_back_faces(false);
+            full.set_cull_back_faces(false);
         }
     }
 }

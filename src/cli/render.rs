@@ -137,6 +137,8 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         None => CpuRenderer::new(mesh),
     }
     .context("building the CPU renderer")?;
+    // As the service renders this config's map; both sides without one.
+    renderer.set_cull_back_faces(config.as_ref().is_some_and(|c| c.render.cull_back_faces));
     let mut view = RenderedView::for_camera(&cam);
     let start = Instant::now();
     renderer

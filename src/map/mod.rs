@@ -84,8 +84,10 @@ pub struct Mesh {
     /// Per-vertex texture coordinates, `[u, v]` with v down (image rows);
     /// zero when the vertex has none; may be empty when no group is textured.
     pub uvs: Vec<[f32; 2]>,
-    /// Triangle vertex indices, three per triangle, counter-clockwise or not
-    /// (renderers do not cull back faces).
+    /// Triangle vertex indices, three per triangle, counter-clockwise or not:
+    /// the renderers draw both sides, unless `[render] cull_back_faces` says
+    /// the map's triangles are counter-clockwise seen from where they can
+    /// be seen (the front), as `star synth`'s maps and TSDF scans mostly are.
     pub indices: Vec<u32>,
     /// Triangle groups by texture, covering `indices` exactly once, in
     /// order; empty means every triangle is untextured.

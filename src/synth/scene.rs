@@ -328,4 +328,4 @@ pub(super) fn lambert(n: [f64; 3]) -> f64 {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

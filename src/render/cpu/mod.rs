@@ -32,8 +32,10 @@
 //! of two at equal depth on a pixel the one first in mesh order wins (a
 //! per-pixel triangle number breaks the tie), so the output is the same as
 //! drawing the whole mesh in mesh order, bit for bit, for any thread count
-//! and with or without the culls, whatever was rendered before. No
-//! back-face culling. All scratch
+//! and with or without the culls, whatever was rendered before. Both sides
+//! of a triangle are drawn unless back faces are culled
+//! ([`CpuRenderer::set_cull_back_faces`], for maps wound counter-clockwise
+//! toward where they are seen). All scratch
 //! (camera-frame vertices, sized at construction; screen triangles and bins,
 //! which grow per chunk to the most it has shown, as before the cull) lives
 //! in the renderer and keeps its capacity, so steady-state renders do not
@@ -110,6 +112,8 @@ pub struct CpuRenderer {
     binned_triangles: usize,
     /// Largest level-of-detail cell on the image, pixels (0: full detail).
     lod_max_px: f32,
+    /// Whether back faces are culled (off by default).
+    cull_back_faces: bool,
 }
 
 impl std::fmt::Debug for CpuRenderer {
@@ -163,6 +167,7 @@ impl CpuRenderer {
             self.lod_max_px,
         );
         other.far_m = self.far_m;
+        other.cull_back_faces = self.cull_back_faces;
         other
     }
 
@@ -216,6 +221,7 @@ impl CpuRenderer {
             batch: Vec::with_capacity(chunked_count),
             binned_triangles: 0,
             lod_max_px,
+            cull_back_faces: false,
         }
     }
 
@@ -277,6 +283,15 @@ impl CpuRenderer {
     /// is the same either way.
     pub fn set_occlusion_cull(&mut self, on: bool) {
         self.occlusion_cull = on;
+    }
+
+    /// Culls back faces when `on`: a triangle clockwise on the image
+    /// (screen y down) is not drawn. Off by default, every triangle drawn
+    /// from both sides. For a map whose triangles are all counter-clockwise
+    /// seen from where they can be seen (`[render] cull_back_faces`); the
+    /// wgpu renderer culls the same ones.
+    pub fn set_cull_back_faces(&mut self, on: bool) {
+        self.cull_back_faces = on;
     }
 
     /// Sets the far limit (`None`, the default: none): pixels deeper than
@@ -364,7 +379,9 @@ impl Renderer for CpuRenderer {
     ) -> Result<(), RenderError> {
         check_request(world_from_camera, camera)?;
         out.check_size(camera)?;
-        let view = View::new(world_from_camera, camera).with_far(self.far_m);
+        let view = View::new(world_from_camera, camera)
+            .with_far(self.far_m)
+            .with_back_faces_culled(self.cull_back_faces);
         let frustum = Frustum::new(world_from_camera, camera, f64::from(NEAR_M))
             .with_far(world_from_camera, self.far_m);
         let Self {

@@ -267,7 +267,8 @@ impl SetupSlot {
     }
 
     /// Orients, bounds and bins one projected triangle; drops it when it is
-    /// degenerate, covers no pixel center or is hidden behind `occluders`.
+    /// degenerate, a back face the view culls, covers no pixel center or is
+    /// hidden behind `occluders`.
     #[inline]
     fn emit(
         &mut self,
@@ -280,7 +281,9 @@ impl SetupSlot {
         let area2 = (i64::from(v[1].sx) - i64::from(v[0].sx))
             * (i64::from(v[2].sy) - i64::from(v[0].sy))
             - (i64::from(v[1].sy) - i64::from(v[0].sy)) * (i64::from(v[2].sx) - i64::from(v[0].sx));
-        if area2 == 0 {
+        // Screen y runs down: a triangle counter-clockwise on the image,
+        // its front seen, has a negative area here.
+        if area2 == 0 || (area2 > 0 && view.cull_back_faces) {
             return;
         }
         if area2 < 0 {

@@ -77,6 +77,9 @@ pub(super) struct View {
     /// Smallest `1/z` a pixel may have (`1/far`, as `f32`): deeper pixels
     /// are not drawn. 0 without a far limit.
     pub min_inv_z: f32,
+    /// Whether triangles clockwise on the image (back faces, with
+    /// counter-clockwise fronts) are dropped at setup.
+    pub cull_back_faces: bool,
     /// Clip planes `(a, b, c, d)` as `x y z w`: near, guard
     /// left/right/top/bottom, view left/right/top/bottom.
     pub planes: [Vec4; 9],
@@ -118,6 +121,7 @@ impl View {
             width: camera.width as usize,
             height: camera.height as usize,
             min_inv_z: 0.0,
+            cull_back_faces: false,
             planes: [
                 near, guard[0], guard[1], guard[2], guard[3], view[0], view[1], view[2], view[3],
             ],
@@ -129,6 +133,12 @@ impl View {
     /// limit).
     pub fn with_far(mut self, far_m: Option<f64>) -> Self {
         self.min_inv_z = far_m.map_or(0.0, |f| (1.0 / f) as f32);
+        self
+    }
+
+    /// This view with back faces culled when `on`.
+    pub fn with_back_faces_culled(mut self, on: bool) -> Self {
+        self.cull_back_faces = on;
         self
     }
 

@@ -20,7 +20,8 @@
 //!
 //! Pixel centers are at integer coordinates as everywhere in `star`; the
 //! half-pixel shift to wgpu's fragment centers is in [`projection`].
-//! Back faces are drawn; surfaces closer than [`projection::NEAR_M`] are
+//! Back faces are drawn unless culled ([`GpuRenderer::set_cull_back_faces`],
+//! the same triangles the CPU rasterizer culls); surfaces closer than [`projection::NEAR_M`] are
 //! clipped. Pixels that see nothing get [`crate::render::NO_DEPTH`] and gray 0.
 //!
 //! Errors (validation, out of memory, device lost) are caught by the

@@ -2,8 +2,9 @@
 //! pipeline built from `shaders/mesh.wgsl`.
 //!
 //! Takes a device; gives out the view uniform layout (group 0: the
-//! `clip_from_world` matrix) and the pipeline: triangle lists without
-//! culling, two `R32Float` color targets (gray, metric depth) and a reversed
+//! `clip_from_world` matrix) and the pipeline: triangle lists, drawing both
+//! sides or culling back faces (counter-clockwise on the image is the
+//! front, as [`crate::map::Mesh::indices`] says), two `R32Float` color targets (gray, metric depth) and a reversed
 //! `Depth32Float` z-buffer (`Greater` wins, cleared to 0).
 
 use super::frame::{COLOR_FORMAT, DEPTH_FORMAT};
@@ -31,11 +32,14 @@ pub fn view_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
     })
 }
 
-/// The keyframe pipeline for `view_layout` (group 0) and `texture_layout` (group 1).
+/// The keyframe pipeline for `view_layout` (group 0) and `texture_layout`
+/// (group 1); with `cull_back_faces`, triangles clockwise on the image are
+/// not drawn.
 pub fn create(
     device: &wgpu::Device,
     view_layout: &wgpu::BindGroupLayout,
     texture_layout: &wgpu::BindGroupLayout,
+    cull_back_faces: bool,
 ) -> wgpu::RenderPipeline {
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some("shaders/mesh.wgsl"),
@@ -52,7 +56,11 @@ pub fn create(
         write_mask: wgpu::ColorWrites::ALL,
     });
     device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some("star keyframe"),
+        label: Some(if cull_back_faces {
+            "star keyframe (back faces culled)"
+        } else {
+            "star keyframe"
+        }),
         layout: Some(&layout),
         vertex: wgpu::VertexState {
             module: &module,
@@ -62,7 +70,8 @@ pub fn create(
         },
         primitive: wgpu::PrimitiveState {
             topology: wgpu::PrimitiveTopology::TriangleList,
-            cull_mode: None,
+            front_face: wgpu::FrontFace::Ccw,
+            cull_mode: cull_back_faces.then_some(wgpu::Face::Back),
             ..Default::default()
         },
         depth_stencil: Some(wgpu::DepthStencilState {

@@ -94,7 +94,12 @@ pub struct GpuRenderer {
     class: AdapterClass,
     device: wgpu::Device,
     queue: wgpu::Queue,
+    /// The keyframe pipeline drawing both sides of every triangle.
     pipeline: wgpu::RenderPipeline,
+    /// The same, culling back faces ([`GpuRenderer::set_cull_back_faces`]).
+    pipeline_front_only: wgpu::RenderPipeline,
+    /// Whether back faces are culled (off by default).
+    cull_back_faces: bool,
     view_uniform: wgpu::Buffer,
     view_group: wgpu::BindGroup,
     mesh: GpuMesh,
@@ -321,7 +326,8 @@ impl GpuRenderer {
                 resource: view_uniform.as_entire_binding(),
             }],
         });
-        let pipeline = pipeline::create(&device, &view_layout, &texture_layout);
+        let pipeline = pipeline::create(&device, &view_layout, &texture_layout, false);
+        let pipeline_front_only = pipeline::create(&device, &view_layout, &texture_layout, true);
         let gpu_mesh = upload::upload(
             &device,
             &queue,
@@ -356,6 +362,8 @@ impl GpuRenderer {
             device,
             queue,
             pipeline,
+            pipeline_front_only,
+            cull_back_faces: false,
             view_uniform,
             view_group,
             visible: Vec::with_capacity(gpu_mesh.chunks.len()),
@@ -397,6 +405,14 @@ impl GpuRenderer {
     /// default) or off (every chunk drawn; for tests and benchmarks).
     pub fn set_frustum_cull(&mut self, on: bool) {
         self.cull = on;
+    }
+
+    /// Culls back faces (triangles clockwise on the image) when `on`; off
+    /// by default, every triangle drawn from both sides. For a map whose
+    /// triangles are all counter-clockwise seen from where they can be
+    /// seen (`[render] cull_back_faces`).
+    pub fn set_cull_back_faces(&mut self, on: bool) {
+        self.cull_back_faces = on;
     }
 
     /// Turns the occlusion cull on (the default) or off. It works with the
@@ -554,6 +570,11 @@ impl GpuRenderer {
                 })
         };
         let render = self.renders;
+        let keyframe_pipeline = if self.cull_back_faces {
+            &self.pipeline_front_only
+        } else {
+            &self.pipeline
+        };
         let occlusion = match (&mut self.mesh.occlusion, frustum) {
             (Some(occ), Some(frustum)) if self.occlusion_cull => Some((occ, frustum)),
             (Some(occ), _) => {
@@ -565,7 +586,7 @@ impl GpuRenderer {
         let submission = match &mut self.mesh.geometry {
             Geometry::Resident { vertices, indices } => {
                 let inputs = PassInputs {
-                    pipeline: &self.pipeline,
+                    pipeline: keyframe_pipeline,
                     view_group: &self.view_group,
                     texture_groups: &self.mesh.texture_groups,
                     vertices,
@@ -684,7 +705,7 @@ impl GpuRenderer {
                         &mut self.draws,
                     );
                     let inputs = PassInputs {
-                        pipeline: &self.pipeline,
+                        pipeline: keyframe_pipeline,
                         view_group: &self.view_group,
                         texture_groups: &self.mesh.texture_groups,
                         vertices: &pool.vertices,

@@ -131,12 +131,27 @@ impl MeshBuilder {
         let Some(bucket) = self.buckets.get_mut(texture) else {
             return;
         };
+        // Counter-clockwise seen from the visible side: `u x v` along the
+        // normal keeps the grid's order, else it is reversed, so that every
+        // triangle's front faces where `face.normal` says the surface is seen
+        // from (renderers that cull back faces draw only that side).
+        let [u, v, n] = [face.u_axis, face.v_axis, face.normal];
+        let u_cross_v = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        let flip = u_cross_v[0] * n[0] + u_cross_v[1] * n[1] + u_cross_v[2] * n[2] < 0.0;
         let row = ns as u32 + 1;
         for j in 0..nt as u32 {
             for i in 0..ns as u32 {
                 let a = base + j * row + i;
                 let (b, c, d) = (a + 1, a + row + 1, a + row);
-                bucket.extend_from_slice(&[a, b, c, a, c, d]);
+                if flip {
+                    bucket.extend_from_slice(&[a, c, b, a, d, c]);
+                } else {
+                    bucket.extend_from_slice(&[a, b, c, a, c, d]);
+                }
             }
         }
     }

@@ -160,3 +160,24 @@ fn whole_floor_has_the_size_the_issue_asks() {
         .collect();
     assert!(sizes.len() >= 3, "varied sizes: {sizes:?}");
 }
+
+#[test]
+fn the_floors_surfaces_face_where_they_are_seen_from() {
+    use crate::synth::scene::tests::{pixels_changed_by_back_face_cull, MOST_CRACK_PIXELS};
+    let scene = build_building(&small(), 3);
+    let plan = scene.plan.as_ref().expect("plan");
+    let positions: Vec<[f64; 3]> = plan
+        .routes()
+        .iter()
+        .flat_map(|r| [r.corridor_m, r.door_m, r.inside_m])
+        .map(|p| [p[0], p[1], 1.4])
+        .collect();
+    assert!(positions.len() >= 10);
+    for (mesh, what) in [(&scene.map, "map"), (&scene.truth, "truth")] {
+        let changed = pixels_changed_by_back_face_cull(mesh, &positions);
+        assert!(
+            changed.iter().all(|&n| n <= MOST_CRACK_PIXELS),
+            "{what}: pixels changed per view {changed:?}"
+        );
+    }
+}
