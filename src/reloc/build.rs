@@ -23,7 +23,10 @@
 //! or view that has geometry nearer than `min_depth_m` (inside or against
 //! furniture or a wall) is dropped without a full render. A pixel nearer
 //! than the cut has the same depth either way, so the probes drop exactly
-//! what the full renders would. Each worker counts where its time goes
+//! what the full renders would. The probes draw both sides of every
+//! triangle even where the views cull back faces (`[render]
+//! cull_back_faces`): from inside a box only the back of its faces is
+//! seen. Each worker counts where its time goes
 //! ([`super::build_stats`]).
 
 use std::path::PathBuf;
@@ -416,8 +419,14 @@ impl Drawer<'_> {
             return None;
         }
         renderer.set_far_m(Some(cut_m));
+        // Both sides: a camera inside a box or a wall sees only the back of
+        // its faces, which the views may cull.
+        let cull_back_faces = renderer.cull_back_faces();
+        renderer.set_cull_back_faces(false);
         let mut cut = Drawer::Any(&mut **renderer);
-        Some(render_view(&mut cut, world_from_camera, camera, view))
+        let seen = render_view(&mut cut, world_from_camera, camera, view);
+        renderer.set_cull_back_faces(cull_back_faces);
+        Some(seen)
     }
 }
 

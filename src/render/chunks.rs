@@ -319,6 +319,107 @@ pub struct Cluster {
     pub vertices: Range<usize>,
     /// Bounds of those triangles' vertices, world frame.
     pub bounds: Aabb,
+    /// The plane all its triangles lie in, facing their front
+    /// ([`FrontPlane`]); `None` when they do not share one.
+    pub plane: Option<FrontPlane>,
+}
+
+/// Largest distance of a vertex from its cluster's plane, meters, for the
+/// cluster to count as flat ([`FrontPlane`]).
+pub const PLANE_TOL_M: f64 = 1e-4;
+
+/// Smallest cosine between a triangle's normal and its cluster's plane's
+/// for the cluster to count as flat.
+const PLANE_COS_MIN: f64 = 0.9999;
+
+/// A camera counts as behind a flat cluster only when it is behind its
+/// plane by at least this share of its distance to the cluster's farthest
+/// point (the sine of the grazing angle, about 3 degrees), so that every
+/// triangle is clockwise on the image by a margin that rounding does not
+/// turn over.
+pub const BEHIND_SIN_MIN: f64 = 0.05;
+
+/// The plane of a flat cluster, `normal . p = offset_m`, the unit `normal`
+/// pointing to the side from which every triangle of the cluster is
+/// counter-clockwise (its front). A camera behind it sees only back faces:
+/// with back faces culled, the cluster can be skipped whole, before its
+/// vertices are transformed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrontPlane {
+    /// Unit normal, world frame.
+    pub normal: [f64; 3],
+    /// Offset along the normal, meters.
+    pub offset_m: f64,
+}
+
+impl FrontPlane {
+    /// The plane of triangles `tris` (vertex indices into `positions`),
+    /// when they all lie within [`PLANE_TOL_M`] of one and their normals
+    /// (counter-clockwise) agree within [`PLANE_COS_MIN`]; triangles of no
+    /// area are checked for their vertices only.
+    pub fn fit(positions: &[[f32; 3]], tris: &[u32]) -> Option<Self> {
+        let at = |i: u32| positions.get(i as usize).map(|p| p.map(f64::from));
+        let cross = |t: &[u32]| -> Option<[f64; 3]> {
+            let (a, b, c) = (at(t[0])?, at(t[1])?, at(t[2])?);
+            let (u, v) = (sub(b, a), sub(c, a));
+            Some([
+                u[1] * v[2] - u[2] * v[1],
+                u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0],
+            ])
+        };
+        // The largest triangle gives the normal.
+        let mut best = ([0.0; 3], 0.0);
+        for t in tris.chunks_exact(3) {
+            let n = cross(t)?;
+            let len = dot(n, n).sqrt();
+            if len > best.1 {
+                best = (n, len);
+            }
+        }
+        if best.1 <= 0.0 {
+            return None;
+        }
+        let normal = best.0.map(|x| x / best.1);
+        let offset_m = dot(normal, at(*tris.first()?)?);
+        for t in tris.chunks_exact(3) {
+            let n = cross(t)?;
+            let len = dot(n, n).sqrt();
+            if len > 0.0 && dot(n, normal) < PLANE_COS_MIN * len {
+                return None;
+            }
+            for &i in t {
+                if (dot(normal, at(i)?) - offset_m).abs() > PLANE_TOL_M {
+                    return None;
+                }
+            }
+        }
+        Some(Self { normal, offset_m })
+    }
+
+    /// Whether a camera at `eye_m` is behind the plane by the margin
+    /// [`BEHIND_SIN_MIN`] of its distance to the farthest corner of
+    /// `bounds` (the cluster's box): then every triangle of the cluster is
+    /// a back face on its image.
+    pub fn is_behind(&self, bounds: &Aabb, eye_m: [f64; 3]) -> bool {
+        let behind_m = self.offset_m - dot(self.normal, eye_m);
+        if behind_m <= 0.0 {
+            return false;
+        }
+        let far: [f64; 3] = std::array::from_fn(|k| {
+            let (lo, hi) = (f64::from(bounds.min_m[k]), f64::from(bounds.max_m[k]));
+            (eye_m[k] - lo).abs().max((eye_m[k] - hi).abs())
+        });
+        behind_m >= BEHIND_SIN_MIN * dot(far, far).sqrt()
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// The clusters of `chunk` of `mesh`, in triangle order.
@@ -350,6 +451,7 @@ pub fn clusters(mesh: &ChunkedMesh, chunk: &MeshChunk) -> Vec<Cluster> {
                 triangles: first..first + run.len() / 3,
                 vertices: lo.min(hi)..hi,
                 bounds,
+                plane: FrontPlane::fit(&mesh.positions, run),
             }
         })
         .collect()
@@ -537,5 +639,36 @@ mod tests {
                 assert!(!v, "chunk behind the camera kept");
             }
         }
+    }
+
+    #[test]
+    fn a_flat_cluster_has_a_front_plane_and_is_behind_it_only_by_a_margin() {
+        // Counter-clockwise seen from +z: the front faces up.
+        let mesh = grid(4, 1.0, 2.0);
+        let plane = FrontPlane::fit(&mesh.positions, &mesh.indices).expect("flat");
+        assert!((plane.normal[2] - 1.0).abs() < 1e-12, "{plane:?}");
+        assert!((plane.offset_m - 2.0).abs() < 1e-6, "{plane:?}");
+        let bounds = Aabb {
+            min_m: [-1.0, -1.0, 2.0],
+            max_m: [1.0, 1.0, 2.0],
+        };
+        assert!(plane.is_behind(&bounds, [0.0, 0.0, 0.0]));
+        assert!(!plane.is_behind(&bounds, [0.0, 0.0, 4.0]));
+        assert!(!plane.is_behind(&bounds, [0.3, 0.2, 2.0]));
+        // 5 cm below the plane, 10 m away: a grazing view, under the margin.
+        assert!(!plane.is_behind(&bounds, [10.0, 0.0, 1.95]));
+        assert!(plane.is_behind(&bounds, [10.0, 0.0, 1.0]));
+        // One triangle wound the other way, or a vertex 1 mm off the plane:
+        // no plane.
+        let mut flipped = mesh.indices.clone();
+        flipped.swap(0, 1);
+        assert!(FrontPlane::fit(&mesh.positions, &flipped).is_none());
+        let mut bent = mesh.positions.clone();
+        bent[7][2] += 1e-3;
+        assert!(FrontPlane::fit(&bent, &mesh.indices).is_none());
+        // A chunk's clusters of the flat grid get the plane.
+        let chunked = ChunkedMesh::build(&mesh).expect("chunks");
+        let chunk = chunked.chunks.first().expect("a chunk");
+        assert!(clusters(&chunked, chunk).iter().all(|c| c.plane.is_some()));
     }
 }

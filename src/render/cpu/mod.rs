@@ -294,6 +294,11 @@ impl CpuRenderer {
         self.cull_back_faces = on;
     }
 
+    /// Whether back faces are culled ([`CpuRenderer::set_cull_back_faces`]).
+    pub fn cull_back_faces(&self) -> bool {
+        self.cull_back_faces
+    }
+
     /// Sets the far limit (`None`, the default: none): pixels deeper than
     /// `far_m` along the optical axis render as no hit, and chunks wholly
     /// beyond it are not set up.

@@ -137,8 +137,9 @@ impl SetupSlot {
     /// Sets up and bins the triangles of `chunk` (of `mesh`, its fixed
     /// part `setup`) for `view`,
     /// cluster by cluster, of the clusters `which` takes: a cluster outside
-    /// `frustum` (when given) or hidden behind `occluders` (the depth drawn
-    /// so far, per tile) is skipped whole; of the others the vertices are
+    /// `frustum` (when given), seen from behind its plane when the view
+    /// culls back faces (with `frustum`), or hidden behind `occluders` (the
+    /// depth drawn so far, per tile) is skipped whole; of the others the vertices are
     /// transformed and each triangle that `occluders` does not hide is
     /// binned. `bands` is the number of bands of the image;
     /// `first_cluster` the number of the chunk's first cluster.
@@ -177,6 +178,16 @@ impl SetupSlot {
         let mut done = 0..0;
         for (number, cluster) in setup.clusters.iter().enumerate() {
             if !which.takes(number) || frustum.is_some_and(|f| !f.intersects(&cluster.bounds)) {
+                continue;
+            }
+            // With the cull on, a flat cluster seen from behind is skipped
+            // whole: every triangle of it would be dropped as a back face.
+            if view.cull_back_faces
+                && frustum.is_some()
+                && cluster
+                    .plane
+                    .is_some_and(|p| p.is_behind(&cluster.bounds, view.eye_m))
+            {
                 continue;
             }
             if let Some(tiles) = occluders {

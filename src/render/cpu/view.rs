@@ -80,6 +80,8 @@ pub(super) struct View {
     /// Whether triangles clockwise on the image (back faces, with
     /// counter-clockwise fronts) are dropped at setup.
     pub cull_back_faces: bool,
+    /// The camera's position, world frame, meters.
+    pub eye_m: [f64; 3],
     /// Clip planes `(a, b, c, d)` as `x y z w`: near, guard
     /// left/right/top/bottom, view left/right/top/bottom.
     pub planes: [Vec4; 9],
@@ -122,6 +124,7 @@ impl View {
             height: camera.height as usize,
             min_inv_z: 0.0,
             cull_back_faces: false,
+            eye_m: world_from_camera.translation.vector.into(),
             planes: [
                 near, guard[0], guard[1], guard[2], guard[3], view[0], view[1], view[2], view[3],
             ],

@@ -23,6 +23,10 @@
 //! reasoning from the box, leaves out. The tests compare the images bit
 //! for bit from poses off such planes.
 //!
+//! With back faces culled ([`GpuOcclusion::set_cull_back_faces`]), a flat
+//! cluster seen from behind its plane (`chunks::FrontPlane`) is not in
+//! view at all: the pipeline would cull every one of its triangles.
+//!
 //! A view with fewer than [`MIN_CLUSTERS`] clusters in it is drawn in one
 //! pass: drawing them costs less than a readback.
 //!
@@ -67,6 +71,8 @@ struct GpuCluster {
     texture: usize,
     /// Bounds of its vertices, world frame.
     bounds: Aabb,
+    /// Its plane, when flat (`chunks::FrontPlane`).
+    plane: Option<chunks::FrontPlane>,
 }
 
 /// The render's pinhole projection, for box tests (the same intrinsics the
@@ -176,6 +182,9 @@ pub struct GpuOcclusion {
     emitted: usize,
     /// The render whose boxes are measured, to match its collect.
     render: Option<u64>,
+    /// Whether back faces are culled: then a flat cluster seen from behind
+    /// its plane is not drawn at all.
+    cull_back_faces: bool,
     stats: OcclusionStats,
 }
 
@@ -197,6 +206,7 @@ impl GpuOcclusion {
                         ..base + 3 * cluster.triangles.end as u32,
                     texture,
                     bounds: cluster.bounds,
+                    plane: cluster.plane,
                 });
             }
         }
@@ -217,8 +227,15 @@ impl GpuOcclusion {
             pass: 0,
             emitted: 0,
             render: None,
+            cull_back_faces: false,
             stats: OcclusionStats::default(),
         }
+    }
+
+    /// Leaves out flat clusters seen from behind when `on` (the pipeline
+    /// culls back faces: none of their triangles would be drawn).
+    pub fn set_cull_back_faces(&mut self, on: bool) {
+        self.cull_back_faces = on;
     }
 
     /// Counts since start.
@@ -266,7 +283,12 @@ impl GpuOcclusion {
                 let Some(cluster) = self.clusters.get(k) else {
                     continue;
                 };
-                if !frustum.intersects(&cluster.bounds) {
+                if !frustum.intersects(&cluster.bounds)
+                    || (self.cull_back_faces
+                        && cluster
+                            .plane
+                            .is_some_and(|p| p.is_behind(&cluster.bounds, position_m)))
+                {
                     continue;
                 }
                 let (inv, rect) = screen_box(view, &cluster.bounds).unwrap_or((0.0, [0; 4]));

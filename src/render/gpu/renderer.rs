@@ -413,6 +413,9 @@ impl GpuRenderer {
     /// seen (`[render] cull_back_faces`).
     pub fn set_cull_back_faces(&mut self, on: bool) {
         self.cull_back_faces = on;
+        if let Some(occlusion) = self.mesh.occlusion.as_mut() {
+            occlusion.set_cull_back_faces(on);
+        }
     }
 
     /// Turns the occlusion cull on (the default) or off. It works with the
