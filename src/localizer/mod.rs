@@ -368,6 +368,9 @@ impl Localizer {
             world_from_keyframe: world_from_camera,
             id: 1,
             requested_at_ns: capture_ns,
+            // The start pose: verified by the caller or a hint not trusted
+            // yet; drawn as a candidate would be.
+            both_sides: true,
         });
         let keyframe = worker
             .wait_result()
@@ -759,6 +762,8 @@ impl Localizer {
             ),
             id: self.next_keyframe_id,
             requested_at_ns: capture_ns,
+            // Near a tracked pose: in free space.
+            both_sides: false,
         });
         if requested {
             self.next_keyframe_id += 1;

@@ -637,6 +637,8 @@ impl Localizer {
                 world_from_keyframe: *world_from_keyframe,
                 id: *next_id,
                 requested_at_ns: capture_ns,
+                // A candidate: not verified (see `RenderRequest`).
+                both_sides: true,
             });
             if !requested {
                 refused = true;

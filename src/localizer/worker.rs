@@ -25,6 +25,13 @@ pub struct RenderRequest {
     pub id: u64,
     /// Capture time of the frame that asked for it.
     pub requested_at_ns: u64,
+    /// Draw both sides of every triangle, whatever `[render]
+    /// cull_back_faces` says: for a relocalization candidate, whose pose is
+    /// not verified and may stand inside a box or behind a wall, where only
+    /// back faces are seen. Culled, a camera inside a box sees the room
+    /// through it, and a wrong place can pass the gate (a look-alike room
+    /// turned 90 degrees, 1.39 m off, did on the `building` floor).
+    pub both_sides: bool,
 }
 
 /// A finished keyframe, or the reason it could not be made.
@@ -49,6 +56,7 @@ impl RenderWorker {
         let pinhole = camera.pinhole();
         let config = config.clone();
         let renderer_name = renderer.name();
+        let cull_back_faces = renderer.cull_back_faces();
         let (req_tx, req_rx) = sync_channel::<RenderRequest>(1);
         let (res_tx, res_rx) = sync_channel::<RenderResult>(POOL);
         let (recycle_tx, recycle_rx) = sync_channel::<Box<Keyframe>>(POOL);
@@ -72,6 +80,7 @@ impl RenderWorker {
                         },
                     };
                     let t0 = std::time::Instant::now();
+                    renderer.set_cull_back_faces(cull_back_faces && !req.both_sides);
                     let result =
                         match renderer.render(&req.world_from_keyframe, &pinhole, &mut view) {
                             Ok(()) => {
@@ -151,5 +160,83 @@ impl Drop for RenderWorker {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used)]
+mod tests {
+    use std::sync::{Arc, Mutex};
+
+    use super::*;
+    use crate::render::RenderError;
+
+    /// A renderer that draws nothing and records, per render, whether it
+    /// was culling back faces.
+    struct Recorder {
+        cull: bool,
+        culled: Arc<Mutex<Vec<bool>>>,
+    }
+
+    impl Renderer for Recorder {
+        fn name(&self) -> String {
+            "recorder".into()
+        }
+
+        fn render(
+            &mut self,
+            _world_from_camera: &Pose,
+            _camera: &crate::geometry::PinholeCamera,
+            _out: &mut RenderedView,
+        ) -> Result<(), RenderError> {
+            self.culled.lock().unwrap().push(self.cull);
+            Ok(())
+        }
+
+        fn set_cull_back_faces(&mut self, on: bool) {
+            self.cull = on;
+        }
+
+        fn cull_back_faces(&self) -> bool {
+            self.cull
+        }
+    }
+
+    fn worker(cull: bool) -> (RenderWorker, Arc<Mutex<Vec<bool>>>) {
+        let culled = Arc::new(Mutex::new(Vec::new()));
+        let renderer = Recorder {
+            cull,
+            culled: Arc::clone(&culled),
+        };
+        let camera = crate::config::CameraConfig::default().intrinsics;
+        let worker = RenderWorker::spawn(Box::new(renderer), &camera, &TrackerConfig::default())
+            .expect("render thread");
+        (worker, culled)
+    }
+
+    fn render(worker: &RenderWorker, id: u64, both_sides: bool) {
+        assert!(worker.try_request(RenderRequest {
+            world_from_keyframe: Pose::identity(),
+            id,
+            requested_at_ns: 0,
+            both_sides,
+        }));
+        let kf = worker.wait_result().expect("a keyframe");
+        worker.recycle(kf);
+    }
+
+    #[test]
+    fn candidates_are_drawn_from_both_sides_where_keyframes_cull_back_faces() {
+        let (culling, culled) = worker(true);
+        for (id, both_sides) in [(1, false), (2, true), (3, false), (4, true)] {
+            render(&culling, id, both_sides);
+        }
+        assert_eq!(*culled.lock().unwrap(), vec![true, false, true, false]);
+        // A renderer configured to draw both sides never culls.
+        let (drawing, culled) = worker(false);
+        for (id, both_sides) in [(1, false), (2, true)] {
+            render(&drawing, id, both_sides);
+        }
+        assert_eq!(*culled.lock().unwrap(), vec![false, false]);
     }
 }

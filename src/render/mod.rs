@@ -144,6 +144,16 @@ pub trait Renderer: Send {
         camera: &PinholeCamera,
         out: &mut RenderedView,
     ) -> Result<(), RenderError>;
+
+    /// Culls back faces (triangles clockwise on the image) from the next
+    /// render on when `on`, where the renderer can (`[render]
+    /// cull_back_faces`); a renderer that cannot draws both sides.
+    fn set_cull_back_faces(&mut self, _on: bool) {}
+
+    /// Whether back faces are culled.
+    fn cull_back_faces(&self) -> bool {
+        false
+    }
 }
 
 /// Checks that a render request is finite; shared by every renderer.

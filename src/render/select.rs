@@ -466,6 +466,16 @@ impl Renderer for FallbackRenderer {
         }
     }
 
+    fn set_cull_back_faces(&mut self, on: bool) {
+        // A later stage of the chain starts with it too.
+        self.settings.cull_back_faces = on;
+        self.active.renderer().set_cull_back_faces(on);
+    }
+
+    fn cull_back_faces(&self) -> bool {
+        self.settings.cull_back_faces
+    }
+
     fn render(
         &mut self,
         world_from_camera: &Pose,

@@ -111,11 +111,10 @@ impl Bench {
         let map = Arc::new(scene.map.clone());
         // Candidates are rendered as the service renders them: by the
         // `[render] renderer` of the configuration (auto: a hardware adapter,
-        // else the CPU rasterizer).
+        // else the CPU rasterizer), both sides drawn (`RenderRequest::both_sides`).
         let kind = config.render.renderer;
-        let candidate_r =
-            crate::render::select::make_configured_renderer(&config.render, map.clone())
-                .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+        let candidate_r = candidate_renderer(&config.render, map.clone())
+            .with_context(|| format!("starting the `{kind:?}` renderer"))?;
 
         let t0 = Instant::now();
         let bar = indicatif::ProgressBar::new(0);
@@ -234,9 +233,8 @@ impl Bench {
         );
         let camera = *dataset.camera();
         let kind = config.render.renderer;
-        let candidate_r =
-            crate::render::select::make_configured_renderer(&config.render, mesh.clone())
-                .with_context(|| format!("starting the `{kind:?}` renderer"))?;
+        let candidate_r = candidate_renderer(&config.render, mesh.clone())
+            .with_context(|| format!("starting the `{kind:?}` renderer"))?;
         println!(
             "reloc bench: dataset {}, {} frames, map {} triangles, camera {}x{}",
             dataset.root.display(),
@@ -390,4 +388,18 @@ pub(super) fn probes_from_env() -> Option<crate::reloc::landmark_index::Probes> 
         words: w.trim().parse().ok()?,
         leaves: l.trim().parse().ok()?,
     })
+}
+
+/// The renderer of relocalization candidates: `[render]`'s, drawing both
+/// sides of every triangle, as the service draws candidates (their poses are
+/// not verified: see `localizer::worker::RenderRequest::both_sides`).
+fn candidate_renderer(
+    render: &crate::render::select::RenderConfig,
+    mesh: Arc<crate::map::Mesh>,
+) -> Result<Box<dyn Renderer>, crate::render::RenderError> {
+    let render = crate::render::select::RenderConfig {
+        cull_back_faces: false,
+        ..render.clone()
+    };
+    crate::render::select::make_configured_renderer(&render, mesh)
 }

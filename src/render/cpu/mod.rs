@@ -376,6 +376,14 @@ impl Renderer for CpuRenderer {
         "cpu".to_string()
     }
 
+    fn set_cull_back_faces(&mut self, on: bool) {
+        self.cull_back_faces = on;
+    }
+
+    fn cull_back_faces(&self) -> bool {
+        self.cull_back_faces
+    }
+
     fn render(
         &mut self,
         world_from_camera: &Pose,

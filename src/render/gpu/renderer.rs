@@ -811,6 +811,14 @@ impl Renderer for GpuRenderer {
         format!("wgpu: {} ({:?})", self.info.name, self.info.backend)
     }
 
+    fn set_cull_back_faces(&mut self, on: bool) {
+        GpuRenderer::set_cull_back_faces(self, on);
+    }
+
+    fn cull_back_faces(&self) -> bool {
+        self.cull_back_faces
+    }
+
     fn render(
         &mut self,
         world_from_camera: &Pose,
