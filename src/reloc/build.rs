@@ -24,9 +24,9 @@
 //! furniture or a wall) is dropped without a full render. A pixel nearer
 //! than the cut has the same depth either way, so the probes drop exactly
 //! what the full renders would. The probes draw both sides of every
-//! triangle even where the views cull back faces (`[render]
-//! cull_back_faces`): from inside a box only the back of its faces is
-//! seen. Each worker counts where its time goes
+//! triangle even if the views were to cull back faces: from inside a box
+//! only the back of its faces is seen. (`star reloc build` draws both
+//! sides everywhere, whatever `[render] cull_back_faces` says.) Each worker counts where its time goes
 //! ([`super::build_stats`]).
 
 use std::path::PathBuf;
@@ -420,7 +420,8 @@ impl Drawer<'_> {
         }
         renderer.set_far_m(Some(cut_m));
         // Both sides: a camera inside a box or a wall sees only the back of
-        // its faces, which the views may cull.
+        // its faces (`star reloc build` draws both sides everywhere; this
+        // holds for any renderer handed in).
         let cull_back_faces = renderer.cull_back_faces();
         renderer.set_cull_back_faces(false);
         let mut cut = Drawer::Any(&mut **renderer);

@@ -114,9 +114,12 @@ pub struct RenderConfig {
     /// facing free space): `star synth` maps are wound so; a TSDF scan's
     /// fronts face where it was scanned from, but a view through a hole
     /// in the scan sees back faces (4-9 % of the pixels differ on the
-    /// scanned 4 rooms). On the `building` floor it takes a fifth off a
-    /// keyframe and changes at most 4 pixels of a view, where a back face
-    /// showed through a crack between two surfaces (docs/building-scale.md).
+    /// scanned 4 rooms). On the `building` floor it takes a tenth off a
+    /// CPU keyframe and changes at most 4 pixels of a view, where a back
+    /// face showed through a crack between two surfaces
+    /// (docs/building-scale.md). Only keyframes near a tracked pose are
+    /// culled: relocalization candidates, whose poses are not verified, and
+    /// the database's views are drawn from both sides.
     pub cull_back_faces: bool,
 }
 

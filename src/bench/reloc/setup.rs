@@ -121,8 +121,8 @@ impl Bench {
         // One CPU rasterizer per core: the same database as one renderer
         // on one thread, byte for byte.
         let lod_px = config.render.lod_px();
-        let mut first_renderer = CpuRenderer::with_lod(map.clone(), lod_px)?;
-        first_renderer.set_cull_back_faces(config.render.cull_back_faces);
+        // Both sides drawn, as `star reloc build` draws them.
+        let first_renderer = CpuRenderer::with_lod(map.clone(), lod_px)?;
         let make_renderer = || Ok(first_renderer.share());
         let db = build_parallel(
             &map,
