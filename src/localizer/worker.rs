@@ -208,7 +208,7 @@ mod tests {
             cull,
             culled: Arc::clone(&culled),
         };
-        let camera = crate::config::CameraConfig::default().intrinsics;
+        let camera = crate::geometry::PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5);
         let worker = RenderWorker::spawn(Box::new(renderer), &camera, &TrackerConfig::default())
             .expect("render thread");
         (worker, culled)

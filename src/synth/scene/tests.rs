@@ -23,7 +23,7 @@ pub(crate) fn pixels_changed_by_back_face_cull(
     use crate::render::cpu::CpuRenderer;
     use crate::render::{RenderedView, Renderer};
     use nalgebra::{Translation3, Vector3};
-    let camera = crate::config::CameraConfig::default().intrinsics;
+    let camera = crate::geometry::PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5);
     let mesh = std::sync::Arc::new(mesh.clone());
     let mut both = CpuRenderer::new(mesh.clone()).unwrap();
     let mut front = CpuRenderer::new(mesh).unwrap();
