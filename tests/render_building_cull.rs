@@ -107,27 +107,27 @@ fn culling_never_drops_a_visible_triangle_of_the_building() {
         for &limit in limits {
             culled.set_far_m(limit);
             full.set_far_m(limit);
-            culled.render(pose, &camera, &mut a).unwrap();
-            full.render(pose, &camera, &mut b).unwrap();
-            assert!(
-                a.gray.data() == b.gray.data() && a.depth_m.data() == b.depth_m.data(),
-                "pose {k} ({pose:?}), far {limit:?}: the cull changed the image"
+            let what = format!("pose {k} ({pose:?}), far {limit:?}");
+            assert_same(
+                (&mut culled, &mut full),
+                pose,
+                &camera,
+                (&mut a, &mut b),
+                &what,
             );
             let stats = culled.cull_stats();
             assert_eq!(full.cull_stats().visible_chunks, stats.chunks);
             drawn += stats.visible_fraction();
         }
         if k % 10 == 0 {
-            culled.set_cull_back_faces(true);
-            full.set_cull_back_faces(true);
-            culled.render(pose, &camera, &mut a).unwrap();
-            full.render(pose, &camera, &mut b).unwrap();
-            assert!(
-                a.gray.data() == b.gray.data() && a.depth_m.data() == b.depth_m.data(),
-                "pose {k}, back faces culled: the chunk cull changed the image"
+            let what = format!("pose {k}");
+            assert_same_back_faces_culled(
+                (&mut culled, &mut full),
+                pose,
+                &camera,
+                (&mut a, &mut b),
+                &what,
             );
-            culled.set_cull_back_faces(false);
-            full.set_cull_back_faces(false);
         }
         let hits = a.depth_m.data().iter().filter(|&&d| d > 0.0).count();
         assert!(
@@ -151,24 +151,57 @@ fn culling_never_drops_a_visible_triangle_of_the_building() {
         for limit in [far, None] {
             culled.set_far_m(limit);
             full.set_far_m(limit);
-            culled.render(pose, &camera, &mut a).unwrap();
-            full.render(pose, &camera, &mut b).unwrap();
-            assert!(
-                a.gray.data() == b.gray.data() && a.depth_m.data() == b.depth_m.data(),
-                "wgpu, pose {k}, far {limit:?}: the cull changed the image"
+            let what = format!("wgpu, pose {k}, far {limit:?}");
+            assert_same(
+                (&mut culled, &mut full),
+                pose,
+                &camera,
+                (&mut a, &mut b),
+                &what,
             );
         }
         if k % 16 == 0 {
-            culled.set_cull_back_faces(true);
-            full.set_cull_back_faces(true);
-            culled.render(pose, &camera, &mut a).unwrap();
-            full.render(pose, &camera, &mut b).unwrap();
-            assert!(
-                a.gray.data() == b.gray.data() && a.depth_m.data() == b.depth_m.data(),
-                "wgpu, pose {k}, back faces culled: the cull changed the image"
+            let what = format!("wgpu, pose {k}");
+            assert_same_back_faces_culled(
+                (&mut culled, &mut full),
+                pose,
+                &camera,
+                (&mut a, &mut b),
+                &what,
             );
-            culled.set_cull_back_faces(false);
-            full.set_cull_back_faces(false);
         }
     }
+}
+
+/// Renders `pose` with the culled and the unculled renderer; the images
+/// must be the same, bit for bit (`what` names the case).
+fn assert_same(
+    (culled, full): (&mut dyn Renderer, &mut dyn Renderer),
+    pose: &Pose,
+    camera: &PinholeCamera,
+    (a, b): (&mut RenderedView, &mut RenderedView),
+    what: &str,
+) {
+    culled.render(pose, camera, a).unwrap();
+    full.render(pose, camera, b).unwrap();
+    assert!(
+        a.gray.data() == b.gray.data() && a.depth_m.data() == b.depth_m.data(),
+        "{what}: the cull changed the image"
+    );
+}
+
+/// [`assert_same`] with back faces culled in both renders.
+fn assert_same_back_faces_culled(
+    (culled, full): (&mut dyn Renderer, &mut dyn Renderer),
+    pose: &Pose,
+    camera: &PinholeCamera,
+    views: (&mut RenderedView, &mut RenderedView),
+    what: &str,
+) {
+    culled.set_cull_back_faces(true);
+    full.set_cull_back_faces(true);
+    let what = format!("{what}, back faces culled");
+    assert_same((&mut *culled, &mut *full), pose, camera, views, &what);
+    culled.set_cull_back_faces(false);
+    full.set_cull_back_faces(false);
 }
