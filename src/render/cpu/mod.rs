@@ -34,7 +34,7 @@
 //! drawing the whole mesh in mesh order, bit for bit, for any thread count
 //! and with or without the culls, whatever was rendered before. Both sides
 //! of a triangle are drawn unless back faces are culled
-//! ([`CpuRenderer::set_cull_back_faces`], for maps wound counter-clockwise
+//! ([`Renderer::set_cull_back_faces`], for maps wound counter-clockwise
 //! toward where they are seen). All scratch
 //! (camera-frame vertices, sized at construction; screen triangles and bins,
 //! which grow per chunk to the most it has shown, as before the cull) lives
@@ -285,20 +285,6 @@ impl CpuRenderer {
         self.occlusion_cull = on;
     }
 
-    /// Culls back faces when `on`: a triangle clockwise on the image
-    /// (screen y down) is not drawn. Off by default, every triangle drawn
-    /// from both sides. For a map whose triangles are all counter-clockwise
-    /// seen from where they can be seen (`[render] cull_back_faces`); the
-    /// wgpu renderer culls the same ones.
-    pub fn set_cull_back_faces(&mut self, on: bool) {
-        self.cull_back_faces = on;
-    }
-
-    /// Whether back faces are culled ([`CpuRenderer::set_cull_back_faces`]).
-    pub fn cull_back_faces(&self) -> bool {
-        self.cull_back_faces
-    }
-
     /// Sets the far limit (`None`, the default: none): pixels deeper than
     /// `far_m` along the optical axis render as no hit, and chunks wholly
     /// beyond it are not set up.
@@ -376,6 +362,9 @@ impl Renderer for CpuRenderer {
         "cpu".to_string()
     }
 
+    /// A triangle clockwise on the image (screen y down) is dropped at
+    /// setup; a flat cluster seen from behind its plane is skipped whole
+    /// (`chunks::FrontPlane`). The wgpu renderer culls the same triangles.
     fn set_cull_back_faces(&mut self, on: bool) {
         self.cull_back_faces = on;
     }
