@@ -28,7 +28,7 @@ use super::adapter::{self, AdapterClass, AdapterPreference};
 use super::cull_timing::{CullDecision, CullTiming};
 use super::draws::{self, Draw};
 use super::frame::{FrameTargets, MapStatus};
-use super::occlusion::{self, BoxView, GpuOcclusion, OcclusionStats};
+use super::occlusion::{BoxView, GpuOcclusion, OcclusionStats};
 use super::pass::{record_pass, PassInputs};
 use super::pipeline;
 use super::projection::{ViewUniform, NEAR_M, VIEW_UNIFORM_BYTES};
@@ -618,7 +618,7 @@ impl GpuRenderer {
                             if self.draws.is_empty() && !last {
                                 // Nothing to draw before the test: it would
                                 // hide nothing.
-                                occ.tiles_mut().0.fill(0.0);
+                                occ.clear_tiles();
                                 occ.next_pass(&mut self.draws);
                                 continue;
                             }
@@ -637,11 +637,8 @@ impl GpuRenderer {
                                 submission_index: Some(submission),
                                 timeout: Some(RENDER_TIMEOUT),
                             });
-                            let (tiles, tiles_x) = occ.tiles_mut();
                             let width = w as usize;
-                            let read = frame.read_probe(|rows| {
-                                occlusion::fill_tiles(rows, width, tiles, tiles_x);
-                            });
+                            let read = frame.read_probe(|rows| occ.fill_tiles(rows, width));
                             if waited.is_err() {
                                 return Err(GpuError::Timeout {
                                     adapter: self.info.name.clone(),
@@ -792,9 +789,8 @@ impl GpuRenderer {
         if let Some(occ) = self.mesh.occlusion.as_mut() {
             if unpacked && occ.drawing(pending.render) {
                 let width = w as usize;
-                let (tiles, tiles_x) = occ.tiles_mut();
                 let mut rows = out.depth_m.data().chunks_exact(width.max(1));
-                occlusion::fill_tiles(&mut rows, width, tiles, tiles_x);
+                occ.fill_tiles(&mut rows, width);
                 occ.finish(pending.render);
             }
         }
