@@ -184,6 +184,12 @@ pub fn integrity(truth: &Trajectory, estimate: &Trajectory, first_stamp_s: f64) 
         out.max_rotation_error_deg = out.max_rotation_error_deg.max(rotation_deg);
         if !(position_m <= WRONG_POSITION_M && rotation_deg <= WRONG_ROTATION_DEG) {
             out.wrong_poses += 1;
+            tracing::debug!(
+                after_s = stamp_s - first_stamp_s,
+                position_m,
+                rotation_deg,
+                "wrong pose output"
+            );
         }
     }
     out

@@ -227,7 +227,12 @@ fn a_frame_held_in_a_turned_copy_of_its_room_is_checked_at_its_turned_twin() {
         let held = copy_from_room * truth;
         let kf = checker.frame_and_keyframe(&s, &truth, &held);
         let check = twins.check(&kf);
-        let planned = match plan(&cold, &held, check, (twins.found(), twins.turned())) {
+        let planned = match plan(
+            &cold,
+            &held,
+            (check, twins.prior_only()),
+            (twins.found(), twins.turned()),
+        ) {
             TwinPlan::Check(list) => list,
             TwinPlan::Refuse(why) => panic!("frame {i}: refused without a check: {why:?}"),
         };

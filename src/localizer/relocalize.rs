@@ -34,7 +34,7 @@
 use crate::geometry::Pose;
 use crate::reloc::prior::{landmark_regions, sources, Source};
 use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
-use crate::reloc::twins::{plan, twin_pose, TwinPlan, TwinRefusal};
+use crate::reloc::twins::{plan, plan_needs_twins, twin_pose, TwinPlan, TwinRefusal};
 use crate::reloc::{is_landmark_index, MAX_LANDMARK_ELSEWHERE};
 use crate::reloc::{
     passes_gate, passes_resume_gate, resume_local_floor, start_yaws_rad, Candidate, MAX_TOP_K,
@@ -745,15 +745,29 @@ impl Localizer {
         kf: &Keyframe,
         capture_ns: u64,
     ) -> bool {
-        if !reloc.twins_mut().has_map() {
+        let prior_only = reloc.twins_mut().prior_only();
+        if !reloc.twins_mut().has_occupancy()
+            || !plan_needs_twins(rule, &held.world_from_camera, prior_only)
+        {
             return false;
         }
-        let check = reloc.twins_mut().check(kf);
+        let check = match rule.prior() {
+            Some(prior) if prior_only => reloc.twins_mut().check_near(kf, prior),
+            _ => reloc.twins_mut().check(kf),
+        };
         let twins = reloc.twins_mut();
+        tracing::debug!(
+            capture_ns,
+            ?check,
+            found = ?twins.found(),
+            turned = ?twins.turned(),
+            "geometric twins of the held pose"
+        );
+
         let planned = match plan(
             rule,
             &held.world_from_camera,
-            check,
+            (check, prior_only),
             (twins.found(), twins.turned()),
         ) {
             TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin) => {

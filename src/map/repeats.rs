@@ -238,18 +238,23 @@ impl MapOccupancy {
         scratch: &mut TwinScratch,
         out: &mut heapless::Vec<Twin, N>,
     ) {
-        self.twins_turned(camera_world, points_world, 0.0, scratch, out);
+        self.twins_turned(camera_world, points_world, (0.0, None), scratch, out);
     }
 
     /// [`Self::twins`] of the view turned by `yaw_rad` about the camera's
     /// vertical axis: the points that lie on the map's steep surfaces
     /// where they are, turned, then searched for the offsets under which
     /// they land on surfaces again (each [`Twin`] carries `yaw_rad`).
+    ///
+    /// With `within` (an offset `[x, y]` and a radius, meters), only the
+    /// offsets within that radius of it are twins: where the camera moved
+    /// by them stands in a region (the motion prior's, for
+    /// `reloc::twins`), whatever scores better elsewhere.
     pub fn twins_turned<const N: usize>(
         &self,
         camera_world: &Vector3<f64>,
         points_world: &[Vector3<f64>],
-        yaw_rad: f64,
+        (yaw_rad, within): (f64, Option<([f64; 2], f64)>),
         scratch: &mut TwinScratch,
         out: &mut heapless::Vec<Twin, N>,
     ) {
@@ -294,6 +299,16 @@ impl MapOccupancy {
                 let s = score(dx, dy);
                 if s < COARSE_MIN_SCORE || (dx as f64).hypot(dy as f64) < min_coarse {
                     continue;
+                }
+                if let Some((center_m, radius_m)) = within {
+                    // A coarse cell's refinement reaches a coarse cell
+                    // around it: that much slack.
+                    let coarse_m = CELL_M * COARSE as f64;
+                    let off_m = [dx as f64 * coarse_m, dy as f64 * coarse_m];
+                    let d_m = (off_m[0] - center_m[0]).hypot(off_m[1] - center_m[1]);
+                    if !(d_m <= radius_m + 1.5 * coarse_m) {
+                        continue;
+                    }
                 }
                 let is_max = (dy - 1..=dy + 1).all(|yy| {
                     (dx - 1..=dx + 1).all(|xx| (xx, yy) == (dx, dy) || score(xx, yy) <= s)

@@ -221,6 +221,16 @@ impl RivalRule {
         }
     }
 
+    /// Whether the rule has a motion prior (not on a cold start).
+    pub fn has_prior(&self) -> bool {
+        self.prior.is_some()
+    }
+
+    /// The motion prior (none on a cold start).
+    pub fn prior(&self) -> Option<&MotionPrior> {
+        self.prior.as_ref()
+    }
+
     /// Whether `pose` lies within the prior's reach, in position and in
     /// heading ([`MotionPrior::reaches`]); never on a cold start.
     pub fn prior_reaches(&self, pose: &Pose) -> bool {

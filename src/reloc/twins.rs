@@ -51,12 +51,18 @@ use crate::map::Mesh;
 use crate::track::Keyframe;
 
 use super::config::{GeometricTwinMaps, RelocConfig};
+use super::prior::MotionPrior;
 
 /// A view that fits at this many places or more is degenerate: refused
 /// without a prior.
 pub const DEGENERATE_TWINS: usize = 8;
 /// Twins the frame is checked at, at most.
 pub const TWIN_CHECKS: usize = 3;
+/// [`GeometricTwins::check_near`] searches this far beyond the prior's
+/// reach, meters: a kidnap lands outside it (the `building` floor's
+/// integrity trial that sent wrong poses jumped 1.33 m while the reach was
+/// 0.94 m), and a twin there is checked, not refused.
+pub const NEAR_PRIOR_SLACK_M: f64 = 2.0;
 /// The looser gate's correlation thresholds are this much lower.
 pub const LOOSE_MARGIN: f32 = 0.1;
 /// Pyramid level whose keyframe points describe the view (160x128 for the
@@ -85,6 +91,9 @@ pub struct GeometricTwins {
     /// One turn's twins.
     found_turn: heapless::Vec<Twin, DEGENERATE_TWINS>,
     loose: RelocConfig,
+    /// Only [`TwinRefusal::PriorPrefersATwin`] applies (a textured map
+    /// under `geometric_twins = "untextured"`): see [`Self::prior_only`].
+    prior_only: bool,
 }
 
 /// What the geometry says about a held pose.
@@ -104,17 +113,19 @@ impl GeometricTwins {
     /// map out.
     pub fn new(mesh: &Mesh, config: &RelocConfig) -> Self {
         let textured = mesh.groups.iter().any(|g| g.texture.is_some());
-        let checked = match config.geometric_twins {
-            GeometricTwinMaps::Never => false,
-            GeometricTwinMaps::Untextured => !textured,
-            GeometricTwinMaps::Always => true,
+        let (built, checked) = match config.geometric_twins {
+            GeometricTwinMaps::Never => (false, false),
+            GeometricTwinMaps::Untextured => (true, !textured),
+            GeometricTwinMaps::Always => (true, true),
         };
-        let occupancy = if checked {
+        let occupancy = if built {
             MapOccupancy::build(mesh)
         } else {
             MapOccupancy::none()
         };
-        Self::with_occupancy(occupancy, &relocalization_gate(config, checked))
+        let mut twins = Self::with_occupancy(occupancy, &relocalization_gate(config, checked));
+        twins.prior_only = !checked;
+        twins
     }
 
     /// No map: every pose is [`TwinCheck::Unique`].
@@ -131,12 +142,37 @@ impl GeometricTwins {
             turned: heapless::Vec::new(),
             found_turn: heapless::Vec::new(),
             loose: loose_gate(config),
+            prior_only: false,
         }
     }
 
-    /// Whether a map's occupancy is held.
+    /// Whether held poses are checked at their twins in full (a map
+    /// `[reloc] geometric_twins` names: its gate's floors are lowered, a
+    /// pose is refused when its view is degenerate or the frame passes at
+    /// a twin, [`plan`]).
     pub fn has_map(&self) -> bool {
+        self.has_occupancy() && !self.prior_only
+    }
+
+    /// Whether a map's occupancy is held: twins are searched, for the
+    /// full check ([`Self::has_map`]) or for the prior's rule alone
+    /// ([`Self::prior_only`]).
+    pub fn has_occupancy(&self) -> bool {
         !self.occupancy.is_empty()
+    }
+
+    /// Whether only the prior's rule applies ([`TwinRefusal::PriorPrefersATwin`]):
+    /// on a map `geometric_twins` does not name (a textured one, by
+    /// default), whose gate stays whole and whose views are not refused as
+    /// degenerate nor checked at their twins. Why: on the textured
+    /// `building` floor a kidnap 1.33 m back along the flight was followed
+    /// by a landmark pose in the look-alike room across the corridor, 20 m
+    /// away and turned 180 degrees, which passed the gate alone (the true
+    /// place was never aligned) and sent 77 wrong poses (`star bench
+    /// integrity`, docs/building-scale.md); its turned twin stood where the
+    /// prior expected the vehicle.
+    pub fn prior_only(&self) -> bool {
+        self.prior_only
     }
 
     /// The gate a twin is checked through.
@@ -147,9 +183,34 @@ impl GeometricTwins {
     /// Searches the twins of the view of `keyframe` (rendered at the held
     /// pose); at most [`TWIN_CHECKS`] are kept to check.
     pub fn check(&mut self, keyframe: &Keyframe) -> TwinCheck {
+        self.check_within(keyframe, None)
+    }
+
+    /// [`Self::check`] with only the twins whose camera stands within
+    /// `prior`'s region ([`MotionPrior::region`]): for the prior's rule
+    /// ([`prior_prefers_a_twin`]) on a map checked for it alone
+    /// ([`Self::prior_only`]). Searched over the whole map, a view of one
+    /// of the `building` floor's rooms, which repeat along its corridor,
+    /// fills the list with the rooms that score best, and the one across
+    /// the corridor where the prior expects the vehicle was not among
+    /// them.
+    pub fn check_near(&mut self, keyframe: &Keyframe, prior: &MotionPrior) -> TwinCheck {
+        let camera = keyframe.world_from_keyframe.translation.vector;
+        let d = prior.center_m - camera;
+        self.check_within(
+            keyframe,
+            Some(([d.x, d.y], prior.radius_m + NEAR_PRIOR_SLACK_M)),
+        )
+    }
+
+    fn check_within(
+        &mut self,
+        keyframe: &Keyframe,
+        within: Option<([f64; 2], f64)>,
+    ) -> TwinCheck {
         self.found.clear();
         self.turned.clear();
-        if !self.has_map() {
+        if !self.has_occupancy() {
             return TwinCheck::Unique;
         }
         let level = POINTS_LEVEL.min(keyframe.levels.len().saturating_sub(1));
@@ -170,7 +231,7 @@ impl GeometricTwins {
                     + world_from_keyframe.translation.vector,
             );
         }
-        self.search(&world_from_keyframe.translation.vector)
+        self.search(&world_from_keyframe.translation.vector, within)
     }
 
     /// [`Self::check`] for the view's points already in `self.points`,
@@ -178,12 +239,17 @@ impl GeometricTwins {
     /// what the check says), then those turned by the other
     /// [`TWIN_YAWS`] ([`Self::turned`], for [`prior_prefers_a_twin`]
     /// only: a box room's corners are each other's turned twins, so they
-    /// neither make a view degenerate nor are worth a render each).
-    fn search(&mut self, camera_world: &Vector3<f64>) -> TwinCheck {
+    /// neither make a view degenerate nor are worth a render each); only
+    /// those within `within` ([`MapOccupancy::twins_turned`]) when given.
+    fn search(
+        &mut self,
+        camera_world: &Vector3<f64>,
+        within: Option<([f64; 2], f64)>,
+    ) -> TwinCheck {
         self.occupancy.twins_turned(
             camera_world,
             &self.points,
-            0.0,
+            (0.0, within),
             &mut self.scratch,
             &mut self.found,
         );
@@ -192,7 +258,7 @@ impl GeometricTwins {
             self.occupancy.twins_turned(
                 camera_world,
                 &self.points,
-                yaw_rad,
+                (yaw_rad, within),
                 &mut self.scratch,
                 &mut self.found_turn,
             );
@@ -258,6 +324,14 @@ pub fn twin_pose(held: &Pose, twin: &Twin) -> Pose {
     )
 }
 
+/// Whether [`plan`] can refuse `held` under `rule` or list a twin for it:
+/// not when the prior vouches for its place, nor, with `prior_only`, when
+/// there is no prior (a cold start). The twin search (2.5-17 ms) is skipped
+/// otherwise.
+pub fn plan_needs_twins(rule: &super::rivals::RivalRule, held: &Pose, prior_only: bool) -> bool {
+    !rule.vouches_for_place(held) && (!prior_only || rule.has_prior())
+}
+
 /// Whether a held pose the prior of `rule` cannot vouch for has a
 /// geometric twin (of `found`, all of them) that it can: the map's geometry
 /// stands the same where the vehicle is expected to be, so the held pose
@@ -309,7 +383,10 @@ pub enum TwinPlan {
 }
 
 /// The [`TwinPlan`] of `held` under `rule`, from its [`GeometricTwins::check`]
-/// (`check`, `found`, `turned`).
+/// (`check`, `found`, `turned`); with `prior_only`
+/// ([`GeometricTwins::prior_only`]: `found` and `turned` are the twins near
+/// the prior, [`GeometricTwins::check_near`]) only the prior's rule refuses
+/// outright, the view is never degenerate, and the best twins are checked.
 ///
 /// - A pose whose place the prior vouches for
 ///   ([`RivalRule::vouches_for_place`]) is not checked.
@@ -323,7 +400,7 @@ pub enum TwinPlan {
 pub fn plan(
     rule: &super::rivals::RivalRule,
     held: &Pose,
-    check: TwinCheck,
+    (check, prior_only): (TwinCheck, bool),
     (found, turned): (&[Twin], &[Twin]),
 ) -> TwinPlan {
     let mut out = heapless::Vec::new();
@@ -332,6 +409,20 @@ pub fn plan(
     }
     if prior_prefers_a_twin(rule, held, (found, turned)) {
         return TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin);
+    }
+    if prior_only {
+        // The twins near the prior ([`GeometricTwins::check_near`]), moved
+        // then turned, best first.
+        for t in found
+            .iter()
+            .take(TWIN_CHECKS)
+            .chain(turned.iter().take(TURNED_CHECKS))
+        {
+            if out.push(*t).is_err() {
+                break;
+            }
+        }
+        return TwinPlan::Check(out);
     }
     let moved = match check {
         TwinCheck::Unique => 0,
@@ -558,7 +649,7 @@ mod tests {
         let planned = |rule: &RivalRule, check, found: &[Twin], turned: &[Twin]| match plan(
             rule,
             &held,
-            check,
+            (check, false),
             (found, turned),
         ) {
             TwinPlan::Check(list) => Ok(list.to_vec()),
@@ -607,11 +698,39 @@ mod tests {
             plan(
                 &window,
                 &beyond,
-                TwinCheck::Check(1),
+                (TwinCheck::Check(1), false),
                 (&[twin(-40.0, 0.0, 0.0)], &[])
             ),
             TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin)
         ));
+        // Prior only (a textured map; the twins are those near the prior):
+        // the same refusal, by a moved or a turned twin; never degenerate,
+        // the best twins checked.
+        for (found, turned) in [
+            (&[twin(-40.0, 0.0, 0.0)][..], &[][..]),
+            (&[][..], &[twin(-40.0, 0.0, 0.0)][..]),
+        ] {
+            assert!(matches!(
+                plan(&window, &beyond, (TwinCheck::Check(1), true), (found, turned)),
+                TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin)
+            ));
+        }
+        let across = twin(0.0, 10.0, std::f64::consts::PI);
+        assert_eq!(
+            planned(&window, TwinCheck::Degenerate, &[], &[]),
+            Ok(vec![])
+        );
+        let held_beyond = |check| match plan(&window, &beyond, (check, true), (&[far], &[across])) {
+            TwinPlan::Check(list) => Ok(list.to_vec()),
+            TwinPlan::Refuse(why) => Err(why),
+        };
+        assert_eq!(held_beyond(TwinCheck::Degenerate), Ok(vec![far, across]));
+        assert_eq!(held_beyond(TwinCheck::Unique), Ok(vec![far, across]));
+        // The search runs only where the plan can use it.
+        assert!(plan_needs_twins(&window, &beyond, true));
+        assert!(!plan_needs_twins(&cold, &beyond, true));
+        assert!(plan_needs_twins(&cold, &beyond, false));
+        assert!(!plan_needs_twins(&window, &held, false));
     }
 
     /// A room (walls on four sides, one alcove near a corner) and, 30 m
@@ -680,7 +799,7 @@ mod tests {
                 }
             }
         }
-        let check = twins.search(&camera);
+        let check = twins.search(&camera, None);
         // Not turned, the view stands nowhere else.
         assert_eq!(check, TwinCheck::Unique, "{:?}", twins.found());
         // In the copy it stands turned half round, at (30 + 6 - 2,
@@ -695,6 +814,16 @@ mod tests {
             (t.offset_m[0] - 32.0).abs() < 0.15 && (t.offset_m[1] - 1.0).abs() < 0.15,
             "{t:?}"
         );
+        // Searched near a region only (`check_near`): found there, and
+        // nothing where the map does not repeat the view.
+        twins.search(&camera, Some(([31.0, 0.5], 1.5)));
+        assert!(
+            twins.turned().iter().any(|u| u.offset_m == t.offset_m),
+            "{:?}",
+            twins.turned()
+        );
+        twins.search(&camera, Some(([-20.0, 0.0], 3.0)));
+        assert!(twins.found().is_empty() && twins.turned().is_empty());
     }
 
     #[test]

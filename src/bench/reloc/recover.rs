@@ -168,7 +168,7 @@ impl Bench {
                 let rule = rule.for_held(v.lowered_first_level, v.local_correlation);
                 // The held keyframe is the last spare one until the next
                 // render: its view's geometric twins now.
-                let mut held_twins = self.twin_check(&query.truth);
+                let mut held_twins = self.twin_check(&query.truth, &rule);
                 for source in steps {
                     let rank_ms = self.gather(source, landmark, &descriptor, &mut candidates);
                     if !region_searched && matches!(source, Source::Views(_)) {
@@ -223,7 +223,7 @@ impl Bench {
                             held = r;
                             verdict = Some(r);
                             verdict_from_landmarks = is_landmark_index(c.ranked.index);
-                            held_twins = self.twin_check(&query.truth);
+                            held_twins = self.twin_check(&query.truth, &rule);
                         }
                         Judgment::PriorChooses => {
                             tally.prior_chose += 1;
@@ -451,16 +451,30 @@ impl Bench {
 
     /// The geometric twins of the keyframe just accepted (the last spare
     /// one), up to [`crate::reloc::twins::TWIN_CHECKS`] to check.
-    fn twin_check(&mut self, truth: &Pose) -> HeldTwins {
-        let Some(kf) = self.spare.last() else {
-            return (
+    fn twin_check(&mut self, truth: &Pose, rule: &crate::reloc::rivals::RivalRule) -> HeldTwins {
+        let none = || {
+            (
                 TwinCheck::Unique,
                 heapless::Vec::new(),
                 heapless::Vec::new(),
-            );
+            )
+        };
+        let Some(kf) = self.spare.last() else {
+            return none();
         };
         let twins = self.reloc.twins_mut();
-        let check = twins.check(kf);
+        if !crate::reloc::twins::plan_needs_twins(
+            rule,
+            &kf.world_from_keyframe,
+            twins.prior_only(),
+        ) {
+            // As the service: no search where the plan cannot use it.
+            return none();
+        }
+        let check = match rule.prior() {
+            Some(prior) if twins.prior_only() => twins.check_near(kf, prior),
+            _ => twins.check(kf),
+        };
         // Where the held pose is another place, how well its view fits at
         // the truth (why the truth was, or was not, a twin); only when
         // logged, since it runs inside the timed search.
@@ -498,7 +512,13 @@ impl Bench {
         (rule, truth): (&crate::reloc::rivals::RivalRule, &Pose),
         tally: &mut Tally,
     ) -> bool {
-        let planned = match plan(rule, &held.world_from_camera, check, (&found, &turned)) {
+        let prior_only = self.reloc.twins_mut().prior_only();
+        let planned = match plan(
+            rule,
+            &held.world_from_camera,
+            (check, prior_only),
+            (&found, &turned),
+        ) {
             TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin) => {
                 tally.geometric_prior += 1;
                 return false;
