@@ -298,6 +298,11 @@ pub struct Localizer {
     previous_ns: Option<u64>,
     /// Capture time and pose of the last tracked frame (prediction).
     last: Option<(u64, Pose)>,
+    /// While a relocalization waits for its confirming frames: `last` as it
+    /// was before it (the last verified pose, or none), put back when they
+    /// fail, so that the next attempt's motion prior is not centered on a
+    /// pose that was never verified.
+    last_before_reloc: Option<Option<(u64, Pose)>>,
     /// Velocity as a twist per second, in the camera frame (right perturbation).
     velocity: nalgebra::Vector6<f64>,
     /// Running mean of how old a keyframe is when it is first tracked
@@ -398,6 +403,7 @@ impl Localizer {
             // velocity; velocity starts once two frames are tracked.
             previous_ns: None,
             last: None,
+            last_before_reloc: None,
             velocity: nalgebra::Vector6::zeros(),
             render_latency_s: 0.0,
             tracked_run: 0,
@@ -637,6 +643,9 @@ impl Localizer {
                     "relocalization not confirmed by the next frame; still lost"
                 );
                 self.verify_left = 0;
+                if let Some(before) = self.last_before_reloc.take() {
+                    self.last = before;
+                }
             }
             self.state = TrackState::Lost;
             self.stats.lost_frames += 1;

@@ -294,6 +294,7 @@ impl Localizer {
 
     /// A relocalization was confirmed: count it and mark the discontinuity.
     pub(super) fn confirm_relocalization(&mut self) {
+        self.last_before_reloc = None;
         self.reset_counter = self.reset_counter.wrapping_add(1);
         self.stats.relocalizations += 1;
         tracing::info!(
@@ -831,6 +832,11 @@ impl Localizer {
         let old = std::mem::replace(&mut self.keyframe, kf);
         self.worker.recycle(old);
         self.stats.keyframes += 1;
+        if verify_frames > 0 {
+            // Until confirmed, the pose is not a prior for later attempts.
+            let before = self.last;
+            self.last_before_reloc.get_or_insert(before);
+        }
         self.last = Some((capture_ns, v.world_from_camera));
         self.velocity = nalgebra::Vector6::zeros();
         self.tracked_run = 0;

@@ -203,11 +203,7 @@ impl GeometricTwins {
         )
     }
 
-    fn check_within(
-        &mut self,
-        keyframe: &Keyframe,
-        within: Option<([f64; 2], f64)>,
-    ) -> TwinCheck {
+    fn check_within(&mut self, keyframe: &Keyframe, within: Option<([f64; 2], f64)>) -> TwinCheck {
         self.found.clear();
         self.turned.clear();
         if !self.has_occupancy() {
@@ -711,7 +707,12 @@ mod tests {
             (&[][..], &[twin(-40.0, 0.0, 0.0)][..]),
         ] {
             assert!(matches!(
-                plan(&window, &beyond, (TwinCheck::Check(1), true), (found, turned)),
+                plan(
+                    &window,
+                    &beyond,
+                    (TwinCheck::Check(1), true),
+                    (found, turned)
+                ),
                 TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin)
             ));
         }

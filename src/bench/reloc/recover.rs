@@ -463,11 +463,8 @@ impl Bench {
             return none();
         };
         let twins = self.reloc.twins_mut();
-        if !crate::reloc::twins::plan_needs_twins(
-            rule,
-            &kf.world_from_keyframe,
-            twins.prior_only(),
-        ) {
+        if !crate::reloc::twins::plan_needs_twins(rule, &kf.world_from_keyframe, twins.prior_only())
+        {
             // As the service: no search where the plan cannot use it.
             return none();
         }
