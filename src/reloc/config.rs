@@ -17,6 +17,8 @@ pub enum GeometricTwinMaps {
     /// None.
     Never,
     /// Maps with no texture: their appearance is vertex color (a scan's).
+    /// Held poses on the other maps are checked at their twins near the
+    /// motion prior only ([`crate::reloc::twins::GeometricTwins::prior_only`]).
     Untextured,
     /// Every map. On the textured `building` floor (look-alike rooms by
     /// design) it refused 41 of 95 right cold starts: there the rivals'
