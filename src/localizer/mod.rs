@@ -298,10 +298,11 @@ pub struct Localizer {
     previous_ns: Option<u64>,
     /// Capture time and pose of the last tracked frame (prediction).
     last: Option<(u64, Pose)>,
-    /// While a relocalization waits for its confirming frames: `last` as it
-    /// was before it (the last verified pose, or none), put back when they
-    /// fail, so that the next attempt's motion prior is not centered on a
-    /// pose that was never verified.
+    /// From a relocalization until its confirming frames track: `last` as
+    /// it was before it (the last verified pose, or none). While set, the
+    /// rival rule's prior, which vouches for a pose's place, is taken from
+    /// it rather than from `last`: a pose that was never confirmed must not
+    /// vouch for the next attempt's (the search still starts near `last`).
     last_before_reloc: Option<Option<(u64, Pose)>>,
     /// Velocity as a twist per second, in the camera frame (right perturbation).
     velocity: nalgebra::Vector6<f64>,
@@ -643,9 +644,6 @@ impl Localizer {
                     "relocalization not confirmed by the next frame; still lost"
                 );
                 self.verify_left = 0;
-                if let Some(before) = self.last_before_reloc.take() {
-                    self.last = before;
-                }
             }
             self.state = TrackState::Lost;
             self.stats.lost_frames += 1;
@@ -731,6 +729,7 @@ impl Localizer {
         } else if self.state == TrackState::Lost {
             tracing::info!("tracking resumed");
         }
+        self.last_before_reloc = None;
         self.state = TrackState::Tracking;
         self.lost_since_ns = None;
         let cov_delta = Matrix6::from_fn(|r, c| result.covariance_delta[r][c]);

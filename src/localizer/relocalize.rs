@@ -328,10 +328,20 @@ impl Localizer {
             }
             self.pending = false;
         }
-        let prior = self
-            .last
-            .map(|(_, pose)| MotionPrior::new(&pose, self.lost_s(capture_ns), reloc.config()));
-        let rule = reloc.rival_rule(prior);
+        let lost_s = self.lost_s(capture_ns);
+        let prior_from = |last: Option<(u64, Pose)>| {
+            last.map(|(_, pose)| MotionPrior::new(&pose, lost_s, reloc.config()))
+        };
+        let prior = prior_from(self.last);
+        // Only a confirmed pose vouches for a place: after a relocalization
+        // its next frame did not confirm, the rule's prior is the last
+        // verified pose (on the `building` floor, a look-alike 26 m away
+        // was accepted alone through the prior of its own unconfirmed
+        // acceptance: docs/benchmarks.md, "Kidnaps on the building floor").
+        let rule = reloc.rival_rule(match self.last_before_reloc {
+            Some(verified) => prior_from(verified),
+            None => prior,
+        });
         // The landmark pose (features matched to the map's landmarks, then
         // PnP) is tried first, wherever it is (one candidate, a few renders;
         // on a scanned map it is the candidate that passes, and trying the
@@ -833,7 +843,7 @@ impl Localizer {
         self.worker.recycle(old);
         self.stats.keyframes += 1;
         if verify_frames > 0 {
-            // Until confirmed, the pose is not a prior for later attempts.
+            // Until confirmed, the pose vouches for no later attempt.
             let before = self.last;
             self.last_before_reloc.get_or_insert(before);
         }
