@@ -774,7 +774,6 @@ impl Localizer {
             turned = ?twins.turned(),
             "geometric twins of the held pose"
         );
-
         let planned = match plan(
             rule,
             &held.world_from_camera,

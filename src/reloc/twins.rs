@@ -406,21 +406,10 @@ pub fn plan(
     if prior_prefers_a_twin(rule, held, (found, turned)) {
         return TwinPlan::Refuse(TwinRefusal::PriorPrefersATwin);
     }
-    if prior_only {
-        // The twins near the prior ([`GeometricTwins::check_near`]), moved
-        // then turned, best first.
-        for t in found
-            .iter()
-            .take(TWIN_CHECKS)
-            .chain(turned.iter().take(TURNED_CHECKS))
-        {
-            if out.push(*t).is_err() {
-                break;
-            }
-        }
-        return TwinPlan::Check(out);
-    }
+    // Prior only: the twins near the prior ([`GeometricTwins::check_near`]);
+    // many of them there do not make the view degenerate.
     let moved = match check {
+        _ if prior_only => TWIN_CHECKS,
         TwinCheck::Unique => 0,
         TwinCheck::Degenerate => return TwinPlan::Refuse(TwinRefusal::Degenerate),
         TwinCheck::Check(n) => n.min(TWIN_CHECKS),
