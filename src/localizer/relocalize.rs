@@ -349,7 +349,9 @@ impl Localizer {
         // to the landmarks within reach of the last position when there is
         // one, else (or when they give no pose) over the whole map through
         // the vocabulary. Then the database views ranked by the whole-image
-        // descriptor, nearby first (`reloc::prior::sources`). Every
+        // descriptor, nearby first, and before the whole map's views the
+        // landmark poses at the other places the frame's corners fit, where
+        // the first was refused (on a scan: `reloc::prior::sources`). Every
         // candidate passes the same gate.
         let (regions, n_regions) = landmark_regions(prior.as_ref());
         let landmark = reloc
@@ -380,7 +382,9 @@ impl Localizer {
         let mut n_tried = 0usize;
         let mut steps = sources(prior.as_ref()).into_iter().flatten();
         let mut passed: Option<(Verified, Box<Keyframe>)> = None;
+        let mut elsewhere_gathered = false;
         'steps: for source in steps.by_ref() {
+            elsewhere_gathered |= matches!(source, Source::LandmarkElsewhere);
             let first = n;
             n += gather(
                 &mut reloc,
@@ -459,7 +463,7 @@ impl Localizer {
         // reach of the last position, or turned beyond the heading bound):
         // held while its rivals among the candidates of every step are
         // verified (`reloc::rivals`).
-        for source in steps {
+        for source in steps.filter(|s| !matches!(s, Source::LandmarkElsewhere)) {
             n += gather(
                 &mut reloc,
                 (&mut self.reloc_aligners[0], &self.pyramid),
@@ -470,8 +474,9 @@ impl Localizer {
             );
         }
         // Beyond the prior's reach (a cold start): the landmark poses at the
-        // other places the frame's corners fit come first among the rivals.
-        if !rule.prior_reaches(&v.world_from_camera) {
+        // other places the frame's corners fit come first among the rivals
+        // (already among the candidates when the search reached them).
+        if !rule.prior_reaches(&v.world_from_camera) && !elsewhere_gathered {
             let m = MAX_LANDMARK_ELSEWHERE.min(candidates.len() - n);
             candidates.copy_within(0..n, m);
             let added = reloc.landmark_rivals(&v.world_from_camera, &mut candidates[..m]);
@@ -762,7 +767,7 @@ impl Localizer {
         {
             return false;
         }
-        let check = match rule.prior() {
+        let check = match rule.prior.as_ref() {
             Some(prior) if prior_only => reloc.twins_mut().check_near(kf, prior),
             _ => reloc.twins_mut().check(kf),
         };
@@ -888,6 +893,10 @@ fn gather(
                 1
             }
             _ => 0,
+        },
+        Source::LandmarkElsewhere => match landmark {
+            Some(c) => reloc.landmark_rivals(&c.world_from_camera, out),
+            None => 0,
         },
         Source::Views(region) => {
             let found = reloc.search_ranked(query, region, aligner, pyramid);

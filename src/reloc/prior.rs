@@ -109,6 +109,12 @@ pub enum Source {
     /// The landmark pose (features matched to the map's landmarks, PnP):
     /// one candidate, from [`landmark_regions`].
     Landmark,
+    /// The landmark poses at the other places over the whole map where the
+    /// frame's corners fit (`Relocalizer::landmark_rivals` of the landmark
+    /// pose; only on a map checked for geometric twins): reached when the
+    /// landmark pose was refused, which on a floor of look-alike rooms is
+    /// most often because it took a look-alike of the true room.
+    LandmarkElsewhere,
     /// The database views in a region, ranked by the whole-image descriptor
     /// and the coarse alignment.
     Views(SearchRegion),
@@ -116,11 +122,13 @@ pub enum Source {
 
 /// The steps of an attempt, in order: the landmark pose (one candidate, a
 /// few renders, wherever it is), then the views near the last position
-/// (with a prior), then the views over the whole map.
-pub fn sources(prior: Option<&MotionPrior>) -> [Option<Source>; 3] {
+/// (with a prior), then the landmark poses at the other places, then the
+/// views over the whole map.
+pub fn sources(prior: Option<&MotionPrior>) -> [Option<Source>; 4] {
     [
         Some(Source::Landmark),
         prior.map(|p| Source::Views(p.region())),
+        Some(Source::LandmarkElsewhere),
         Some(Source::Views(SearchRegion::Everywhere)),
     ]
 }
@@ -184,5 +192,27 @@ mod tests {
         let prior = MotionPrior::new(&looking(0.0, 0.0), lost_s, &config);
         assert!((prior.radius_m - 2.0).abs() < 1e-12);
         assert_eq!(MotionPrior::lost_s_for_radius(0.3, &config), 0.0);
+    }
+
+    #[test]
+    fn the_landmark_poses_elsewhere_come_after_the_near_views_and_before_the_whole_map() {
+        let kinds = |prior: Option<&MotionPrior>| {
+            sources(prior)
+                .into_iter()
+                .flatten()
+                .map(|s| match s {
+                    Source::Landmark => "landmark",
+                    Source::LandmarkElsewhere => "elsewhere",
+                    Source::Views(SearchRegion::Near { .. }) => "near views",
+                    Source::Views(SearchRegion::Everywhere) => "all views",
+                })
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(kinds(None), ["landmark", "elsewhere", "all views"]);
+        let prior = MotionPrior::new(&looking(0.0, 0.0), 0.5, &RelocConfig::default());
+        assert_eq!(
+            kinds(Some(&prior)),
+            ["landmark", "near views", "elsewhere", "all views"]
+        );
     }
 }

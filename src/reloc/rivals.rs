@@ -226,11 +226,6 @@ impl RivalRule {
         self.prior.is_some()
     }
 
-    /// The motion prior (none on a cold start).
-    pub fn prior(&self) -> Option<&MotionPrior> {
-        self.prior.as_ref()
-    }
-
     /// Whether `pose` lies within the prior's reach, in position and in
     /// heading ([`MotionPrior::reaches`]); never on a cold start.
     pub fn prior_reaches(&self, pose: &Pose) -> bool {

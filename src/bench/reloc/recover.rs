@@ -127,10 +127,12 @@ impl Bench {
         let mut candidates: Vec<Candidate> = Vec::new();
         let mut tried: Vec<u32> = Vec::new();
         let mut verdict = None;
-        let mut verdict_from_landmarks = false;
+        let mut verdict_index = None;
         let mut region_searched = false;
         let mut steps = sources(prior.as_ref()).into_iter().flatten();
+        let mut elsewhere_gathered = false;
         'steps: for source in steps.by_ref() {
+            elsewhere_gathered |= matches!(source, Source::LandmarkElsewhere);
             let first = candidates.len();
             let rank_ms = self.gather(source, landmark, &descriptor, &mut candidates);
             if !region_searched && matches!(source, Source::Views(_)) {
@@ -151,7 +153,7 @@ impl Bench {
                     holds
                 });
                 if verdict.is_some() {
-                    verdict_from_landmarks = is_landmark_index(c.ranked.index);
+                    verdict_index = Some(c.ranked.index);
                     break 'steps;
                 }
             }
@@ -169,7 +171,7 @@ impl Bench {
                 // The held keyframe is the last spare one until the next
                 // render: its view's geometric twins now.
                 let mut held_twins = self.twin_check(&query.truth, &rule);
-                for source in steps {
+                for source in steps.filter(|s| !matches!(s, Source::LandmarkElsewhere)) {
                     let rank_ms = self.gather(source, landmark, &descriptor, &mut candidates);
                     if !region_searched && matches!(source, Source::Views(_)) {
                         tally.rank_ms.push(rank_ms);
@@ -178,7 +180,7 @@ impl Bench {
                 }
                 // Beyond the prior's reach: the landmark poses at the other
                 // places the frame's corners fit come first among the rivals.
-                if !rule.prior_reaches(&v.world_from_camera) {
+                if !rule.prior_reaches(&v.world_from_camera) && !elsewhere_gathered {
                     let mut elsewhere_found = [Candidate::default(); MAX_LANDMARK_ELSEWHERE];
                     let m = self
                         .reloc
@@ -222,13 +224,13 @@ impl Bench {
                             tally.decisive_rival += 1;
                             held = r;
                             verdict = Some(r);
-                            verdict_from_landmarks = is_landmark_index(c.ranked.index);
+                            verdict_index = Some(c.ranked.index);
                             held_twins = self.twin_check(&query.truth, &rule);
                         }
                         Judgment::PriorChooses => {
                             tally.prior_chose += 1;
                             verdict = Some(r);
-                            verdict_from_landmarks = is_landmark_index(c.ranked.index);
+                            verdict_index = Some(c.ranked.index);
                             break;
                         }
                         Judgment::Ambiguous => {
@@ -265,8 +267,11 @@ impl Bench {
             }
             _ => {}
         }
+        let verdict_from_landmarks = verdict_index.is_some_and(is_landmark_index);
         if verdict.is_some() {
             tally.from_landmarks += usize::from(verdict_from_landmarks);
+            tally.from_elsewhere +=
+                usize::from(verdict_from_landmarks && verdict_index != Some(LANDMARK_CANDIDATE));
         }
         let ms = t_query.elapsed().as_secs_f64() * 1e3 - untimed_ms;
         tally.recovery_ms.push(ms);
@@ -342,6 +347,14 @@ impl Bench {
         match source {
             Source::Landmark => {
                 candidates.extend(landmark);
+                0.0
+            }
+            Source::LandmarkElsewhere => {
+                if let Some(c) = landmark {
+                    let mut found = [Candidate::default(); MAX_LANDMARK_ELSEWHERE];
+                    let m = self.reloc.landmark_rivals(&c.world_from_camera, &mut found);
+                    candidates.extend_from_slice(&found[..m]);
+                }
                 0.0
             }
             Source::Views(region) => {
@@ -468,7 +481,7 @@ impl Bench {
             // As the service: no search where the plan cannot use it.
             return none();
         }
-        let check = match rule.prior() {
+        let check = match rule.prior.as_ref() {
             Some(prior) if twins.prior_only() => twins.check_near(kf, prior),
             _ => twins.check(kf),
         };

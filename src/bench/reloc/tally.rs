@@ -102,6 +102,9 @@ pub(super) struct Tally {
     pub(super) located_inliers: Vec<(usize, usize, bool)>,
     /// Accepted poses that came from the landmark candidate.
     pub(super) from_landmarks: usize,
+    /// Of those, the ones from a landmark pose at another place than the
+    /// first (`Source::LandmarkElsewhere`, or a rival that won).
+    pub(super) from_elsewhere: usize,
     /// Descriptor comparisons of the landmark matching, per query.
     pub(super) comparisons: Vec<f64>,
     /// Corners whose nearest landmark over the whole map is within the
@@ -339,8 +342,8 @@ impl Tally {
         }
         let (lmed, lp99) = median_p99(&self.landmark_ms);
         println!(
-            "    landmarks: a pose for {}/{done}, within 10 cm / 3 deg for {}; accepted from it {}; features + matching + PnP median {lmed:.1} ms, p99 {lp99:.1} ms",
-            self.located, self.located_right, self.from_landmarks
+            "    landmarks: a pose for {}/{done}, within 10 cm / 3 deg for {}; accepted from it {} ({} from a landmark pose at another place than the first); features + matching + PnP median {lmed:.1} ms, p99 {lp99:.1} ms",
+            self.located, self.located_right, self.from_landmarks, self.from_elsewhere
         );
         let (cmed, cp99) = median_p99(&self.comparisons);
         let (bmed, _) = median_p99(&self.brute_force);
