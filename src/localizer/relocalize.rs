@@ -349,10 +349,10 @@ impl Localizer {
         // to the landmarks within reach of the last position when there is
         // one, else (or when they give no pose) over the whole map through
         // the vocabulary. Then the database views ranked by the whole-image
-        // descriptor, nearby first, and before the whole map's views the
-        // landmark poses at the other places the frame's corners fit, where
-        // the first was refused (on a scan: `reloc::prior::sources`). Every
-        // candidate passes the same gate.
+        // descriptor, nearby first; on a cold start, before the whole map's
+        // views, the landmark poses at the other places the frame's corners
+        // fit, where the first was refused (on a scan:
+        // `reloc::prior::sources`). Every candidate passes the same gate.
         let (regions, n_regions) = landmark_regions(prior.as_ref());
         let landmark = reloc
             .landmark_candidate(
@@ -382,6 +382,12 @@ impl Localizer {
         let mut n_tried = 0usize;
         let mut steps = sources(prior.as_ref()).into_iter().flatten();
         let mut passed: Option<(Verified, Box<Keyframe>)> = None;
+        // The poses that passed the gate but could not be held: the frame
+        // fits there as well, and any pose held later is judged against
+        // them as against a rival that passed (they are among `tried`, so
+        // the rival list leaves them out).
+        let mut passed_unheld = heapless::Vec::<(Pose, f32), MAX_PASSED_UNHELD>::new();
+        let mut unheld_overflow = false;
         let mut elsewhere_gathered = false;
         'steps: for source in steps.by_ref() {
             elsewhere_gathered |= matches!(source, Source::LandmarkElsewhere);
@@ -430,6 +436,9 @@ impl Localizer {
                         local = v.local_correlation,
                         "passed only through the lowered first level, beyond the prior's reach: not held"
                     );
+                    unheld_overflow |= passed_unheld
+                        .push((v.world_from_camera, v.correlation))
+                        .is_err();
                     self.worker.recycle(kf);
                     continue;
                 }
@@ -578,6 +587,35 @@ impl Localizer {
                     return;
                 }
             }
+        }
+        // The places that passed but could not be held are rivals that
+        // passed: only a held pose that correlates decisively better than
+        // each stands (on the scanned floor a look-alike's landmark pose was
+        // held where the true room had passed only through the lowered
+        // first level, and 5 wrong poses went out).
+        let unheld_rival = passed_unheld.iter().find(|(pose, correlation)| {
+            !matches!(
+                rule.judge(
+                    (&v.world_from_camera, v.correlation),
+                    (pose, *correlation),
+                    all_checked,
+                ),
+                Judgment::SamePlace | Judgment::HeldIsBetter
+            )
+        });
+        if unheld_rival.is_some() || unheld_overflow {
+            tracing::info!(
+                capture_ns,
+                held = ?v.world_from_camera.translation.vector,
+                held_correlation = v.correlation,
+                other = ?unheld_rival.map(|(p, _)| p.translation.vector),
+                other_correlation = ?unheld_rival.map(|(_, c)| *c),
+                "relocalization refused: the frame passed the gate at another place too (there only through the lowered first level)"
+            );
+            self.worker.recycle(kf);
+            self.stats.reloc_ambiguous += 1;
+            self.reloc = Some(reloc);
+            return;
         }
         match self.twin_passes(&reloc, &v, capture_ns) {
             Some(twin) => {
@@ -865,8 +903,13 @@ impl Localizer {
     }
 }
 
-/// Candidates one attempt can hold: the landmark pose and the views of
-/// the two view steps (near the last position, the whole map).
+/// Most poses of one attempt that passed the gate without being held that
+/// are remembered; past it, a pose held later in the attempt is refused.
+const MAX_PASSED_UNHELD: usize = 8;
+
+/// Candidates one attempt can hold: the landmark pose, the views of the
+/// two view steps (near the last position, the whole map) and the
+/// landmark poses at other places.
 const MAX_ATTEMPT_CANDIDATES: usize = 2 * MAX_TOP_K + 1 + MAX_LANDMARK_ELSEWHERE;
 /// How far apart two passing poses must be to be two places, m (the
 /// remembered symmetries; `reloc::rivals::RIVAL_MIN_M`).

@@ -111,9 +111,10 @@ pub enum Source {
     Landmark,
     /// The landmark poses at the other places over the whole map where the
     /// frame's corners fit (`Relocalizer::landmark_rivals` of the landmark
-    /// pose; only on a map checked for geometric twins): reached when the
-    /// landmark pose was refused, which on a floor of look-alike rooms is
-    /// most often because it took a look-alike of the true room.
+    /// pose; only on a map checked for geometric twins, and only on a cold
+    /// start, see [`sources`]): reached when the landmark pose was refused,
+    /// which on a floor of look-alike rooms is most often because it took
+    /// a look-alike of the true room.
     LandmarkElsewhere,
     /// The database views in a region, ranked by the whole-image descriptor
     /// and the coarse alignment.
@@ -122,13 +123,22 @@ pub enum Source {
 
 /// The steps of an attempt, in order: the landmark pose (one candidate, a
 /// few renders, wherever it is), then the views near the last position
-/// (with a prior), then the landmark poses at the other places, then the
-/// views over the whole map.
-pub fn sources(prior: Option<&MotionPrior>) -> [Option<Source>; 4] {
+/// (with a prior) or, on a cold start, the landmark poses at the other
+/// places, then the views over the whole map.
+///
+/// The landmark poses elsewhere are a cold start's step only: there every
+/// pose that passes is checked against its rivals, while a prior accepts
+/// a pose within its reach alone, and a wrong prior (a hint 1.3 m off on
+/// the scanned floor) accepted a corner's repeat within reach that the
+/// landmark pose had not taken: 5 wrong poses sent
+/// (docs/building-scale.md, "The landmarks' other places as candidates").
+pub fn sources(prior: Option<&MotionPrior>) -> [Option<Source>; 3] {
     [
         Some(Source::Landmark),
-        prior.map(|p| Source::Views(p.region())),
-        Some(Source::LandmarkElsewhere),
+        Some(match prior {
+            Some(p) => Source::Views(p.region()),
+            None => Source::LandmarkElsewhere,
+        }),
         Some(Source::Views(SearchRegion::Everywhere)),
     ]
 }
@@ -195,7 +205,7 @@ mod tests {
     }
 
     #[test]
-    fn the_landmark_poses_elsewhere_come_after_the_near_views_and_before_the_whole_map() {
+    fn the_landmark_poses_elsewhere_are_a_cold_starts_step_before_the_whole_map() {
         let kinds = |prior: Option<&MotionPrior>| {
             sources(prior)
                 .into_iter()
@@ -210,9 +220,6 @@ mod tests {
         };
         assert_eq!(kinds(None), ["landmark", "elsewhere", "all views"]);
         let prior = MotionPrior::new(&looking(0.0, 0.0), 0.5, &RelocConfig::default());
-        assert_eq!(
-            kinds(Some(&prior)),
-            ["landmark", "near views", "elsewhere", "all views"]
-        );
+        assert_eq!(kinds(Some(&prior)), ["landmark", "near views", "all views"]);
     }
 }

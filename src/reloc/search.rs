@@ -283,18 +283,18 @@ impl Relocalizer {
     /// ([`LandmarkLocator::poses_elsewhere`]), as candidates to verify as
     /// rivals of `held` (precise poses, scored as the landmark pose is),
     /// written to `out`; returns how many (at most
-    /// [`MAX_LANDMARK_ELSEWHERE`]). With `held` the landmark pose the gate
-    /// refused, they are also the attempt's next candidates
-    /// ([`super::prior::Source::LandmarkElsewhere`]): on the scanned floor
-    /// the landmark pose fell more than 10 cm from the truth in 29 of 50
-    /// cold starts (seed 1), most often on a look-alike room, and with
-    /// this step 29 cold starts of those 50 succeed instead of 19, none
-    /// wrong (docs/building-scale.md, "The landmarks' other places as
-    /// candidates"). Only on a map checked for geometric
-    /// twins (a scan): on the textured `building` floor the rivals the
-    /// search already lists tell its look-alikes apart (0 wrong in 100
-    /// cold starts either way), and these cost its cold start 183 -> 260
-    /// ms median (docs/building-scale.md, "The landmarks' other places").
+    /// [`MAX_LANDMARK_ELSEWHERE`]). On a cold start, with `held` the
+    /// landmark pose the gate refused, they are also the attempt's next
+    /// candidates ([`super::prior::Source::LandmarkElsewhere`]): on the
+    /// scanned floor the landmark pose fell more than 10 cm from the truth
+    /// in 29 of 50 cold starts (seed 1), most often on a look-alike room,
+    /// and with this step 29 of those 50 cold starts succeed instead of
+    /// 19, none wrong (docs/building-scale.md, "The landmarks' other places
+    /// as candidates"). Only on a map checked for geometric twins (a
+    /// scan): on the textured `building` floor the rivals the search
+    /// already lists tell its look-alikes apart (0 wrong in 100 cold starts
+    /// either way), and these cost its cold start 183 -> 260 ms median
+    /// (docs/building-scale.md, "The landmarks' other places").
     pub fn landmark_rivals(&mut self, held: &Pose, out: &mut [Candidate]) -> usize {
         if !self.twins.has_map() {
             return 0;

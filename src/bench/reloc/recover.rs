@@ -131,6 +131,8 @@ impl Bench {
         let mut region_searched = false;
         let mut steps = sources(prior.as_ref()).into_iter().flatten();
         let mut elsewhere_gathered = false;
+        // Poses that passed the gate but could not be held (as the service).
+        let mut passed_unheld: Vec<(Pose, f32)> = Vec::new();
         'steps: for source in steps.by_ref() {
             elsewhere_gathered |= matches!(source, Source::LandmarkElsewhere);
             let first = candidates.len();
@@ -145,13 +147,17 @@ impl Bench {
                     continue;
                 }
                 tried.push(c.ranked.index);
-                verdict = self.try_one(&c, tally).filter(|v| {
+                let found = self.try_one(&c, tally);
+                verdict = found.filter(|v| {
                     let holds = rule
                         .for_held(v.lowered_first_level, v.local_correlation)
                         .may_hold(&v.world_from_camera);
                     tally.lowered_skipped += usize::from(!holds);
                     holds
                 });
+                if let Some(f) = found.filter(|_| verdict.is_none()) {
+                    passed_unheld.push((f.world_from_camera, f.correlation));
+                }
                 if verdict.is_some() {
                     verdict_index = Some(c.ranked.index);
                     break 'steps;
@@ -242,6 +248,28 @@ impl Bench {
                             verdict = None;
                             break;
                         }
+                    }
+                }
+                // The places that passed but could not be held are rivals
+                // that passed (as the service).
+                if let Some(held) = verdict {
+                    let unheld_rival = passed_unheld.iter().find(|(pose, correlation)| {
+                        !matches!(
+                            rule.judge(
+                                (&held.world_from_camera, held.correlation),
+                                (pose, *correlation),
+                                all_checked,
+                            ),
+                            Judgment::SamePlace | Judgment::HeldIsBetter
+                        )
+                    });
+                    if let Some((pose, _)) = unheld_rival {
+                        tally.ambiguous += 1;
+                        tally.unheld_refused += 1;
+                        tally.ambiguous_with_truth += usize::from(
+                            is_right(query, &held.world_from_camera) || is_right(query, pose),
+                        );
+                        verdict = None;
                     }
                 }
                 // Still held beyond the prior's reach: its geometric twins.

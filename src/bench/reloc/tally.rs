@@ -105,6 +105,10 @@ pub(super) struct Tally {
     /// Of those, the ones from a landmark pose at another place than the
     /// first (`Source::LandmarkElsewhere`, or a rival that won).
     pub(super) from_elsewhere: usize,
+    /// Poses refused because a place that passed the gate but could not be
+    /// held (only through the lowered first level, beyond the prior's
+    /// reach) passed too; counted in `ambiguous` as well.
+    pub(super) unheld_refused: usize,
     /// Descriptor comparisons of the landmark matching, per query.
     pub(super) comparisons: Vec<f64>,
     /// Corners whose nearest landmark over the whole map is within the
@@ -276,11 +280,12 @@ impl Tally {
             100.0 * self.success_given_near as f64 / self.retrieved_near.max(1) as f64
         );
         println!(
-            "    look-alike places: {} rivals at another place verified ({} landmark poses at other places listed), {} poses refused because one passed too ({} of them with the truth as one of the two; counted in no pose), {} beyond the prior's reach replaced by a rival within it, {} passing rivals told apart by a decisive correlation ({} of them the better place)",
+            "    look-alike places: {} rivals at another place verified ({} landmark poses at other places listed), {} poses refused because one passed too ({} of them with the truth as one of the two, {} a place that passed only through the lowered first level; counted in no pose), {} beyond the prior's reach replaced by a rival within it, {} passing rivals told apart by a decisive correlation ({} of them the better place)",
             self.rivals_tried,
             self.landmark_rivals,
             self.ambiguous,
             self.ambiguous_with_truth,
+            self.unheld_refused,
             self.prior_chose,
             self.decisive,
             self.decisive_rival
