@@ -128,10 +128,11 @@ pub enum Source {
 ///
 /// The landmark poses elsewhere are a cold start's step only: there every
 /// pose that passes is checked against its rivals, while a prior accepts
-/// a pose within its reach alone, and a wrong prior (a hint 1.3 m off on
-/// the scanned floor) accepted a corner's repeat within reach that the
-/// landmark pose had not taken: 5 wrong poses sent
-/// (docs/building-scale.md, "The landmarks' other places as candidates").
+/// a pose within its reach alone, and one of these at a repeat of the
+/// frame's corners within that reach would go out unchecked. With a
+/// prior they added one success in 100 searches of the scanned floor's
+/// 2 m window (docs/building-scale.md, "The landmarks' other places as
+/// candidates").
 pub fn sources(prior: Option<&MotionPrior>) -> [Option<Source>; 3] {
     [
         Some(Source::Landmark),
