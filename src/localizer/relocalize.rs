@@ -590,19 +590,12 @@ impl Localizer {
         }
         // The places that passed but could not be held are rivals that
         // passed: only a held pose that correlates decisively better than
-        // each stands (on the scanned floor a look-alike's landmark pose was
-        // held where the true room had passed only through the lowered
-        // first level, and 5 wrong poses went out).
-        let unheld_rival = passed_unheld.iter().find(|(pose, correlation)| {
-            !matches!(
-                rule.judge(
-                    (&v.world_from_camera, v.correlation),
-                    (pose, *correlation),
-                    all_checked,
-                ),
-                Judgment::SamePlace | Judgment::HeldIsBetter
-            )
-        });
+        // each stands (`RivalRule::unheld_rival`).
+        let unheld_rival = rule.unheld_rival(
+            (&v.world_from_camera, v.correlation),
+            &passed_unheld,
+            all_checked,
+        );
         if unheld_rival.is_some() || unheld_overflow {
             tracing::info!(
                 capture_ns,

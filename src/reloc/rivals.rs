@@ -329,6 +329,34 @@ impl RivalRule {
         }
     }
 
+    /// The first of `passed_unheld` (poses of this attempt that passed the
+    /// gate but could not be held, each with its plain correlation) that
+    /// stands against the held pose `accepted`: each is judged as a rival
+    /// that passed ([`Self::judge`]), and only the same place or a held pose
+    /// decisively better lets it go. They are not among the rivals
+    /// [`Self::rivals`] lists (tried already), yet the frame fits there
+    /// too: on the scanned floor a place that passed only through the
+    /// lowered first level was left out, and a look-alike's pose held
+    /// after it (docs/building-scale.md, "The landmarks' other places as
+    /// candidates").
+    pub fn unheld_rival<'a>(
+        &self,
+        (accepted, accepted_correlation): (&Pose, f32),
+        passed_unheld: &'a [(Pose, f32)],
+        all_checked: bool,
+    ) -> Option<&'a (Pose, f32)> {
+        passed_unheld.iter().find(|(pose, correlation)| {
+            !matches!(
+                self.judge(
+                    (accepted, accepted_correlation),
+                    (pose, *correlation),
+                    all_checked
+                ),
+                Judgment::SamePlace | Judgment::HeldIsBetter
+            )
+        })
+    }
+
     /// Writes to `out` the indices into `candidates` of the rivals of
     /// `accepted` (in the candidates' order, best first; one per place)
     /// under [`Self::budget`], up to [`Budget::deciding_max`], and returns
@@ -444,6 +472,33 @@ mod tests {
     fn near_origin() -> RivalRule {
         let config = RelocConfig::default();
         RivalRule::new(Some(MotionPrior::new(&pose(0.0, 0.0), 0.75, &config)))
+    }
+
+    #[test]
+    fn a_place_that_passed_unheld_stands_unless_the_held_pose_is_decisively_better() {
+        let cold = RivalRule::new(None);
+        let held = pose(20.0, 0.0);
+        // The true room passed only through the lowered first level, 9 m
+        // away; the held look-alike correlates no better.
+        let unheld = [(pose(11.0, 0.0), 0.66)];
+        assert_eq!(
+            cold.unheld_rival((&held, 0.72), &unheld, true),
+            Some(&unheld[0])
+        );
+        // Decisively better, with every rival checked: held.
+        assert_eq!(cold.unheld_rival((&held, 0.9), &unheld, true), None);
+        // Decisively better, but not every rival checked: still refused.
+        assert!(cold.unheld_rival((&held, 0.9), &unheld, false).is_some());
+        // The same place (within a meter): no rival.
+        let same = [(pose(20.5, 0.0), 0.66)];
+        assert_eq!(cold.unheld_rival((&held, 0.72), &same, true), None);
+        // The first that stands is given, past one at the same place.
+        let both = [same[0], unheld[0]];
+        assert_eq!(
+            cold.unheld_rival((&held, 0.72), &both, true),
+            Some(&unheld[0])
+        );
+        assert_eq!(cold.unheld_rival((&held, 0.72), &[], true), None);
     }
 
     #[test]

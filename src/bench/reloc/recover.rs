@@ -253,16 +253,11 @@ impl Bench {
                 // The places that passed but could not be held are rivals
                 // that passed (as the service).
                 if let Some(held) = verdict {
-                    let unheld_rival = passed_unheld.iter().find(|(pose, correlation)| {
-                        !matches!(
-                            rule.judge(
-                                (&held.world_from_camera, held.correlation),
-                                (pose, *correlation),
-                                all_checked,
-                            ),
-                            Judgment::SamePlace | Judgment::HeldIsBetter
-                        )
-                    });
+                    let unheld_rival = rule.unheld_rival(
+                        (&held.world_from_camera, held.correlation),
+                        &passed_unheld,
+                        all_checked,
+                    );
                     if let Some((pose, _)) = unheld_rival {
                         tally.ambiguous += 1;
                         tally.unheld_refused += 1;
