@@ -121,8 +121,6 @@ pub struct OfflineReport {
     pub evaluation: Option<Evaluation>,
     /// Integrity against the ground truth (no alignment), when it has one.
     pub integrity: Option<Integrity>,
-    /// Wall time from the start of the run to the first pose output, s.
-    pub first_pose_wall_s: Option<f64>,
     /// With a flight log or the live view: per processed frame, the time
     /// the tracker spent handing it over (row, and every Nth frame the
     /// picture copy), ms.
@@ -150,6 +148,39 @@ pub const WRONG_POSITION_M: f64 = 0.10;
 /// A pose turned further than this from the truth is wrong, degrees.
 pub const WRONG_ROTATION_DEG: f64 = 5.0;
 
+/// The error of `pose`, stamped `stamp_s`, against the ground-truth pose
+/// of `truth` nearest in time: position (m) and rotation (degrees), in the
+/// world frame, without alignment; `None` without a truth pose within 5 ms.
+pub fn pose_error(truth: &Trajectory, stamp_s: f64, pose: &Pose) -> Option<(f64, f64)> {
+    let nearest = truth
+        .stamps_s
+        .partition_point(|t| *t < stamp_s)
+        .min(truth.stamps_s.len().saturating_sub(1));
+    let candidates = [nearest.saturating_sub(1), nearest];
+    let &k = candidates
+        .iter()
+        .filter(|&&k| k < truth.stamps_s.len())
+        .min_by(|&&a, &&b| {
+            (truth.stamps_s[a] - stamp_s)
+                .abs()
+                .total_cmp(&(truth.stamps_s[b] - stamp_s).abs())
+        })?;
+    if (truth.stamps_s[k] - stamp_s).abs() > 0.005 {
+        return None;
+    }
+    let error = truth.poses[k].inverse() * pose;
+    Some((
+        error.translation.vector.norm(),
+        error.rotation.angle().to_degrees(),
+    ))
+}
+
+/// Whether a pose with this error ([`pose_error`]: m, degrees) is wrong:
+/// beyond [`WRONG_POSITION_M`] or [`WRONG_ROTATION_DEG`] (or not finite).
+pub fn is_wrong((position_m, rotation_deg): (f64, f64)) -> bool {
+    !(position_m <= WRONG_POSITION_M && rotation_deg <= WRONG_ROTATION_DEG)
+}
+
 /// Counts the poses of `estimate` that are wrong against `truth`.
 pub fn integrity(truth: &Trajectory, estimate: &Trajectory, first_stamp_s: f64) -> Integrity {
     let mut out = Integrity {
@@ -157,32 +188,13 @@ pub fn integrity(truth: &Trajectory, estimate: &Trajectory, first_stamp_s: f64) 
         ..Integrity::default()
     };
     for (stamp_s, pose) in estimate.stamps_s.iter().zip(&estimate.poses) {
-        let nearest = truth
-            .stamps_s
-            .partition_point(|t| *t < *stamp_s)
-            .min(truth.stamps_s.len().saturating_sub(1));
-        let candidates = [nearest.saturating_sub(1), nearest];
-        let Some(&k) = candidates
-            .iter()
-            .filter(|&&k| k < truth.stamps_s.len())
-            .min_by(|&&a, &&b| {
-                (truth.stamps_s[a] - stamp_s)
-                    .abs()
-                    .total_cmp(&(truth.stamps_s[b] - stamp_s).abs())
-            })
-        else {
+        let Some((position_m, rotation_deg)) = pose_error(truth, *stamp_s, pose) else {
             continue;
         };
-        if (truth.stamps_s[k] - stamp_s).abs() > 0.005 {
-            continue;
-        }
-        let error = truth.poses[k].inverse() * pose;
-        let position_m = error.translation.vector.norm();
-        let rotation_deg = error.rotation.angle().to_degrees();
         out.poses_checked += 1;
         out.max_position_error_m = out.max_position_error_m.max(position_m);
         out.max_rotation_error_deg = out.max_rotation_error_deg.max(rotation_deg);
-        if !(position_m <= WRONG_POSITION_M && rotation_deg <= WRONG_ROTATION_DEG) {
+        if is_wrong((position_m, rotation_deg)) {
             out.wrong_poses += 1;
             tracing::debug!(
                 after_s = stamp_s - first_stamp_s,
@@ -318,7 +330,6 @@ pub fn localize_dataset_recorded(
         renderer: localizer.renderer_name().to_string(),
         evaluation: None,
         integrity: None,
-        first_pose_wall_s: None,
         record_ms: Vec::with_capacity(if sinks.is_some() { n } else { 0 }),
     };
     let levels = config.tracker.pyramid_levels as usize;
@@ -388,9 +399,6 @@ pub fn localize_dataset_recorded(
                 match (out.state, out.world_from_camera) {
                     (TrackState::Tracking, Some(pose)) => {
                         report.estimate.push(stamp_s, pose);
-                        report
-                            .first_pose_wall_s
-                            .get_or_insert(wall_start.elapsed().as_secs_f64());
                         let q = &out.quality;
                         report.min_inlier_ratio = report.min_inlier_ratio.min(q.inlier_ratio);
                         report.min_correlation = report.min_correlation.min(q.correlation);

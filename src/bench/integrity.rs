@@ -7,8 +7,8 @@
 //! (the config's `[reloc]` grid, landmarks included); [`cold_starts`],
 //! [`kidnaps`] and [`wrong_hints`] each run the offline STAR loop on
 //! excerpts of the sequence from random, seeded places; [`print`] reports.
-//! Frames are paced at the camera rate, as in flight, so the first-pose
-//! times are wall-clock times on this machine.
+//! Frames are paced at the camera rate, as in flight, so the times to the
+//! first correct pose (camera time) are those of this machine in flight.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -20,7 +20,9 @@ use crate::config::Config;
 use crate::dataset::{Dataset, Trajectory};
 use crate::geometry::Pose;
 use crate::map::Mesh;
-use crate::offline::{localize_dataset, median_p99, OfflineOptions, OfflineReport, StartMode};
+use crate::offline::{
+    is_wrong, localize_dataset, median_p99, pose_error, OfflineOptions, OfflineReport, StartMode,
+};
 use crate::reloc::{build_database_along, AlongTrajectory, RelocDatabase, Relocalizer};
 use crate::render::cpu::CpuRenderer;
 use crate::rng::SplitMix64;
@@ -108,8 +110,11 @@ impl std::str::FromStr for TrialKinds {
 struct Trial {
     wrong: usize,
     sent: usize,
-    /// Wall time from the start (cold, hint) or from the jump (kidnap) to
-    /// the first correct pose, s; `None` when none came.
+    /// Camera time from the start (cold, hint) or from the jump (kidnap) to
+    /// the first correct pose sent, s (paced at 50 Hz, camera time is wall
+    /// time); `None` when none came. Until 2026-12-06 it was the first pose
+    /// sent, correct or not, and wall time for cold starts and hints: the
+    /// same wherever no pose was wrong.
     recovered_s: Option<f64>,
 }
 
@@ -354,7 +359,12 @@ struct Runner<'a> {
 impl Runner<'_> {
     /// Runs frames `order` of the sequence (truth to match), paced, from
     /// `start`.
-    fn run(&self, order: &[usize], start: StartMode, hint: Option<Pose>) -> Result<OfflineReport> {
+    fn run(
+        &self,
+        order: &[usize],
+        start: StartMode,
+        hint: Option<Pose>,
+    ) -> Result<(OfflineReport, Trajectory)> {
         let mut ds = self.dataset.clone();
         let stamps: Vec<f64> = self.dataset.frames.iter().map(|f| f.timestamp_s).collect();
         let mut truth = Trajectory::default();
@@ -369,7 +379,7 @@ impl Runner<'_> {
                 f
             })
             .collect();
-        ds.ground_truth = Some(truth);
+        ds.ground_truth = Some(truth.clone());
         let renderer =
             crate::render::select::make_configured_renderer(&self.config.render, self.mesh.clone())
                 .context("renderer")?;
@@ -383,13 +393,8 @@ impl Runner<'_> {
             start,
             ..OfflineOptions::default()
         };
-        Ok(localize_dataset(
-            &ds,
-            renderer,
-            self.config,
-            &options,
-            |_| {},
-        )?)
+        let report = localize_dataset(&ds, renderer, self.config, &options, |_| {})?;
+        Ok((report, truth))
     }
 }
 
@@ -405,6 +410,20 @@ impl Trial {
             self.wrong, self.sent
         );
     }
+}
+
+/// Camera time from `from_s` (the run's dataset time) to the first pose of
+/// `estimate` (the poses sent) at or after it that is correct (not wrong
+/// against `truth`, as the integrity count judges it); `None` when none
+/// came.
+fn first_correct_s(estimate: &Trajectory, truth: &Trajectory, from_s: f64) -> Option<f64> {
+    estimate
+        .stamps_s
+        .iter()
+        .zip(&estimate.poses)
+        .filter(|(t, _)| **t >= from_s)
+        .find(|(t, pose)| pose_error(truth, **t, pose).is_some_and(|e| !is_wrong(e)))
+        .map(|(t, _)| t - from_s)
 }
 
 fn trial(report: &OfflineReport, recovered_s: Option<f64>) -> Trial {
@@ -430,8 +449,9 @@ fn cold_starts(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<V
     (0..trials)
         .map(|_| {
             let order = excerpt(n, rng);
-            let report = runner.run(&order, StartMode::Cold, None)?;
-            let t = trial(&report, report.first_pose_wall_s);
+            let (report, truth) = runner.run(&order, StartMode::Cold, None)?;
+            let start_s = truth.stamps_s.first().copied().unwrap_or(0.0);
+            let t = trial(&report, first_correct_s(&report.estimate, &truth, start_s));
             t.print("cold start", &format!("frames {}..", order[0]));
             Ok(t)
         })
@@ -456,16 +476,15 @@ fn kidnaps(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<T
         }
         let order: Vec<usize> = (a..a + before).chain(b..b + after).collect();
         let jump_m = (position(b) - position(a + before - 1)).norm();
-        let report = runner.run(&order, StartMode::Trusted, Some(runner.truth.poses[a]))?;
-        // The first pose after the jump, in frames at 50 Hz.
+        let (report, truth) =
+            runner.run(&order, StartMode::Trusted, Some(runner.truth.poses[a]))?;
+        // The first correct pose after the jump, in frames at 50 Hz.
         let jump_s = before as f64 / 50.0;
-        let first_stamp = report.tracked.first().map_or(0.0, |t| t.0);
-        let recovered = report
-            .tracked
-            .iter()
-            .find(|(t, sent)| *sent && t - first_stamp >= jump_s)
-            .map(|(t, _)| t - first_stamp - jump_s);
-        let t = trial(&report, recovered);
+        let first_stamp = truth.stamps_s.first().copied().unwrap_or(0.0);
+        let t = trial(
+            &report,
+            first_correct_s(&report.estimate, &truth, first_stamp + jump_s),
+        );
         t.print(
             "kidnap",
             &format!(
@@ -494,8 +513,9 @@ fn wrong_hints(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<V
                 Translation3::from(truth.translation.vector + shift),
                 truth.rotation,
             );
-            let report = runner.run(&order, StartMode::Hint, Some(hint))?;
-            let t = trial(&report, report.first_pose_wall_s);
+            let (report, truth) = runner.run(&order, StartMode::Hint, Some(hint))?;
+            let start_s = truth.stamps_s.first().copied().unwrap_or(0.0);
+            let t = trial(&report, first_correct_s(&report.estimate, &truth, start_s));
             t.print(
                 "wrong hint",
                 &format!("frames {}.., {offset_m:.2} m off", order[0]),
@@ -525,4 +545,33 @@ fn print(what: &str, trials: &[Trial], within_s: f64) {
         100.0 * in_time as f64 / trials.len().max(1) as f64,
         trials.len() - times.len()
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at_x(x_m: f64) -> Pose {
+        Pose::from_parts(Translation3::new(x_m, 0.0, 1.4), Default::default())
+    }
+
+    #[test]
+    fn recovery_is_the_first_correct_pose_sent_not_the_first_pose() {
+        let mut truth = Trajectory::default();
+        for k in 0..10 {
+            truth.push(k as f64 * 0.02, at_x(0.0));
+        }
+        let mut estimate = Trajectory::default();
+        // Before the jump (not counted), then a wrong pose, then a right one.
+        estimate.push(0.02, at_x(0.0));
+        estimate.push(0.10, at_x(2.0));
+        estimate.push(0.14, at_x(0.05));
+        let s = first_correct_s(&estimate, &truth, 0.06).unwrap_or(f64::NAN);
+        assert!((s - 0.08).abs() < 1e-9, "{s}");
+        assert_eq!(first_correct_s(&estimate, &truth, 0.15), None);
+        // Only wrong poses after it: never recovered.
+        let mut wrong = Trajectory::default();
+        wrong.push(0.10, at_x(0.5));
+        assert_eq!(first_correct_s(&wrong, &truth, 0.0), None);
+    }
 }
