@@ -117,6 +117,13 @@ pub enum BenchCommand {
         /// there (the database of `star bench integrity --database`).
         #[arg(long, requires = "dataset")]
         database: Option<PathBuf>,
+        /// With `--dataset`: also search each query from a kidnapped prior,
+        /// the last known pose at another frame of the flight 1.5-5 m away,
+        /// lost long enough to reach half that distance (the truth beyond
+        /// reach) and then past the truth (within reach): what the service
+        /// faces after a kidnap, or a loss it did not see at once.
+        #[arg(long, requires = "dataset")]
+        kidnaps: bool,
         /// Also draw the map from above (PNG) with the database's views and
         /// each whole-map query marked by its outcome (`star map plan`).
         #[arg(long)]
@@ -169,6 +176,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
             seed,
             dataset,
             database,
+            kidnaps,
             plan,
         } => {
             let source = dataset
@@ -176,6 +184,7 @@ pub fn run(cmd: &BenchCommand) -> Result<()> {
                 .map(|dataset| crate::bench::reloc::DatasetSource {
                     dataset: dataset.clone(),
                     database: database.clone(),
+                    kidnaps: *kidnaps,
                 });
             crate::bench::reloc::run(
                 config.as_deref(),

@@ -68,6 +68,8 @@ use tally::Tally;
 /// paper's protocol); the near queries' prior is the service's after as
 /// long a loss as gives it this reach ([`MotionPrior::lost_s_for_radius`]).
 const WINDOW_RADIUS_M: f64 = 2.0;
+/// Mixes the query number into the kidnapped priors' seed.
+const KIDNAP_STREAM: u64 = 0x9e37_79b9_7f4a_7c15;
 
 /// Where `star bench reloc` draws its queries.
 #[derive(Debug, Clone, Default)]
@@ -78,7 +80,18 @@ pub struct DatasetSource {
     /// Its database over the flown region: read when the file exists, else
     /// built and written there.
     pub database: Option<std::path::PathBuf>,
+    /// Also search each query from kidnapped priors ([`KIDNAP_M`]).
+    pub kidnaps: bool,
 }
+
+/// A kidnapped prior's last known pose is the truth of another frame of
+/// the flight this far from the query, horizontally, meters. Its reach is
+/// then half that distance (the truth beyond it: a pose taken on the prior
+/// alone is wrong), and that distance plus [`KIDNAP_PAST_TRUTH_M`] (the
+/// truth within reach, and so may a look-alike be).
+const KIDNAP_M: (f64, f64) = (1.5, 5.0);
+/// How far the second kidnapped prior reaches past the truth, meters.
+const KIDNAP_PAST_TRUTH_M: f64 = 0.5;
 
 /// Runs the benchmark with `queries` random poses of the realistic scene
 /// of `seed`, or random frames of `source`.
@@ -102,6 +115,11 @@ pub fn run(
     let rank_candidates = bench.config.reloc.rank_candidates;
     let mut global = Tally::new(rank_candidates);
     let mut window = Tally::new(rank_candidates);
+    // Kidnapped priors: the truth beyond the reach, and within it.
+    let kidnaps = source.is_some_and(|s| s.kidnaps);
+    let mut kidnap_short = Tally::new(rank_candidates);
+    let mut kidnap_reach = Tally::new(rank_candidates);
+    let mut kidnapped = 0usize;
     let scales = scale::scales_from_env();
     let near_lost_s = MotionPrior::lost_s_for_radius(WINDOW_RADIUS_M, &bench.config.reloc);
     let near_turn_deg = (bench.config.reloc.search_yaw_deg
@@ -152,6 +170,39 @@ pub fn run(
             }
             tally.record(&query, &outcome);
         }
+        if kidnaps {
+            // Its own stream per query: the other searches draw as without.
+            let mut stream =
+                SplitMix64::new(seed ^ 0x6b1d_4a95 ^ (done as u64).wrapping_mul(KIDNAP_STREAM));
+            if let Some(last) = bench.kidnapped_from(&mut stream, &query, KIDNAP_M) {
+                kidnapped += 1;
+                let offset = last.translation.vector - query.position_m;
+                let distance_m = offset.x.hypot(offset.y);
+                let searches = [
+                    (0.5 * distance_m, &mut kidnap_short),
+                    (distance_m + KIDNAP_PAST_TRUTH_M, &mut kidnap_reach),
+                ];
+                for (reach_m, tally) in searches {
+                    let lost_s = MotionPrior::lost_s_for_radius(reach_m, &bench.config.reloc);
+                    let prior = MotionPrior::new(&last, lost_s, &bench.config.reloc);
+                    bench.draw_last_keyframe(&last);
+                    let wrong_before = tally.wrong.len();
+                    match bench.recover(&query, Some(prior), tally) {
+                        None => tally.rejected += 1,
+                        Some(outcome) => tally.record(&query, &outcome),
+                    }
+                    if let Some((err_m, err_deg, how)) = tally.wrong.get(wrong_before) {
+                        tracing::info!(
+                            query = done,
+                            distance_m = format!("{distance_m:.2}"),
+                            reach_m = format!("{:.2}", prior.radius_m),
+                            lost_s = format!("{lost_s:.2}"),
+                            "kidnapped prior: accepted {err_m:.2} m / {err_deg:.1} deg off ({how})"
+                        );
+                    }
+                }
+            }
+        }
     }
     bench.print_queries(done);
     global.print("whole map", done);
@@ -163,6 +214,22 @@ pub fn run(
         ),
         done,
     );
+    if kidnaps {
+        let (lo, hi) = KIDNAP_M;
+        kidnap_short.print(
+            &format!(
+                "kidnapped, the truth beyond reach (last known pose: another frame of the flight {lo}-{hi} m away; \
+                 reach half that distance; any pose taken within it is wrong)"
+            ),
+            kidnapped,
+        );
+        kidnap_reach.print(
+            &format!(
+                "kidnapped, the truth within reach (the same last pose; reach {KIDNAP_PAST_TRUTH_M} m past the truth)"
+            ),
+            kidnapped,
+        );
+    }
     tally::search_timing(&bench.db, bench.config.reloc.top_k as usize, seed);
     if let Some(path) = plan {
         draw_plan(path, &bench, seed, source, &cold)?;

@@ -88,6 +88,31 @@ impl Bench {
     }
 }
 
+impl Bench {
+    /// The last known pose of a kidnap to `query`: the true pose of a
+    /// random frame of the dataset's flight whose horizontal distance from
+    /// the query lies in `range_m`; `None` on synthetic queries, or when 64
+    /// draws find none.
+    pub(super) fn kidnapped_from(
+        &self,
+        rng: &mut SplitMix64,
+        query: &QueryFrame,
+        (min_m, max_m): (f64, f64),
+    ) -> Option<Pose> {
+        let Queries::Dataset { truth, .. } = &self.queries else {
+            return None;
+        };
+        if truth.poses.is_empty() {
+            return None;
+        }
+        (0..64).find_map(|_| {
+            let pose = *truth.poses.get(rng.below(truth.poses.len()))?;
+            let d = pose.translation.vector - query.position_m;
+            (min_m..=max_m).contains(&d.x.hypot(d.y)).then_some(pose)
+        })
+    }
+}
+
 /// Builds the frame's pyramid, and its locally normalized one when
 /// candidates are aligned on local contrast.
 fn fill_pyramids(
