@@ -214,7 +214,12 @@ pub fn run(
         ),
         done,
     );
-    if kidnaps {
+    if kidnaps && kidnapped == 0 {
+        let (lo, hi) = KIDNAP_M;
+        println!(
+            "  kidnapped priors: none drawn (no frame of the flight lies {lo}-{hi} m from a query)"
+        );
+    } else if kidnaps {
         let (lo, hi) = KIDNAP_M;
         kidnap_short.print(
             &format!(
