@@ -7,7 +7,9 @@
 //! descriptor's candidates, then the rivals of a pose the prior cannot
 //! vouch for), cold (no prior) and near the last position (the prior of a
 //! service lost for as long as gives a 2 m reach, facing the truth's
-//! heading); [`diagnose`] explains a whole-map query
+//! heading), and with `--kidnaps` from a last known pose at another
+//! frame of a dataset's flight (the truth beyond the prior's reach, then
+//! within it); [`diagnose`] explains a whole-map query
 //! (`STAR_BENCH_VERBOSE`); [`tally`] keeps and prints the figures and times
 //! the search. `--plan PNG` draws the map from above with the database's
 //! views and each whole-map query ringed by its outcome

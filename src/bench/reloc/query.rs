@@ -86,9 +86,7 @@ impl Bench {
             position_m: p,
         }))
     }
-}
 
-impl Bench {
     /// The last known pose of a kidnap to `query`: the true pose of a
     /// random frame of the dataset's flight whose horizontal distance from
     /// the query lies in `range_m`; `None` on synthetic queries, or when 64
