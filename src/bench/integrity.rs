@@ -116,6 +116,25 @@ struct Trial {
     /// sent, correct or not, and wall time for cold starts and hints: the
     /// same wherever no pose was wrong.
     recovered_s: Option<f64>,
+    /// The first wrong pose sent, if any: what sent it is what a reader of
+    /// the bench asks next (a look-alike metres away, or a correct place a
+    /// few centimetres past the line).
+    first_wrong: Option<WrongPose>,
+}
+
+/// A wrong pose sent, as a trial's line reports it.
+#[derive(Debug, Clone, Copy)]
+struct WrongPose {
+    /// Camera time from the start (cold, hint) or the jump (kidnap), s;
+    /// negative before a kidnap's jump.
+    after_s: f64,
+    /// Distance from the truth, m.
+    position_m: f64,
+    /// Rotation from the truth, degrees.
+    rotation_deg: f64,
+    /// Kidnaps: distance from the last true position before the jump (the
+    /// motion prior's centre), m.
+    from_prior_m: Option<f64>,
 }
 
 /// Runs the bench and prints its figures.
@@ -405,11 +424,47 @@ impl Trial {
             Some(s) => format!("first correct pose after {s:.2} s"),
             None => "never recovered".to_owned(),
         };
+        let first_wrong = self.first_wrong.map_or(String::new(), |w| {
+            let prior = w.from_prior_m.map_or(String::new(), |m| {
+                format!(", {m:.2} m from the last position before the jump")
+            });
+            format!(
+                " (the first at {:.2} s: {:.1} cm, {:.2} deg from the truth{prior})",
+                w.after_s,
+                100.0 * w.position_m,
+                w.rotation_deg
+            )
+        });
         println!(
-            "    {kind} ({place}): {recovered}; wrong poses {} of {}",
+            "    {kind} ({place}): {recovered}; wrong poses {} of {}{first_wrong}",
             self.wrong, self.sent
         );
     }
+}
+
+/// The first pose of `estimate` (the poses sent) that is wrong against
+/// `truth`, its time counted from `from_s` (the run's dataset time);
+/// `prior_position` (a kidnap's last true position before the jump) gives
+/// its distance from there.
+fn first_wrong(
+    estimate: &Trajectory,
+    truth: &Trajectory,
+    from_s: f64,
+    prior_position: Option<Vector3<f64>>,
+) -> Option<WrongPose> {
+    estimate
+        .stamps_s
+        .iter()
+        .zip(&estimate.poses)
+        .find_map(|(t, pose)| {
+            let error = pose_error(truth, *t, pose).filter(|e| is_wrong(*e))?;
+            Some(WrongPose {
+                after_s: t - from_s,
+                position_m: error.0,
+                rotation_deg: error.1,
+                from_prior_m: prior_position.map(|p| (pose.translation.vector - p).norm()),
+            })
+        })
 }
 
 /// Camera time from `from_s` (the run's dataset time) to the first pose of
@@ -426,12 +481,17 @@ fn first_correct_s(estimate: &Trajectory, truth: &Trajectory, from_s: f64) -> Op
         .map(|(t, _)| t - from_s)
 }
 
-fn trial(report: &OfflineReport, recovered_s: Option<f64>) -> Trial {
+fn trial(
+    report: &OfflineReport,
+    recovered_s: Option<f64>,
+    first_wrong: Option<WrongPose>,
+) -> Trial {
     let integrity = report.integrity.unwrap_or_default();
     Trial {
         wrong: integrity.wrong_poses,
         sent: report.estimate.len(),
         recovered_s,
+        first_wrong,
     }
 }
 
@@ -451,7 +511,11 @@ fn cold_starts(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<V
             let order = excerpt(n, rng);
             let (report, truth) = runner.run(&order, StartMode::Cold, None)?;
             let start_s = truth.stamps_s.first().copied().unwrap_or(0.0);
-            let t = trial(&report, first_correct_s(&report.estimate, &truth, start_s));
+            let t = trial(
+                &report,
+                first_correct_s(&report.estimate, &truth, start_s),
+                first_wrong(&report.estimate, &truth, start_s, None),
+            );
             t.print("cold start", &format!("frames {}..", order[0]));
             Ok(t)
         })
@@ -481,9 +545,16 @@ fn kidnaps(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<Vec<T
         // The first correct pose after the jump, in frames at 50 Hz.
         let jump_s = before as f64 / 50.0;
         let first_stamp = truth.stamps_s.first().copied().unwrap_or(0.0);
+        let jump_at_s = first_stamp + jump_s;
         let t = trial(
             &report,
-            first_correct_s(&report.estimate, &truth, first_stamp + jump_s),
+            first_correct_s(&report.estimate, &truth, jump_at_s),
+            first_wrong(
+                &report.estimate,
+                &truth,
+                jump_at_s,
+                Some(position(a + before - 1)),
+            ),
         );
         t.print(
             "kidnap",
@@ -515,7 +586,11 @@ fn wrong_hints(runner: &Runner, trials: usize, rng: &mut SplitMix64) -> Result<V
             );
             let (report, truth) = runner.run(&order, StartMode::Hint, Some(hint))?;
             let start_s = truth.stamps_s.first().copied().unwrap_or(0.0);
-            let t = trial(&report, first_correct_s(&report.estimate, &truth, start_s));
+            let t = trial(
+                &report,
+                first_correct_s(&report.estimate, &truth, start_s),
+                first_wrong(&report.estimate, &truth, start_s, None),
+            );
             t.print(
                 "wrong hint",
                 &format!("frames {}.., {offset_m:.2} m off", order[0]),
@@ -573,5 +648,28 @@ mod tests {
         let mut wrong = Trajectory::default();
         wrong.push(0.10, at_x(0.5));
         assert_eq!(first_correct_s(&wrong, &truth, 0.0), None);
+    }
+
+    #[test]
+    fn the_first_wrong_pose_is_reported_with_its_error_and_distance_from_the_prior() {
+        let mut truth = Trajectory::default();
+        for k in 0..10 {
+            truth.push(k as f64 * 0.02, at_x(0.0));
+        }
+        let mut estimate = Trajectory::default();
+        estimate.push(0.02, at_x(0.05)); // 5 cm: correct
+        estimate.push(0.10, at_x(0.12)); // 12 cm: the first wrong one
+        estimate.push(0.14, at_x(2.0)); // wrong too, not the first
+        let w = first_wrong(&estimate, &truth, 0.06, Some(Vector3::new(1.0, 0.0, 1.4)))
+            .expect("a wrong pose");
+        assert!((w.after_s - 0.04).abs() < 1e-9, "{}", w.after_s);
+        assert!((w.position_m - 0.12).abs() < 1e-9, "{}", w.position_m);
+        assert!(w.rotation_deg.abs() < 1e-9);
+        let from_prior_m = w.from_prior_m.unwrap_or(f64::NAN);
+        assert!((from_prior_m - 0.88).abs() < 1e-9, "{from_prior_m}");
+        // None wrong: nothing to report.
+        let mut right = Trajectory::default();
+        right.push(0.10, at_x(0.02));
+        assert!(first_wrong(&right, &truth, 0.0, None).is_none());
     }
 }
