@@ -610,7 +610,7 @@ impl Localizer {
             self.reloc = Some(reloc);
             return;
         }
-        match self.twin_passes(&reloc, &v, capture_ns) {
+        match self.twin_passes(&reloc, (&v, &rule), capture_ns) {
             Some(twin) => {
                 tracing::info!(
                     capture_ns,
@@ -740,12 +740,12 @@ impl Localizer {
     /// A pose where the frame also passes the gate through one of the map's
     /// known symmetries of the held pose (each way), more than
     /// [`AMBIGUITY_RADIUS_M`] away, and that the held pose does not beat by
-    /// a decisive correlation ([`Judgment::HeldIsBetter`]); `None` when
-    /// none does.
+    /// a decisive correlation ([`Judgment::HeldIsBetter`] under the
+    /// attempt's `rule`); `None` when none does.
     fn twin_passes(
         &mut self,
         reloc: &Relocalizer,
-        held: &Verified,
+        (held, rule): (&Verified, &RivalRule),
         capture_ns: u64,
     ) -> Option<Pose> {
         let config = reloc.gate();
@@ -764,7 +764,7 @@ impl Localizer {
                 let apart_m = (v.world_from_camera.translation.vector
                     - world_from_camera.translation.vector)
                     .norm();
-                let beaten = RivalRule::new(None).judge(
+                let beaten = rule.judge(
                     (world_from_camera, held.correlation),
                     (&v.world_from_camera, v.correlation),
                     true,

@@ -161,6 +161,9 @@ pub struct RivalRule {
     /// A pose through the lowered floor may be held beyond the prior's
     /// reach (`[reloc] lowered_floor_without_prior`, [`Self::may_hold`]).
     pub lowered_without_prior: bool,
+    /// A decisive correlation chooses between two places only when the
+    /// prior reaches one of them ([`Self::with_correlation_needing_prior`]).
+    pub correlation_needs_prior: bool,
 }
 
 impl RivalRule {
@@ -172,6 +175,33 @@ impl RivalRule {
             alone_min_local: f32::NEG_INFINITY,
             weak: false,
             lowered_without_prior: false,
+            correlation_needs_prior: false,
+        }
+    }
+
+    /// The rule where a decisive plain correlation ([`DECISIVE_MARGIN`])
+    /// chooses between two places that both pass the gate only when the
+    /// prior reaches one of them (`needs`); else, on a cold start or when
+    /// both lie beyond the prior's reach, the frame is refused as
+    /// ambiguous ([`Self::judge`]). For a scanned map
+    /// ([`crate::reloc::Relocalizer::rival_rule`], `[reloc]
+    /// scan_correlation_chooses_without_prior`).
+    ///
+    /// Why: [`DECISIVE_MARGIN`] was measured on the textured floor, whose
+    /// look-alike rooms differ in where their furniture stands. On a scan,
+    /// the baked light of one stretch of corridor can look more like the
+    /// frame than the frame's own place does: on the scanned floor a room
+    /// 40 m away read 0.84-0.86 where the truth read 0.74, and a paced
+    /// kidnap (`star bench integrity --kinds kidnap --seed 8`) held a place
+    /// 12.7 m from the truth and turned 180 degrees from it, 16.6 m from
+    /// the last position, because it read 0.75 against a second wrong
+    /// place's 0.63; the truth was never aligned, and a wrong pose was sent
+    /// (docs/building-scale.md, "A decisive correlation between two wrong
+    /// places").
+    pub fn with_correlation_needing_prior(self, needs: bool) -> Self {
+        Self {
+            correlation_needs_prior: needs,
+            ..self
         }
     }
 
@@ -316,13 +346,18 @@ impl RivalRule {
         let decisive = |a: f32, b: f32| {
             a >= DECISIVE_MIN_CORRELATION && a - b >= DECISIVE_MARGIN && b.is_finite()
         };
+        // On a scan, only between places of which the prior reaches one.
+        let may_choose = all_checked
+            && (!self.correlation_needs_prior
+                || self.prior_reaches(accepted)
+                || self.prior_reaches(rival));
         if !elsewhere(accepted, rival) {
             Judgment::SamePlace
         } else if self.prior_reaches(rival) && !self.prior_reaches(accepted) {
             Judgment::PriorChooses
-        } else if all_checked && decisive(accepted_correlation, rival_correlation) {
+        } else if may_choose && decisive(accepted_correlation, rival_correlation) {
             Judgment::HeldIsBetter
-        } else if all_checked && decisive(rival_correlation, accepted_correlation) {
+        } else if may_choose && decisive(rival_correlation, accepted_correlation) {
             Judgment::RivalIsBetter
         } else {
             Judgment::Ambiguous
@@ -727,6 +762,43 @@ mod tests {
         assert_eq!(
             cold.judge((&here, 0.9), (&pose(0.5, 0.0), 0.5), true),
             Judgment::SamePlace
+        );
+    }
+
+    #[test]
+    fn on_a_scan_a_decisive_correlation_chooses_only_where_the_prior_reaches_one_place() {
+        // The paced kidnap on the scanned floor: two places beyond the
+        // prior's reach, 0.75 against 0.63; the truth was neither.
+        let (far, farther) = (pose(12.0, 180.0), pose(21.0, 180.0));
+        let scan = |rule: RivalRule| rule.with_correlation_needing_prior(true);
+        for rule in [scan(near_origin()), scan(RivalRule::new(None))] {
+            assert_eq!(
+                rule.judge((&far, 0.75), (&farther, 0.63), true),
+                Judgment::Ambiguous
+            );
+            assert_eq!(
+                rule.judge((&farther, 0.63), (&far, 0.75), true),
+                Judgment::Ambiguous
+            );
+        }
+        // A textured map's rule still chooses there.
+        assert_eq!(
+            near_origin().judge((&far, 0.75), (&farther, 0.63), true),
+            Judgment::HeldIsBetter
+        );
+        // Where the prior reaches the held pose, the correlation chooses
+        // on a scan too (the window search's turned look-alike, told apart
+        // from the truth by its correlation).
+        let scan_near = scan(near_origin());
+        let (here, turned_there) = (pose(0.5, 0.0), pose(1.6, 0.0));
+        assert!(scan_near.prior_reaches(&here) && scan_near.prior_reaches(&turned_there));
+        assert_eq!(
+            scan_near.judge((&here, 0.88), (&turned_there, 0.72), true),
+            Judgment::HeldIsBetter
+        );
+        assert_eq!(
+            scan_near.judge((&far, 0.88), (&here, 0.72), true),
+            Judgment::PriorChooses
         );
     }
 }
