@@ -179,16 +179,18 @@ pub struct RelocConfig {
     /// (docs/building-scale.md, "The lowered first level on a cold
     /// start"). Turn it on only for a map whose places do not repeat.
     pub lowered_floor_without_prior: bool,
-    /// On a map checked for geometric twins (a scan), whether a decisive
-    /// plain correlation ([`crate::reloc::rivals::DECISIVE_MARGIN`]) may
-    /// choose between two places that both pass the gate when the motion
-    /// prior reaches neither (a cold start, a kidnap). Off by default: the
-    /// margin was measured on textured look-alike rooms, and on the scanned
+    /// On a map checked for geometric twins (a scan), the least plain
+    /// correlation of the place a decisive correlation
+    /// ([`crate::reloc::rivals::DECISIVE_MARGIN`]) chooses between two
+    /// places that both pass the gate, when the motion prior reaches
+    /// neither (a cold start, a kidnap); 0.7 elsewhere. On the scanned
     /// floor a paced kidnap held a place 12.7 m from the truth because it
-    /// read 0.75 against another wrong place's 0.63, and sent it
-    /// ([`crate::reloc::rivals::RivalRule::with_correlation_needing_prior`]).
-    /// Textured maps keep the choice either way.
-    pub scan_correlation_chooses_without_prior: bool,
+    /// read 0.749 against another wrong place's 0.627, and sent it; over 6
+    /// seeds of `star bench reloc` the wrong places so chosen read
+    /// 0.742-0.744 and the right ones 0.77-0.93 (docs/building-scale.md,
+    /// [`crate::reloc::rivals::RivalRule::with_decisive_floor_without_prior`]).
+    /// 0.7 chooses as on a textured map; above 1 never chooses there.
+    pub twin_checked_decisive_min_correlation: f32,
     /// Whether the gate's inlier floor (`min_inlier_ratio`, or
     /// `twin_checked_min_inlier_ratio` on a twin-checked map) is divided by
     /// the alignment's photometric gain where the camera sees the map
@@ -328,7 +330,7 @@ impl Default for RelocConfig {
             min_local_correlation_at_map_detail: 0.5,
             prior_alone_min_local_correlation: 0.8,
             lowered_floor_without_prior: false,
-            scan_correlation_chooses_without_prior: false,
+            twin_checked_decisive_min_correlation: 0.8,
             inlier_floor_follows_gain: true,
             min_gain: 0.25,
             max_gain: 4.0,

@@ -214,11 +214,30 @@ impl Bench {
                     let Some(r) = self.try_one(&c, tally) else {
                         continue;
                     };
-                    match rule.judge(
+                    let judgment = rule.judge(
                         (&held.world_from_camera, held.correlation),
                         (&r.world_from_camera, r.correlation),
                         all_checked,
-                    ) {
+                    );
+                    if matches!(judgment, Judgment::HeldIsBetter | Judgment::RivalIsBetter) {
+                        // Which place the correlation chose, and whether it
+                        // was the truth: the margin's evidence on this map.
+                        let off_m = |p: &Pose| {
+                            (p.translation.vector - query.truth.translation.vector).norm()
+                        };
+                        tracing::info!(
+                            held_correlation = held.correlation,
+                            held_off_m = off_m(&held.world_from_camera),
+                            held_right = is_right(query, &held.world_from_camera),
+                            rival_correlation = r.correlation,
+                            rival_off_m = off_m(&r.world_from_camera),
+                            rival_right = is_right(query, &r.world_from_camera),
+                            rival_better = judgment == Judgment::RivalIsBetter,
+                            prior = rule.has_prior(),
+                            "two places passed; a decisive correlation chose"
+                        );
+                    }
+                    match judgment {
                         Judgment::SamePlace => {}
                         Judgment::HeldIsBetter => {
                             tally.decisive += 1;
