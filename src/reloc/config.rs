@@ -182,14 +182,13 @@ pub struct RelocConfig {
     /// On a map checked for geometric twins (a scan), the least plain
     /// correlation of the place a decisive correlation
     /// ([`crate::reloc::rivals::DECISIVE_MARGIN`]) chooses between two
-    /// places that both pass the gate, when the motion prior reaches
-    /// neither (a cold start, a kidnap); 0.7 elsewhere. On the scanned
-    /// floor a paced kidnap held a place 12.7 m from the truth because it
-    /// read 0.749 against another wrong place's 0.627, and sent it; over 6
-    /// seeds of `star bench reloc` the wrong places so chosen read
-    /// 0.742-0.744 and the right ones 0.77-0.93 (docs/building-scale.md,
-    /// [`crate::reloc::rivals::RivalRule::with_decisive_floor_without_prior`]).
-    /// 0.7 chooses as on a textured map; above 1 never chooses there.
+    /// places that both pass the gate; 0.7 elsewhere. On the scanned floor
+    /// a paced kidnap held a place 12.7 m from the truth because it read
+    /// 0.749 against another wrong place's 0.627, and sent it; over 6 seeds
+    /// of `star bench reloc` 48 choices took the right place at 0.77-0.93
+    /// and 3 a wrong one at 0.744-0.753 (docs/building-scale.md,
+    /// [`crate::reloc::rivals::RivalRule::with_decisive_floor`]). 0.7
+    /// chooses as on a textured map; above 1 never chooses.
     pub twin_checked_decisive_min_correlation: f32,
     /// Whether the gate's inlier floor (`min_inlier_ratio`, or
     /// `twin_checked_min_inlier_ratio` on a twin-checked map) is divided by

@@ -190,16 +190,14 @@ impl Relocalizer {
     /// ([`super::rivals::RivalRule::with_alone_floor`]); a pose through the
     /// lowered first level is held beyond the prior's reach only with
     /// `[reloc] lowered_floor_without_prior`, and a decisive correlation
-    /// chooses between two places the prior reaches neither of only for
-    /// one that correlates `[reloc] twin_checked_decisive_min_correlation`.
+    /// chooses between two places only for one that correlates `[reloc]
+    /// twin_checked_decisive_min_correlation`.
     pub fn rival_rule(&self, prior: Option<super::prior::MotionPrior>) -> super::rivals::RivalRule {
         let rule = super::rivals::RivalRule::new(prior)
             .with_lowered_without_prior(self.config.lowered_floor_without_prior);
         if self.twins.has_map() {
             rule.with_alone_floor(self.config.prior_alone_min_local_correlation)
-                .with_decisive_floor_without_prior(
-                    self.config.twin_checked_decisive_min_correlation,
-                )
+                .with_decisive_floor(self.config.twin_checked_decisive_min_correlation)
         } else {
             rule
         }
