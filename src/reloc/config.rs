@@ -516,6 +516,14 @@ impl RelocConfig {
                 ),
             ),
             (
+                "twin_checked_decisive_min_correlation",
+                self.twin_checked_decisive_min_correlation.is_finite(),
+                format!(
+                    "expected a number (0.7 chooses as on a textured map, above 1 never), found {}",
+                    self.twin_checked_decisive_min_correlation
+                ),
+            ),
+            (
                 "min_local_correlation",
                 self.min_local_correlation.is_finite()
                     && (-1.0..=1.0).contains(&self.min_local_correlation),
@@ -705,7 +713,7 @@ mod tests {
     }
 
     #[test]
-    fn a_bad_heading_bound_names_its_key() {
+    fn a_bad_heading_bound_or_decisive_floor_names_its_key() {
         for (config, key) in [
             (
                 RelocConfig {
@@ -727,6 +735,13 @@ mod tests {
                     ..RelocConfig::default()
                 },
                 "max_yaw_rate_deg_s",
+            ),
+            (
+                RelocConfig {
+                    twin_checked_decisive_min_correlation: f32::NAN,
+                    ..RelocConfig::default()
+                },
+                "twin_checked_decisive_min_correlation",
             ),
         ] {
             let Err(e) = config.validate() else {

@@ -789,10 +789,10 @@ mod tests {
         // Within the prior's reach too: two wrong places 1.3 and 1.5 m
         // from the truth, 0.753 against 0.618 (`star bench reloc`, seed 1).
         let scan_near = scan(near_origin());
-        let (here, turned_there) = (pose(0.5, 0.0), pose(1.6, 0.0));
-        assert!(scan_near.prior_reaches(&here) && scan_near.prior_reaches(&turned_there));
+        let (here, there) = (pose(0.5, 0.0), pose(1.6, 0.0));
+        assert!(scan_near.prior_reaches(&here) && scan_near.prior_reaches(&there));
         assert_eq!(
-            scan_near.judge((&here, 0.753), (&turned_there, 0.618), true),
+            scan_near.judge((&here, 0.753), (&there, 0.618), true),
             Judgment::Ambiguous
         );
         // A textured map's rule keeps the floor of 0.7.
