@@ -402,7 +402,7 @@ impl RelocConfig {
                 ),
             ));
         }
-        let checks: [(&'static str, bool, String); 37] = [
+        let checks: [(&'static str, bool, String); 38] = [
             (
                 "yaw_steps",
                 (1..=360).contains(&self.yaw_steps),
