@@ -17,7 +17,9 @@
 //! (the radius above, and `search_yaw_deg + max_yaw_rate_deg_s x (time
 //! lost)` of the last heading) becomes the keyframe and the prediction; one
 //! the prior cannot vouch for (a cold start, a kidnap, a pose turned half
-//! round in a symmetric room) is held while its rivals at other places are
+//! round in a symmetric room, on a scan one with little local contrast) is
+//! held while its rivals at other places (on a scan the landmark poses at
+//! the frame's other places first) are
 //! verified ([`crate::reloc::rivals::RivalRule`], the rule `star bench
 //! reloc` measures) and at the map's remembered symmetries, and refused
 //! when one passes, unless one of the two places correlates decisively
@@ -482,10 +484,14 @@ impl Localizer {
                 candidates.get_mut(n..).unwrap_or(&mut []),
             );
         }
-        // Beyond the prior's reach (a cold start): the landmark poses at the
-        // other places the frame's corners fit come first among the rivals
-        // (already among the candidates when the search reached them).
-        if !rule.prior_reaches(&v.world_from_camera) && !elsewhere_gathered {
+        // The landmark poses at the other places the frame's corners fit
+        // come first among the rivals (already among the candidates when a
+        // cold start's search reached them): beyond the prior's reach, and
+        // within it for a pose the prior does not vouch for alone, where
+        // they are verified on top of the near rivals
+        // (`RivalRule::with_landmark_rivals`).
+        let mut landmark_rivals = 0;
+        if rule.lists_landmark_rivals(&v.world_from_camera) && !elsewhere_gathered {
             let m = MAX_LANDMARK_ELSEWHERE.min(candidates.len() - n);
             candidates.copy_within(0..n, m);
             let added = reloc.landmark_rivals(&v.world_from_camera, &mut candidates[..m]);
@@ -493,7 +499,9 @@ impl Localizer {
                 candidates.copy_within(m..m + n, added);
             }
             n += added;
+            landmark_rivals = added;
         }
+        let rule = rule.with_landmark_rivals(landmark_rivals);
         let mut rivals = [0usize; LISTED_RIVALS];
         let n_rivals = rule.rivals(
             candidates.get(..n).unwrap_or(&[]),

@@ -28,10 +28,13 @@
 //!   alikes anywhere), [`NEAR_MAX_RIVALS`] within
 //!   [`NEAR_RIVAL_SCORE_MARGIN`] inside the radius but turned beyond the
 //!   heading bound (the twins are out of reach: only the place's own
-//!   symmetry can fool the gate);
+//!   symmetry can fool the gate), and on top of it, within the prior's
+//!   reach, the landmark poses at the frame's other places
+//!   ([`RivalRule::with_landmark_rivals`]);
 //! - which candidates are rivals ([`RivalRule::rivals`], built on
 //!   [`RivalRule::is_rival`]; on a scan the caller puts the landmark poses
-//!   at the other places the frame fits first,
+//!   at the other places the frame fits first for every pose held,
+//!   [`RivalRule::lists_landmark_rivals`],
 //!   [`crate::reloc::Relocalizer::landmark_rivals`]): more than
 //!   [`RIVAL_MIN_M`] from the pose,
 //!   not tried yet in this attempt, scored within the margin of the best
@@ -165,6 +168,11 @@ pub struct RivalRule {
     /// chooses ([`Self::with_decisive_floor`]; [`DECISIVE_MIN_CORRELATION`]
     /// by default).
     pub decisive_min_correlation: f32,
+    /// How many landmark poses at the frame's other places the caller
+    /// listed first among the rivals of a held pose within the prior's
+    /// reach ([`Self::with_landmark_rivals`]): verified on top of the
+    /// budget.
+    pub landmark_rivals: usize,
 }
 
 impl RivalRule {
@@ -177,6 +185,7 @@ impl RivalRule {
             weak: false,
             lowered_without_prior: false,
             decisive_min_correlation: DECISIVE_MIN_CORRELATION,
+            landmark_rivals: 0,
         }
     }
 
@@ -204,6 +213,40 @@ impl RivalRule {
             decisive_min_correlation: min_correlation,
             ..self
         }
+    }
+
+    /// The rule for a held pose among whose rivals the caller listed `added`
+    /// landmark poses at the frame's other places first
+    /// ([`crate::reloc::Relocalizer::landmark_rivals`]). Within the prior's
+    /// reach they are verified on top of [`Self::budget`]'s rivals, so that
+    /// the place's own symmetry (the near rivals) is still checked; beyond
+    /// it they are among the budget's, as they always were.
+    ///
+    /// Why: on a scanned map the prior does not vouch alone for a pose
+    /// with little local contrast ([`Self::weak`]), and its near rivals
+    /// (the database's views, ranked by the whole-image descriptor) do not
+    /// hold the true place where it is a look-alike room within reach. On
+    /// the scanned floor a kidnapped prior's search (`star bench reloc
+    /// --kidnaps`, seed 7, query 9) took a landmark pose 7.98 m from the
+    /// truth and turned 90 degrees (local contrast 0.75): its two near
+    /// rivals failed the gate, and the truth, which the same frame's cold
+    /// search found at plain correlation 0.92 with this very place as its
+    /// rival, was never verified (docs/building-scale.md, "The landmarks'
+    /// other places as rivals within reach").
+    pub fn with_landmark_rivals(self, added: usize) -> Self {
+        Self {
+            landmark_rivals: added,
+            ..self
+        }
+    }
+
+    /// Whether the landmark poses at the other places the frame's corners
+    /// fit are listed first among the rivals of `held`: for every pose the
+    /// rule does not accept alone ([`Self::accepts_alone`]), beyond the
+    /// prior's reach and, for a pose the prior cannot vouch for alone (too
+    /// little local contrast, or through the lowered floor), within it.
+    pub fn lists_landmark_rivals(&self, held: &Pose) -> bool {
+        !self.accepts_alone(held)
     }
 
     /// The rule where a pose through the lowered floor may (`allowed`) or
@@ -303,7 +346,7 @@ impl RivalRule {
 
     /// How many rivals `accepted` must beat, and within what score margin.
     pub fn budget(&self, accepted: &Pose) -> Budget {
-        match self.prior {
+        let budget = match self.prior {
             _ if self.lowered => Budget {
                 max: MAX_RIVALS,
                 margin: RIVAL_SCORE_MARGIN,
@@ -320,6 +363,16 @@ impl RivalRule {
                 max: MAX_RIVALS,
                 margin: RIVAL_SCORE_MARGIN,
             },
+        };
+        // Within reach, the landmark poses at the frame's other places come
+        // on top ([`Self::with_landmark_rivals`]).
+        if budget.max > 0 && self.prior_reaches(accepted) {
+            Budget {
+                max: budget.max + self.landmark_rivals,
+                ..budget
+            }
+        } else {
+            budget
         }
     }
 
@@ -474,7 +527,7 @@ fn same_place(a: &Pose, b: &Pose) -> bool {
 mod tests {
     use super::*;
     use crate::geometry::look::camera_rotation;
-    use crate::reloc::{Ranked, RelocConfig};
+    use crate::reloc::{Ranked, RelocConfig, LANDMARK_ELSEWHERE};
     use nalgebra::Translation3;
 
     /// A camera at `x` on the x axis looking along `yaw_deg`.
@@ -599,6 +652,7 @@ mod tests {
         let weak = scanned.for_held(false, 0.714);
         assert!(weak.vouches_for_place(&accepted));
         assert!(!weak.accepts_alone(&accepted));
+        assert!(weak.lists_landmark_rivals(&accepted));
         assert_eq!(
             weak.budget(&accepted),
             Budget {
@@ -619,6 +673,73 @@ mod tests {
             .accepts_alone(&accepted));
         // A figure that is not a number is no confidence.
         assert!(!scanned.for_held(false, f32::NAN).accepts_alone(&accepted));
+    }
+
+    #[test]
+    fn a_weak_pose_within_reach_has_the_landmark_places_verified_on_top_of_its_near_rivals() {
+        // The scanned floor's kidnapped search (seed 7, query 9): a landmark
+        // pose within the prior's reach, 8 m from the truth and turned 90
+        // degrees, local contrast 0.75; the truth (here 2 m away, where the
+        // frame's corners fit too) was never verified.
+        let held = pose(1.8, 90.0);
+        let truth = pose(-0.2, 0.0);
+        let weak = near_origin().with_alone_floor(0.8).for_held(false, 0.75);
+        assert!(weak.prior_reaches(&held) && weak.lists_landmark_rivals(&held));
+        // The landmark poses elsewhere first (unscored, as the locator gives
+        // them), then two near views that are the place's own symmetry.
+        let candidates = [
+            Candidate {
+                score: f32::INFINITY,
+                world_from_camera: truth,
+                ..at(LANDMARK_ELSEWHERE, 0.0, 0.0)
+            },
+            Candidate {
+                score: f32::INFINITY,
+                world_from_camera: pose(6.0, 0.0),
+                ..at(LANDMARK_ELSEWHERE - 1, 0.0, 0.0)
+            },
+            at(1, 1.8, 0.9),
+            Candidate {
+                world_from_camera: pose(0.3, 270.0),
+                ..at(2, 0.0, 0.85)
+            },
+            at(3, 3.5, 0.8),
+        ];
+        let rule = weak.with_landmark_rivals(2);
+        assert_eq!(
+            rule.budget(&held),
+            Budget {
+                max: NEAR_MAX_RIVALS + 2,
+                margin: NEAR_RIVAL_SCORE_MARGIN
+            }
+        );
+        let mut out = [usize::MAX; LISTED_RIVALS];
+        let n = rule.rivals(&candidates, &held, &[], &mut out);
+        // Both landmark places and both near views are verified.
+        assert_eq!(&out[..n], &[0, 1, 3, 4]);
+        assert!(n <= rule.budget(&held).max);
+        // The truth correlates decisively better: held instead (0.8 on a
+        // scan), else the frame is refused.
+        let scanned = rule.with_decisive_floor(0.8);
+        assert_eq!(
+            scanned.judge((&held, 0.73), (&truth, 0.92), true),
+            Judgment::RivalIsBetter
+        );
+        assert_eq!(
+            scanned.judge((&held, 0.73), (&truth, 0.78), true),
+            Judgment::Ambiguous
+        );
+        // Without landmark rivals the budget is the near one, and beyond
+        // the prior's reach they are among the budget's, as before.
+        assert_eq!(weak.budget(&held).max, NEAR_MAX_RIVALS);
+        let far = pose(9.0, 0.0);
+        let beyond = near_origin().with_landmark_rivals(3);
+        assert!(beyond.lists_landmark_rivals(&far));
+        assert_eq!(beyond.budget(&far).max, MAX_RIVALS);
+        // A pose the prior vouches for alone lists none and has no budget.
+        let strong = near_origin().with_alone_floor(0.8).for_held(false, 0.85);
+        assert!(!strong.lists_landmark_rivals(&held));
+        assert_eq!(strong.with_landmark_rivals(3).budget(&held).max, 0);
     }
 
     #[test]

@@ -184,9 +184,10 @@ impl Bench {
                         region_searched = true;
                     }
                 }
-                // Beyond the prior's reach: the landmark poses at the other
-                // places the frame's corners fit come first among the rivals.
-                if !rule.prior_reaches(&v.world_from_camera) && !elsewhere_gathered {
+                // The landmark poses at the other places the frame's corners
+                // fit come first among the rivals (as the service).
+                let mut landmark_rivals = 0;
+                if rule.lists_landmark_rivals(&v.world_from_camera) && !elsewhere_gathered {
                     let mut elsewhere_found = [Candidate::default(); MAX_LANDMARK_ELSEWHERE];
                     let m = self
                         .reloc
@@ -198,7 +199,9 @@ impl Bench {
                         .position(|c| c.ranked.index != LANDMARK_CANDIDATE)
                         .unwrap_or(candidates.len());
                     candidates.splice(at..at, elsewhere_found[..m].iter().copied());
+                    landmark_rivals = m;
                 }
+                let rule = rule.with_landmark_rivals(landmark_rivals);
                 let mut rivals = [0usize; LISTED_RIVALS];
                 let n = rule.rivals(&candidates, &v.world_from_camera, &tried, &mut rivals);
                 let all_checked = rule.count_rivals(&candidates, &v.world_from_camera, &tried) <= n;
