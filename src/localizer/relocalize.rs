@@ -509,11 +509,14 @@ impl Localizer {
             tried.get(..n_tried).unwrap_or(&[]),
             &mut rivals,
         );
-        let all_checked = rule.count_rivals(
-            candidates.get(..n).unwrap_or(&[]),
-            &v.world_from_camera,
-            tried.get(..n_tried).unwrap_or(&[]),
-        ) <= n_rivals;
+        let all_checked = rule.may_decide(
+            n_rivals,
+            rule.count_rivals(
+                candidates.get(..n).unwrap_or(&[]),
+                &v.world_from_camera,
+                tried.get(..n_tried).unwrap_or(&[]),
+            ),
+        );
         // The budget's rivals, and the rest of the list only once a
         // decisive correlation has chosen between two places.
         let first_rivals = rule.budget(&v.world_from_camera).max;

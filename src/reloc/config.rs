@@ -190,6 +190,14 @@ pub struct RelocConfig {
     /// [`crate::reloc::rivals::RivalRule::with_decisive_floor`]). 0.7
     /// chooses as on a textured map; above 1 never chooses.
     pub twin_checked_decisive_min_correlation: f32,
+    /// On a map checked for geometric twins (a scan), whether a decisive
+    /// correlation may choose between two places once the listed rivals
+    /// are verified (up to 8), though more places were eligible; elsewhere
+    /// only when every eligible place was listed. On the scanned floor the
+    /// place chosen at the floor above was never a wrong one in 254 pairs,
+    /// and 42 frames of 1 400 searches were refused only for the places
+    /// left unlisted ([`crate::reloc::rivals::RivalRule::with_listed_rivals_deciding`]).
+    pub twin_checked_decisive_with_listed_rivals: bool,
     /// Whether the gate's inlier floor (`min_inlier_ratio`, or
     /// `twin_checked_min_inlier_ratio` on a twin-checked map) is divided by
     /// the alignment's photometric gain where the camera sees the map
@@ -330,6 +338,7 @@ impl Default for RelocConfig {
             prior_alone_min_local_correlation: 0.8,
             lowered_floor_without_prior: false,
             twin_checked_decisive_min_correlation: 0.8,
+            twin_checked_decisive_with_listed_rivals: true,
             inlier_floor_follows_gain: true,
             min_gain: 0.25,
             max_gain: 4.0,

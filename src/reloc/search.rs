@@ -198,6 +198,7 @@ impl Relocalizer {
         if self.twins.has_map() {
             rule.with_alone_floor(self.config.prior_alone_min_local_correlation)
                 .with_decisive_floor(self.config.twin_checked_decisive_min_correlation)
+                .with_listed_rivals_deciding(self.config.twin_checked_decisive_with_listed_rivals)
         } else {
             rule
         }

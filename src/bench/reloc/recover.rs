@@ -204,7 +204,10 @@ impl Bench {
                 let rule = rule.with_landmark_rivals(landmark_rivals);
                 let mut rivals = [0usize; LISTED_RIVALS];
                 let n = rule.rivals(&candidates, &v.world_from_camera, &tried, &mut rivals);
-                let all_checked = rule.count_rivals(&candidates, &v.world_from_camera, &tried) <= n;
+                let all_checked = rule.may_decide(
+                    n,
+                    rule.count_rivals(&candidates, &v.world_from_camera, &tried),
+                );
                 let mut held = v;
                 let first_rivals = rule.budget(&v.world_from_camera).max;
                 let mut decided = false;
@@ -222,17 +225,18 @@ impl Bench {
                         (&r.world_from_camera, r.correlation),
                         all_checked,
                     );
+                    let off_m =
+                        |p: &Pose| (p.translation.vector - query.truth.translation.vector).norm();
                     if matches!(judgment, Judgment::HeldIsBetter | Judgment::RivalIsBetter) {
                         // Which place the correlation chose, and whether it
                         // was the truth: the margin's evidence on this map.
-                        let off_m = |p: &Pose| {
-                            (p.translation.vector - query.truth.translation.vector).norm()
-                        };
                         tracing::info!(
                             held_correlation = held.correlation,
+                            held_local = held.local_correlation,
                             held_off_m = off_m(&held.world_from_camera),
                             held_right = is_right(query, &held.world_from_camera),
                             rival_correlation = r.correlation,
+                            rival_local = r.local_correlation,
                             rival_off_m = off_m(&r.world_from_camera),
                             rival_right = is_right(query, &r.world_from_camera),
                             rival_better = judgment == Judgment::RivalIsBetter,
@@ -262,6 +266,20 @@ impl Bench {
                             break;
                         }
                         Judgment::Ambiguous => {
+                            tracing::debug!(
+                                held_correlation = held.correlation,
+                                held_local = held.local_correlation,
+                                held_off_m = off_m(&held.world_from_camera),
+                                held_right = is_right(query, &held.world_from_camera),
+                                rival_correlation = r.correlation,
+                                rival_local = r.local_correlation,
+                                rival_off_m = off_m(&r.world_from_camera),
+                                rival_right = is_right(query, &r.world_from_camera),
+                                rival_landmark = is_landmark_index(c.ranked.index),
+                                all_checked,
+                                prior = rule.has_prior(),
+                                "two places passed; neither the prior nor a decisive correlation chose"
+                            );
                             tally.ambiguous += 1;
                             tally.ambiguous_with_truth += usize::from(
                                 is_right(query, &held.world_from_camera)
