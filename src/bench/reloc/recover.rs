@@ -225,12 +225,17 @@ impl Bench {
                         (&r.world_from_camera, r.correlation),
                         all_checked,
                     );
-                    let off_m =
-                        |p: &Pose| (p.translation.vector - query.truth.translation.vector).norm();
-                    if matches!(judgment, Judgment::HeldIsBetter | Judgment::RivalIsBetter) {
-                        // Which place the correlation chose, and whether it
-                        // was the truth: the margin's evidence on this map.
+                    if matches!(
+                        judgment,
+                        Judgment::HeldIsBetter | Judgment::RivalIsBetter | Judgment::Ambiguous
+                    ) {
+                        // Both places, and which the rule chose (none where
+                        // ambiguous): the margin's evidence on this map.
+                        let off_m = |p: &Pose| {
+                            (p.translation.vector - query.truth.translation.vector).norm()
+                        };
                         tracing::info!(
+                            ?judgment,
                             held_correlation = held.correlation,
                             held_local = held.local_correlation,
                             held_off_m = off_m(&held.world_from_camera),
@@ -239,9 +244,10 @@ impl Bench {
                             rival_local = r.local_correlation,
                             rival_off_m = off_m(&r.world_from_camera),
                             rival_right = is_right(query, &r.world_from_camera),
-                            rival_better = judgment == Judgment::RivalIsBetter,
+                            rival_landmark = is_landmark_index(c.ranked.index),
+                            all_checked,
                             prior = rule.has_prior(),
-                            "two places passed; a decisive correlation chose"
+                            "two places passed"
                         );
                     }
                     match judgment {
@@ -266,20 +272,6 @@ impl Bench {
                             break;
                         }
                         Judgment::Ambiguous => {
-                            tracing::debug!(
-                                held_correlation = held.correlation,
-                                held_local = held.local_correlation,
-                                held_off_m = off_m(&held.world_from_camera),
-                                held_right = is_right(query, &held.world_from_camera),
-                                rival_correlation = r.correlation,
-                                rival_local = r.local_correlation,
-                                rival_off_m = off_m(&r.world_from_camera),
-                                rival_right = is_right(query, &r.world_from_camera),
-                                rival_landmark = is_landmark_index(c.ranked.index),
-                                all_checked,
-                                prior = rule.has_prior(),
-                                "two places passed; neither the prior nor a decisive correlation chose"
-                            );
                             tally.ambiguous += 1;
                             tally.ambiguous_with_truth += usize::from(
                                 is_right(query, &held.world_from_camera)
