@@ -491,7 +491,7 @@ impl Localizer {
         // they are verified on top of the near rivals
         // (`RivalRule::with_landmark_rivals`).
         let mut landmark_rivals = 0;
-        if rule.lists_landmark_rivals(&v.world_from_camera) && !elsewhere_gathered {
+        if !elsewhere_gathered {
             let m = MAX_LANDMARK_ELSEWHERE.min(candidates.len() - n);
             candidates.copy_within(0..n, m);
             let added = reloc.landmark_rivals(&v.world_from_camera, &mut candidates[..m]);

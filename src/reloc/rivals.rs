@@ -33,8 +33,8 @@
 //!   ([`RivalRule::with_landmark_rivals`]);
 //! - which candidates are rivals ([`RivalRule::rivals`], built on
 //!   [`RivalRule::is_rival`]; on a scan the caller puts the landmark poses
-//!   at the other places the frame fits first for every pose held,
-//!   [`RivalRule::lists_landmark_rivals`],
+//!   at the other places the frame fits first for every pose held, one
+//!   not accepted alone, within the prior's reach too,
 //!   [`crate::reloc::Relocalizer::landmark_rivals`]): more than
 //!   [`RIVAL_MIN_M`] from the pose,
 //!   not tried yet in this attempt, scored within the margin of the best
@@ -277,15 +277,6 @@ impl RivalRule {
             landmark_rivals: added,
             ..self
         }
-    }
-
-    /// Whether the landmark poses at the other places the frame's corners
-    /// fit are listed first among the rivals of `held`: for every pose the
-    /// rule does not accept alone ([`Self::accepts_alone`]), beyond the
-    /// prior's reach and, for a pose the prior cannot vouch for alone (too
-    /// little local contrast, or through the lowered floor), within it.
-    pub fn lists_landmark_rivals(&self, held: &Pose) -> bool {
-        !self.accepts_alone(held)
     }
 
     /// The rule where a pose through the lowered floor may (`allowed`) or
@@ -691,7 +682,7 @@ mod tests {
         let weak = scanned.for_held(false, 0.714);
         assert!(weak.vouches_for_place(&accepted));
         assert!(!weak.accepts_alone(&accepted));
-        assert!(weak.lists_landmark_rivals(&accepted));
+        assert!(!weak.accepts_alone(&accepted));
         assert_eq!(
             weak.budget(&accepted),
             Budget {
@@ -723,7 +714,7 @@ mod tests {
         let held = pose(1.8, 90.0);
         let truth = pose(-0.2, 0.0);
         let weak = near_origin().with_alone_floor(0.8).for_held(false, 0.75);
-        assert!(weak.prior_reaches(&held) && weak.lists_landmark_rivals(&held));
+        assert!(weak.prior_reaches(&held) && !weak.accepts_alone(&held));
         // The landmark poses elsewhere first (unscored, as the locator gives
         // them), then two near views that are the place's own symmetry.
         let candidates = [
@@ -773,11 +764,11 @@ mod tests {
         assert_eq!(weak.budget(&held).max, NEAR_MAX_RIVALS);
         let far = pose(9.0, 0.0);
         let beyond = near_origin().with_landmark_rivals(3);
-        assert!(beyond.lists_landmark_rivals(&far));
+        assert!(!beyond.accepts_alone(&far));
         assert_eq!(beyond.budget(&far).max, MAX_RIVALS);
         // A pose the prior vouches for alone lists none and has no budget.
         let strong = near_origin().with_alone_floor(0.8).for_held(false, 0.85);
-        assert!(!strong.lists_landmark_rivals(&held));
+        assert!(strong.accepts_alone(&held));
         assert_eq!(strong.with_landmark_rivals(3).budget(&held).max, 0);
     }
 

@@ -187,7 +187,7 @@ impl Bench {
                 // The landmark poses at the other places the frame's corners
                 // fit come first among the rivals (as the service).
                 let mut landmark_rivals = 0;
-                if rule.lists_landmark_rivals(&v.world_from_camera) && !elsewhere_gathered {
+                if !elsewhere_gathered {
                     let mut elsewhere_found = [Candidate::default(); MAX_LANDMARK_ELSEWHERE];
                     let m = self
                         .reloc
