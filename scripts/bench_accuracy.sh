@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Tracker accuracy benchmark: synthesizes each preset (500 frames = 10 s at
 # 50 Hz, fixed seed), localizes it against its map through the CPU rasterizer
-# and through wgpu (auto: hardware adapter, else lavapipe), with frames
+# and through wgpu on the software adapter (lavapipe; `renderer = "auto"`
+# takes the CPU rasterizer where there is no hardware GPU; on a machine with
+# one, STAR_BENCH_RENDERERS="cpu gpu"), with frames
 # delivered at the recorded 50 Hz as a camera would (`--realtime`; set
 # STAR_BENCH_UNPACED=1 to feed them as fast as the tracker takes them, which
 # starves the render thread of time on two cores), and prints ATE
@@ -23,7 +25,7 @@ summary() { grep -E "frames|tracking time|ATE|quality" | sed 's/^/    /'; }
 
 for preset in ideal realistic aggressive; do
   "$star" synth --preset "$preset" --seed "$seed" --frames "$frames" --no-depth "$work/$preset" | tail -n 1
-  for renderer in cpu auto; do
+  for renderer in ${STAR_BENCH_RENDERERS:-cpu software}; do
     printf '[render]\nrenderer = "%s"\n' "$renderer" > "$work/render.toml"
     echo "  $preset, renderer $renderer:"
     "$star" localize "$work/$preset" "${pace[@]}" --config "$work/render.toml" -o "$work/$preset/est_$renderer.txt" 2>/dev/null | summary
