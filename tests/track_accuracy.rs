@@ -41,9 +41,16 @@ fn synth(preset: &str, seed: u64, out: &Path) {
     assert!(status.success(), "star synth --preset {preset} failed");
 }
 
+/// The bounds on a preset's trajectory error (RMSE, no alignment).
+#[derive(Clone, Copy)]
+struct Bounds {
+    ate_cm: f64,
+    rot_deg: f64,
+}
+
 /// Localizes `dir` with `renderer` and `config`; asserts no lost frame, no
 /// wrong pose sent, and the bounds.
-fn check(dir: &Path, renderer: RendererKind, config: &Config, max_ate_cm: f64, max_rot_deg: f64) {
+fn check(dir: &Path, renderer: RendererKind, config: &Config, bounds: Bounds) {
     let dataset = Dataset::open(dir).expect("open dataset");
     let mesh = star::map::load_obj(&dir.join("map/map.obj")).expect("map");
     let renderer_box =
@@ -95,58 +102,54 @@ fn check(dir: &Path, renderer: RendererKind, config: &Config, max_ate_cm: f64, m
     assert_eq!(integrity.wrong_poses, 0, "no wrong pose sent");
     assert_eq!(report.lost_frames, 0, "no lost frame");
     assert_eq!(e.matched, report.frames, "every processed frame has a pose");
-    assert!(ate_cm <= max_ate_cm, "ATE {ate_cm} cm > {max_ate_cm} cm");
     assert!(
-        rot_deg <= max_rot_deg,
-        "rotation {rot_deg} deg > {max_rot_deg} deg"
+        ate_cm <= bounds.ate_cm,
+        "ATE {ate_cm} cm > {} cm",
+        bounds.ate_cm
+    );
+    assert!(
+        rot_deg <= bounds.rot_deg,
+        "rotation {rot_deg} deg > {} deg",
+        bounds.rot_deg
     );
 }
 
-fn preset_meets_bounds(
-    preset: &str,
-    seed: u64,
-    config: &Config,
-    max_ate_cm: f64,
-    max_rot_deg: f64,
-) {
+fn preset_meets_bounds(preset: &str, seed: u64, config: &Config, bounds: Bounds) {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().expect("tmp");
     synth(preset, seed, tmp.path());
-    check(
-        tmp.path(),
-        RendererKind::Cpu,
-        config,
-        max_ate_cm,
-        max_rot_deg,
-    );
-    check(
-        tmp.path(),
-        RendererKind::Software,
-        config,
-        max_ate_cm,
-        max_rot_deg,
-    );
+    check(tmp.path(), RendererKind::Cpu, config, bounds);
+    check(tmp.path(), RendererKind::Software, config, bounds);
 }
 
 #[test]
 fn ideal_within_1_cm_and_0_2_deg() {
-    preset_meets_bounds("ideal", 11, &Config::default(), 1.0, 0.2);
+    let bounds = Bounds {
+        ate_cm: 1.0,
+        rot_deg: 0.2,
+    };
+    preset_meets_bounds("ideal", 11, &Config::default(), bounds);
 }
 
 #[test]
 fn realistic_within_3_cm_and_0_5_deg() {
-    preset_meets_bounds("realistic", 12, &Config::default(), 3.0, 0.5);
+    let bounds = Bounds {
+        ate_cm: 3.0,
+        rot_deg: 0.5,
+    };
+    preset_meets_bounds("realistic", 12, &Config::default(), bounds);
 }
 
 /// The tracker alone, without the integrity gate's local contrast drop
 /// test (`[keyframe] lost_local_correlation_drop = 0`). On this sequence a
-/// pillar that is not in the map crosses the view at 0.9-1.2 s while the
-/// camera turns at 190 deg/s, and the correlation of local contrast over
-/// every point falls from 0.73 to 0.47 on right poses (2-7 mm from the
-/// truth): at 0.70-0.74 of the test's reference, where its threshold is
-/// 0.7. Paced runs of the shipped settings on this machine refused a
-/// right frame there in 3 of 12 (2 never resumed without a database);
-/// which side of 0.7 a run falls on depends on how old its keyframes are.
+/// pillar that is not in the map crosses the view at 0.9-1.1 s and 1.9 s
+/// while the camera turns at 190 deg/s, and the correlation of local
+/// contrast over every point falls from 0.73 to 0.47 on right poses (2-7
+/// mm from the truth): at 0.70-0.76 of the test's reference, where its
+/// threshold is 0.7. Paced runs of the shipped settings on a 2-core
+/// machine refused a right frame there in 4 of 15 (3 never resumed without
+/// a database); which side of 0.7 a run falls on depends on how old its
+/// keyframes are.
 /// That cost of the drop test is the product's, measured in
 /// docs/benchmarks.md ("An object crossing the view"); this test
 /// measures the tracker. Every other lost test and gate stays on.
@@ -154,5 +157,9 @@ fn realistic_within_3_cm_and_0_5_deg() {
 fn aggressive_within_5_cm_and_1_deg() {
     let mut config = Config::default();
     config.keyframe.lost_local_correlation_drop = 0.0;
-    preset_meets_bounds("aggressive", 13, &config, 5.0, 1.0);
+    let bounds = Bounds {
+        ate_cm: 5.0,
+        rot_deg: 1.0,
+    };
+    preset_meets_bounds("aggressive", 13, &config, bounds);
 }
