@@ -682,7 +682,6 @@ mod tests {
         let weak = scanned.for_held(false, 0.714);
         assert!(weak.vouches_for_place(&accepted));
         assert!(!weak.accepts_alone(&accepted));
-        assert!(!weak.accepts_alone(&accepted));
         assert_eq!(
             weak.budget(&accepted),
             Budget {
