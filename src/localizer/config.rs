@@ -50,6 +50,15 @@ pub struct KeyframeConfig {
     /// 0.74 or more. Only with a relocalization gate (a database or a
     /// verified start).
     pub lost_local_correlation_drop: f32,
+    /// Far limit of a tracking keyframe, meters along the optical axis
+    /// (0: the renderer's own, `[render] far_m`; never beyond it). A
+    /// keyframe rendered near a tracked pose needs only the surfaces its
+    /// points lie on; on a floor of rooms, the views down the corridor and
+    /// through doorways cost twice a room's render at 30 m and 1.4 times at
+    /// 4 m (docs/building-scale.md). Relocalization candidates and the start
+    /// pose are drawn to the renderer's whole limit: the gate tells
+    /// look-alike rooms apart by what it sees through their doors.
+    pub far_m: f32,
 }
 
 impl Default for KeyframeConfig {
@@ -67,6 +76,7 @@ impl Default for KeyframeConfig {
             lost_min_correlation: 0.2,
             lost_correlation_drop: 0.6,
             lost_local_correlation_drop: 0.7,
+            far_m: 0.0,
         }
     }
 }
@@ -77,7 +87,8 @@ impl KeyframeConfig {
         let k = self;
         let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
         let positive = |v: f32| v.is_finite() && v > 0.0;
-        let checks: [(&str, bool, f32); 12] = [
+        let far = |v: f32| v == 0.0 || crate::render::select::FAR_M_RANGE.contains(&f64::from(v));
+        let checks: [(&str, bool, f32); 13] = [
             ("min_visible", unit(k.min_visible), k.min_visible),
             (
                 "max_baseline_ratio",
@@ -134,11 +145,14 @@ impl KeyframeConfig {
                 unit(k.lost_local_correlation_drop),
                 k.lost_local_correlation_drop,
             ),
+            ("far_m", far(k.far_m), k.far_m),
         ];
         match checks.into_iter().find(|(_, ok, _)| !ok) {
             Some((key, _, value)) => Err(SettingError::new(
                 key,
-                format!("out of range: {value} (ratios are 0..=1, others > 0)"),
+                format!(
+                    "out of range: {value} (ratios are 0..=1, far_m 0 or 1..=10000, others > 0)"
+                ),
             )),
             None => Ok(()),
         }

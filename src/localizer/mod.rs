@@ -369,14 +369,15 @@ impl Localizer {
         // Pyramids and keyframes carry one level more than tracking uses:
         // relocalization's coarse search aligns on it.
         let build = crate::track::build_config(tracker);
-        let worker = RenderWorker::spawn(renderer, camera, &build)?;
+        let keyframe_far_m = (policy.far_m > 0.0).then_some(f64::from(policy.far_m));
+        let worker = RenderWorker::spawn(renderer, camera, &build, keyframe_far_m)?;
         worker.try_request(RenderRequest {
             world_from_keyframe: world_from_camera,
             id: 1,
             requested_at_ns: capture_ns,
             // The start pose: verified by the caller or a hint not trusted
             // yet; drawn as a candidate would be.
-            both_sides: true,
+            candidate: true,
         });
         let keyframe = worker
             .wait_result()
@@ -771,7 +772,7 @@ impl Localizer {
             id: self.next_keyframe_id,
             requested_at_ns: capture_ns,
             // Near a tracked pose: in free space.
-            both_sides: false,
+            candidate: false,
         });
         if requested {
             self.next_keyframe_id += 1;

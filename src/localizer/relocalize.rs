@@ -696,7 +696,7 @@ impl Localizer {
                 id: *next_id,
                 requested_at_ns: capture_ns,
                 // A candidate: not verified (see `RenderRequest`).
-                both_sides: true,
+                candidate: true,
             });
             if !requested {
                 refused = true;

@@ -25,13 +25,16 @@ pub struct RenderRequest {
     pub id: u64,
     /// Capture time of the frame that asked for it.
     pub requested_at_ns: u64,
-    /// Draw both sides of every triangle, whatever `[render]
-    /// cull_back_faces` says: for a relocalization candidate, whose pose is
-    /// not verified and may stand inside a box or behind a wall, where only
-    /// back faces are seen. Culled, a camera inside a box sees the room
-    /// through it, and a wrong place can pass the gate (a look-alike room
-    /// turned 90 degrees, 1.39 m off, did on the `building` floor).
-    pub both_sides: bool,
+    /// A relocalization candidate or the start pose, not verified: drawn
+    /// from both sides of every triangle, whatever `[render]
+    /// cull_back_faces` says, since it may stand inside a box or behind a
+    /// wall, where only back faces are seen (culled, a camera inside a box
+    /// sees the room through it, and a wrong place can pass the gate: a
+    /// look-alike room turned 90 degrees, 1.39 m off, did on the `building`
+    /// floor); and to the renderer's whole far limit, where a tracking
+    /// keyframe stops at `[keyframe] far_m` (the gate tells look-alike
+    /// rooms apart by what it sees through their doors).
+    pub candidate: bool,
 }
 
 /// A finished keyframe, or the reason it could not be made.
@@ -47,16 +50,24 @@ pub struct RenderWorker {
 }
 
 impl RenderWorker {
-    /// Starts the thread, which owns `renderer`.
+    /// Starts the thread, which owns `renderer`. Keyframes are drawn to
+    /// `keyframe_far_m` (`None`: the renderer's far limit; never beyond
+    /// it), candidates to the renderer's far limit.
     pub fn spawn(
         mut renderer: Box<dyn Renderer>,
         camera: &PinholeCamera,
         config: &TrackerConfig,
+        keyframe_far_m: Option<f64>,
     ) -> std::io::Result<Self> {
         let pinhole = camera.pinhole();
         let config = config.clone();
         let renderer_name = renderer.name();
         let cull_back_faces = renderer.cull_back_faces();
+        let candidate_far_m = renderer.far_m();
+        let keyframe_far_m = match (keyframe_far_m, candidate_far_m) {
+            (Some(k), Some(c)) => Some(k.min(c)),
+            (k, c) => k.or(c),
+        };
         let (req_tx, req_rx) = sync_channel::<RenderRequest>(1);
         let (res_tx, res_rx) = sync_channel::<RenderResult>(POOL);
         let (recycle_tx, recycle_rx) = sync_channel::<Box<Keyframe>>(POOL);
@@ -80,7 +91,12 @@ impl RenderWorker {
                         },
                     };
                     let t0 = std::time::Instant::now();
-                    renderer.set_cull_back_faces(cull_back_faces && !req.both_sides);
+                    renderer.set_cull_back_faces(cull_back_faces && !req.candidate);
+                    renderer.set_far_m(if req.candidate {
+                        candidate_far_m
+                    } else {
+                        keyframe_far_m
+                    });
                     let result =
                         match renderer.render(&req.world_from_keyframe, &pinhole, &mut view) {
                             Ok(()) => {
@@ -171,11 +187,15 @@ mod tests {
     use super::*;
     use crate::render::RenderError;
 
+    /// What a render was drawn with: back faces culled, far limit.
+    type Drawn = (bool, Option<f64>);
+
     /// A renderer that draws nothing and records, per render, whether it
-    /// was culling back faces.
+    /// was culling back faces and its far limit.
     struct Recorder {
         cull: bool,
-        culled: Arc<Mutex<Vec<bool>>>,
+        far_m: Option<f64>,
+        drawn: Arc<Mutex<Vec<Drawn>>>,
     }
 
     impl Renderer for Recorder {
@@ -189,7 +209,7 @@ mod tests {
             _camera: &crate::geometry::PinholeCamera,
             _out: &mut RenderedView,
         ) -> Result<(), RenderError> {
-            self.culled.lock().unwrap().push(self.cull);
+            self.drawn.lock().unwrap().push((self.cull, self.far_m));
             Ok(())
         }
 
@@ -200,43 +220,96 @@ mod tests {
         fn cull_back_faces(&self) -> bool {
             self.cull
         }
+
+        fn set_far_m(&mut self, far_m: Option<f64>) {
+            self.far_m = far_m;
+        }
+
+        fn far_m(&self) -> Option<f64> {
+            self.far_m
+        }
     }
 
-    fn worker(cull: bool) -> (RenderWorker, Arc<Mutex<Vec<bool>>>) {
-        let culled = Arc::new(Mutex::new(Vec::new()));
+    fn worker(
+        cull: bool,
+        far_m: Option<f64>,
+        keyframe_far_m: Option<f64>,
+    ) -> (RenderWorker, Arc<Mutex<Vec<Drawn>>>) {
+        let drawn = Arc::new(Mutex::new(Vec::new()));
         let renderer = Recorder {
             cull,
-            culled: Arc::clone(&culled),
+            far_m,
+            drawn: Arc::clone(&drawn),
         };
         let camera = crate::geometry::PinholeCamera::new(640, 512, 420.0, 420.0, 319.5, 255.5);
-        let worker = RenderWorker::spawn(Box::new(renderer), &camera, &TrackerConfig::default())
-            .expect("render thread");
-        (worker, culled)
+        let worker = RenderWorker::spawn(
+            Box::new(renderer),
+            &camera,
+            &TrackerConfig::default(),
+            keyframe_far_m,
+        )
+        .expect("render thread");
+        (worker, drawn)
     }
 
-    fn render(worker: &RenderWorker, id: u64, both_sides: bool) {
+    fn render(worker: &RenderWorker, id: u64, candidate: bool) {
         assert!(worker.try_request(RenderRequest {
             world_from_keyframe: Pose::identity(),
             id,
             requested_at_ns: 0,
-            both_sides,
+            candidate,
         }));
         let kf = worker.wait_result().expect("a keyframe");
         worker.recycle(kf);
     }
 
+    fn culled(drawn: &Mutex<Vec<Drawn>>) -> Vec<bool> {
+        drawn.lock().unwrap().iter().map(|d| d.0).collect()
+    }
+
+    fn far_limits(drawn: &Mutex<Vec<Drawn>>) -> Vec<Option<f64>> {
+        drawn.lock().unwrap().iter().map(|d| d.1).collect()
+    }
+
     #[test]
     fn candidates_are_drawn_from_both_sides_where_keyframes_cull_back_faces() {
-        let (culling, culled) = worker(true);
-        for (id, both_sides) in [(1, false), (2, true), (3, false), (4, true)] {
-            render(&culling, id, both_sides);
+        let (culling, drawn) = worker(true, None, None);
+        for (id, candidate) in [(1, false), (2, true), (3, false), (4, true)] {
+            render(&culling, id, candidate);
         }
-        assert_eq!(*culled.lock().unwrap(), vec![true, false, true, false]);
+        assert_eq!(culled(&drawn), vec![true, false, true, false]);
         // A renderer configured to draw both sides never culls.
-        let (drawing, culled) = worker(false);
-        for (id, both_sides) in [(1, false), (2, true)] {
-            render(&drawing, id, both_sides);
+        let (drawing, drawn) = worker(false, None, None);
+        for (id, candidate) in [(1, false), (2, true)] {
+            render(&drawing, id, candidate);
         }
-        assert_eq!(*culled.lock().unwrap(), vec![false, false]);
+        assert_eq!(culled(&drawn), vec![false, false]);
+    }
+
+    #[test]
+    fn keyframes_stop_at_their_far_limit_and_candidates_see_the_renderers() {
+        let (near, drawn) = worker(false, Some(30.0), Some(4.0));
+        for (id, candidate) in [(1, true), (2, false), (3, true), (4, false)] {
+            render(&near, id, candidate);
+        }
+        assert_eq!(
+            far_limits(&drawn),
+            vec![Some(30.0), Some(4.0), Some(30.0), Some(4.0)]
+        );
+        // Never beyond the renderer's own limit.
+        let (beyond, drawn) = worker(false, Some(10.0), Some(40.0));
+        render(&beyond, 1, false);
+        render(&beyond, 2, true);
+        assert_eq!(far_limits(&drawn), vec![Some(10.0), Some(10.0)]);
+        // A renderer without a limit: keyframes take theirs, candidates none.
+        let (unlimited, drawn) = worker(false, None, Some(4.0));
+        render(&unlimited, 1, false);
+        render(&unlimited, 2, true);
+        assert_eq!(far_limits(&drawn), vec![Some(4.0), None]);
+        // Without a keyframe limit, both are drawn to the renderer's.
+        let (same, drawn) = worker(false, Some(30.0), None);
+        render(&same, 1, false);
+        render(&same, 2, true);
+        assert_eq!(far_limits(&drawn), vec![Some(30.0), Some(30.0)]);
     }
 }

@@ -154,6 +154,16 @@ pub trait Renderer: Send {
     fn cull_back_faces(&self) -> bool {
         false
     }
+
+    /// Sets the far limit from the next render on (`None`: none): surfaces
+    /// deeper along the optical axis render as no hit, and what lies wholly
+    /// beyond is not drawn. A renderer that cannot draws everything.
+    fn set_far_m(&mut self, _far_m: Option<f64>) {}
+
+    /// The far limit, meters; `None`: none.
+    fn far_m(&self) -> Option<f64> {
+        None
+    }
 }
 
 /// Checks that a render request is finite; shared by every renderer.

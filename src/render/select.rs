@@ -479,6 +479,16 @@ impl Renderer for FallbackRenderer {
         self.settings.cull_back_faces
     }
 
+    fn set_far_m(&mut self, far_m: Option<f64>) {
+        // A later stage of the chain starts with it too.
+        self.settings.far_m = far_m;
+        self.active.renderer().set_far_m(far_m);
+    }
+
+    fn far_m(&self) -> Option<f64> {
+        self.settings.far_m
+    }
+
     fn render(
         &mut self,
         world_from_camera: &Pose,

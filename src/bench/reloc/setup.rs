@@ -111,7 +111,7 @@ impl Bench {
         let map = Arc::new(scene.map.clone());
         // Candidates are rendered as the service renders them: by the
         // `[render] renderer` of the configuration (auto: a hardware adapter,
-        // else the CPU rasterizer), both sides drawn (`RenderRequest::both_sides`).
+        // else the CPU rasterizer), both sides drawn (`RenderRequest::candidate`).
         let kind = config.render.renderer;
         let candidate_r = candidate_renderer(&config.render, map.clone())
             .with_context(|| format!("starting the `{kind:?}` renderer"))?;
@@ -392,7 +392,7 @@ pub(super) fn probes_from_env() -> Option<crate::reloc::landmark_index::Probes> 
 
 /// The renderer of relocalization candidates: `[render]`'s, drawing both
 /// sides of every triangle, as the service draws candidates (their poses are
-/// not verified: see `localizer::worker::RenderRequest::both_sides`).
+/// not verified: see `localizer::worker::RenderRequest::candidate`).
 fn candidate_renderer(
     render: &crate::render::select::RenderConfig,
     mesh: Arc<crate::map::Mesh>,

@@ -815,6 +815,14 @@ impl Renderer for GpuRenderer {
         self.cull_back_faces
     }
 
+    fn set_far_m(&mut self, far_m: Option<f64>) {
+        GpuRenderer::set_far_m(self, far_m);
+    }
+
+    fn far_m(&self) -> Option<f64> {
+        self.far_m
+    }
+
     fn render(
         &mut self,
         world_from_camera: &Pose,
