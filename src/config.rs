@@ -205,6 +205,19 @@ mod tests {
     }
 
     #[test]
+    fn keyframe_far_limit_is_off_by_default_and_validated() {
+        let c = Config::parse("", Path::new("a.toml")).expect("defaults");
+        assert_eq!(c.keyframe.far_m, 0.0);
+        let c = Config::parse("[keyframe]\nfar_m = 4.0\n", Path::new("a.toml")).expect("valid");
+        assert_eq!(c.keyframe.far_m, 4.0);
+        for bad in ["-1.0", "0.5", "nan", "inf", "20000.0"] {
+            let text = format!("[keyframe]\nfar_m = {bad}\n");
+            let err = Config::parse(&text, Path::new("a.toml")).expect_err(bad);
+            assert!(err.to_string().contains("keyframe.far_m"), "{bad}: {err}");
+        }
+    }
+
+    #[test]
     fn wrong_type_is_rejected() {
         let err = Config::parse("[render]\nrenderer = \"vulkan\"\n", Path::new("a.toml"))
             .expect_err("unknown renderer");
