@@ -321,3 +321,30 @@ fn a_fifo_config_or_material_library_is_refused_not_waited_on() {
         );
     }
 }
+
+/// An error that names its cause in its own message (`cannot read FILE:
+/// the I/O error`) prints that cause once, not again as the next link of
+/// the chain.
+#[test]
+fn an_error_prints_each_cause_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.obj");
+    let o = Command::new(STAR)
+        .args(["map", "info"])
+        .arg(&missing)
+        .env("NO_COLOR", "1")
+        .output()
+        .unwrap();
+    assert!(!o.status.success(), "{}", text(&o));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    let cause = std::fs::metadata(&missing).unwrap_err().to_string();
+    assert!(stderr.contains(&cause), "{}", text(&o));
+    assert_eq!(stderr.matches(&cause).count(), 1, "{}", text(&o));
+
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[keyframe]\nfar_m = 0.3\n").unwrap();
+    let o = check_config(&bad, &["--values-only"]);
+    assert!(!o.status.success(), "{}", text(&o));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(stderr.matches("keyframe.far_m").count(), 1, "{}", text(&o));
+}

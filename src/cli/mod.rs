@@ -132,8 +132,68 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_message(&e));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// The error and its causes on one line, `: ` between them, each cause
+/// written once: most of star's errors already name their cause in their
+/// own message (`cannot read FILE: the I/O error`) and also return it as
+/// their source, which `{:#}` would print a second time.
+fn error_message(e: &anyhow::Error) -> String {
+    let mut message = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if message.contains(&text) {
+            continue;
+        }
+        if !message.is_empty() {
+            message.push_str(": ");
+        }
+        message.push_str(&text);
+    }
+    message
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used, clippy::unwrap_used)]
+mod tests {
+    use super::error_message;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("cannot read {path}: {source}")]
+    struct ReadError {
+        path: String,
+        source: std::io::Error,
+    }
+
+    fn not_found() -> std::io::Error {
+        std::io::Error::new(std::io::ErrorKind::NotFound, "no such file")
+    }
+
+    #[test]
+    fn a_cause_the_message_already_names_is_written_once() {
+        let e = anyhow::Error::new(ReadError {
+            path: "map.obj".into(),
+            source: not_found(),
+        })
+        .context("loading map map.obj");
+        assert_eq!(
+            error_message(&e),
+            "loading map map.obj: cannot read map.obj: no such file"
+        );
+    }
+
+    #[test]
+    fn causes_not_in_the_message_are_each_appended() {
+        let e = anyhow::Error::new(not_found())
+            .context("opening camera.toml")
+            .context("opening dataset ds");
+        assert_eq!(
+            error_message(&e),
+            "opening dataset ds: opening camera.toml: no such file"
+        );
     }
 }
