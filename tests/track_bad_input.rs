@@ -4,8 +4,9 @@
 
 #![allow(clippy::expect_used, clippy::unwrap_used)] // test code: a failed step should panic
 
+mod common;
+
 use std::path::Path;
-use std::process::Command;
 use std::sync::Arc;
 
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
@@ -20,14 +21,7 @@ use star::render::cpu::CpuRenderer;
 const FRAMES: usize = 40;
 
 fn synth(out: &Path) {
-    let status = Command::new(env!("CARGO_BIN_EXE_star"))
-        .args(["synth", "--no-depth", "--preset", "ideal", "--seed", "21"])
-        .args(["--frames", &FRAMES.to_string()])
-        .arg(out)
-        .env("RUST_LOG", "warn")
-        .status()
-        .expect("run star synth");
-    assert!(status.success());
+    common::star_cli::synth_no_depth(out, "ideal", 21, FRAMES);
 }
 
 fn cpu_renderer(dir: &Path) -> Box<CpuRenderer> {

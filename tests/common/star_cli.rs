@@ -48,6 +48,19 @@ pub fn dataset() -> &'static Path {
     })
 }
 
+/// `star synth --no-depth --preset PRESET --seed SEED --frames FRAMES OUT`,
+/// which must succeed.
+pub fn synth_no_depth(out: &Path, preset: &str, seed: u64, frames: usize) {
+    let status = Command::new(STAR)
+        .args(["synth", "--no-depth", "--preset", preset])
+        .args(["--seed", &seed.to_string(), "--frames", &frames.to_string()])
+        .arg(out)
+        .env("RUST_LOG", "warn")
+        .status()
+        .expect("run star synth");
+    assert!(status.success(), "star synth --preset {preset} failed");
+}
+
 /// The frame lines of `rgb.txt`: `(timestamp text, relative path)`.
 pub fn frame_lines(ds: &Path) -> Vec<(String, String)> {
     std::fs::read_to_string(ds.join("rgb.txt"))
