@@ -30,7 +30,7 @@ pub mod matching;
 pub mod pyramid;
 
 #[cfg(test)]
-mod test_images;
+pub(crate) mod test_images;
 
 pub use brief::{EDGE_PX, PATCH_SIZE, PATTERN_SEED};
 pub use extractor::{FeatureExtractor, FeatureParams, Keypoint, MAX_LEVELS};

@@ -26,7 +26,7 @@ pub(super) fn noise(x: f32, y: f32) -> f32 {
 
 /// A `w x h` camera image of `noise` seen with pixels `scale` wide:
 /// each pixel averages 3x3 samples of its footprint.
-pub(super) fn render(w: usize, h: usize, scale: f32, dx: f32, dy: f32) -> Vec<u8> {
+pub(crate) fn render(w: usize, h: usize, scale: f32, dx: f32, dy: f32) -> Vec<u8> {
     let at = |x: f32, y: f32| {
         let sub = |i: usize| (i as f32 - 1.0) / 3.0;
         let sum: f32 = (0..9)
