@@ -54,8 +54,13 @@ pub const MIN_POINTS: usize = 32;
 /// Least fraction of the points that must land on surfaces at a coarse
 /// offset for it to be refined ...
 const COARSE_MIN_SCORE: f32 = 0.85;
-/// ... and at the full-resolution offset, for it to be a twin.
-pub const MIN_SCORE: f32 = 0.9;
+/// ... and at the full-resolution offset, for it to be a twin. 0.9 until
+/// 2026-12-07: on the scanned floor a cold start took a look-alike room
+/// 16 m from the truth, and the true room, scanned with its own holes and
+/// noise, fit the held view with 0.81 only, so it was never checked
+/// (docs/building-scale.md, "Cold starts on the scanned floor that sent
+/// wrong poses").
+pub const MIN_SCORE: f32 = 0.8;
 /// Shortest offset that is a twin, meters.
 pub const MIN_OFFSET_M: f64 = 1.0;
 /// Coarse local maxima refined per search, best first.
@@ -675,6 +680,31 @@ mod tests {
             (out[0].offset_m[0] + 12.0).abs() <= CELL_M + 1e-9,
             "{out:?}"
         );
+    }
+
+    /// A copy that differs a little, as a room's scan differs from its
+    /// look-alike's (holes, noise): the small cabinet is 0.2 m high there
+    /// instead of 0.9, so about an eighth of the view's points miss. It is
+    /// still a twin: the scanned floor's true room fit a wrong cold start's
+    /// view with 0.81, and was never checked while a twin needed 0.9.
+    #[test]
+    fn a_copy_that_differs_a_little_is_still_a_twin() {
+        let mut mesh = Mesh::default();
+        furniture(&mut mesh, 0.3, 0.4);
+        walls(&mut mesh, (12.3, 0.4, 13.5, 1.0), 1.8);
+        walls(&mut mesh, (14.4, 1.9, 14.8, 2.8), 0.2);
+        walls(&mut mesh, (-1.0, -1.0, 20.0, 5.0), 3.0);
+        let map = MapOccupancy::build(&mesh);
+        let mut scratch = map.scratch();
+        let mut out: heapless::Vec<Twin, 4> = heapless::Vec::new();
+        map.twins(&camera(0.3, 0.4), &view(0.3, 0.4), &mut scratch, &mut out);
+        assert_eq!(out.len(), 1, "{out:?}");
+        let t = out[0];
+        assert!(
+            (t.offset_m[0] - 12.0).abs() <= CELL_M + 1e-9 && t.offset_m[1].abs() <= CELL_M + 1e-9,
+            "{t:?}"
+        );
+        assert!((MIN_SCORE..0.9).contains(&t.score), "{t:?}");
     }
 
     #[test]
