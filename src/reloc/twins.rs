@@ -370,6 +370,10 @@ pub enum TwinRefusal {
 
 /// What the geometry asks of a held pose before it is accepted: one rule,
 /// for the service and `star bench reloc` alike.
+// The checks are held inline (about 300 bytes, on the stack of one
+// attempt): a box would allocate in each relocalization attempt, which
+// allocates nothing (`crate::localizer`'s relocalization, module docs).
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum TwinPlan {
     /// Refused without a render.
