@@ -594,19 +594,27 @@ impl Bench {
             }
             TwinPlan::Check(planned) => planned,
         };
+        let held_off_m = (truth.inverse() * held.world_from_camera)
+            .translation
+            .vector
+            .norm();
         for twin in &planned {
             tally.geometric_checked += 1;
             let pose = twin_pose(&held.world_from_camera, twin);
             let off = truth.inverse() * pose;
+            let passed = self.try_at(Gate::Loose, (&pose, None), u32::MAX, tally);
+            let refused =
+                passed.is_some_and(|r| elsewhere(&held.world_from_camera, &r.world_from_camera));
             tracing::debug!(
                 yaw_deg = twin.yaw_rad.to_degrees(),
                 score = twin.score,
+                refused,
+                held_off_m,
                 off_truth_m = off.translation.vector.norm(),
                 off_truth_deg = off.rotation.angle().to_degrees(),
                 "geometric twin checked"
             );
-            let passed = self.try_at(Gate::Loose, (&pose, None), u32::MAX, tally);
-            if passed.is_some_and(|r| elsewhere(&held.world_from_camera, &r.world_from_camera)) {
+            if refused {
                 tally.geometric_refused += 1;
                 return false;
             }
