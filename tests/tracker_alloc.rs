@@ -56,8 +56,6 @@ static GLOBAL: CountingAlloc = CountingAlloc;
 const WARMUP: u64 = 60;
 /// Frames tracked while counting.
 const COUNTED: u64 = 150;
-/// Frames that verify the start pose and output nothing (`reloc.verify_frames`).
-const VERIFYING_FRAMES: u64 = 1;
 /// Images rendered for the camera: one per frame, and a few to spare.
 const IMAGES: usize = (WARMUP + COUNTED) as usize + 8;
 /// Camera frame period.
@@ -360,6 +358,7 @@ fn tracker_loop(tag: &str, record: bool, rerun: bool) {
 
     let world_from_camera_start = pose_at(0);
     let mut config = Config::default();
+    let verify_frames = config.reloc.verify_frames;
     config.camera.intrinsics = camera();
     config.map.mesh = mesh_path;
     config.render.renderer = RendererKind::Cpu;
@@ -468,11 +467,13 @@ fn tracker_loop(tag: &str, record: bool, rerun: bool) {
         report.datagrams
     );
     assert_eq!(summary.frames, WARMUP + COUNTED);
-    // The start pose is a hint: the first frame verifies it through the
-    // relocalization gate and outputs nothing; the second confirms it.
-    let tracked = WARMUP + COUNTED - VERIFYING_FRAMES;
+    // The start pose is a hint: the first `reloc.verify_frames` frames
+    // verify it through the relocalization gate and output nothing; the
+    // next confirms it.
+    let verifying_frames = u64::from(verify_frames);
+    let tracked = WARMUP + COUNTED - verifying_frames;
     assert_eq!(summary.tracked, tracked, "{summary:?}");
-    assert_eq!(summary.lost, VERIFYING_FRAMES, "{summary:?}");
+    assert_eq!(summary.lost, verifying_frames, "{summary:?}");
     assert_eq!(summary.rejected, 0, "{summary:?}");
     assert_eq!(summary.dropped, 0, "{summary:?}");
     assert!(report.published >= WARMUP + COUNTED);

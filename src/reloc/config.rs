@@ -255,7 +255,11 @@ pub struct RelocConfig {
     /// The lowest the floor above is lowered to.
     pub track_min_local_correlation_lowest: f32,
     /// Frames after an accepted relocalization that must track through the
-    /// same gate before a pose is output again.
+    /// same gate before a pose is output again. 2 since 2026-12-07: on the
+    /// scanned floor a cold start accepted a place 4.3-5.6 m off and turned
+    /// 180 degrees, the next frame confirmed it and one wrong pose went
+    /// out; the frame after that was lost (docs/building-scale.md, "A
+    /// second frame to confirm a relocalization").
     pub verify_frames: u32,
     /// Within this time of the failure, ordinary tracking may resume on its
     /// own; afterwards only an accepted relocalization restarts it, seconds.
@@ -350,7 +354,7 @@ impl Default for RelocConfig {
             track_min_local_correlation: 0.3,
             track_local_reference: 0.5,
             track_min_local_correlation_lowest: 0.2,
-            verify_frames: 1,
+            verify_frames: 2,
             resume_window_s: 0.2,
             resume_local_fraction: 0.9,
             attempt_budget_s: 0.5,
