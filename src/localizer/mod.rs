@@ -331,6 +331,14 @@ pub struct Localizer {
     lost_since_ns: Option<u64>,
     /// Frames still to verify after an accepted relocalization.
     verify_left: u32,
+    /// A frame of the current verification has passed: a later one whose
+    /// search from the keyframe fails may confirm it by ordinary tracking
+    /// from that frame's pose, through the same gate. In a paced run the
+    /// keyframe stands where the search's frame was, 0.5-1 s of flight
+    /// before the first verifying frame, and the second is further from it
+    /// (docs/building-scale.md, "A second frame to confirm a
+    /// relocalization").
+    verify_passed: bool,
     /// The pose being verified comes from a prior alone (a start hint, or
     /// the last keyframe without a database), with no rival checked: a
     /// frame that passes the gate only through its first level's lowered
@@ -421,6 +429,7 @@ impl Localizer {
             reloc: None,
             lost_since_ns: None,
             verify_left: 0,
+            verify_passed: false,
             verify_prior_only: false,
             start_gate: None,
             attempt_budget_s: 0.0,
@@ -526,8 +535,9 @@ impl Localizer {
                     &self.camera,
                     camera_from_keyframe,
                 );
-                // A verification frame passes only through the search.
-                a.valid &= !verifying;
+                // A verification frame passes only through the search, or
+                // tracked from a frame of it that passed (`verify_passed`).
+                a.valid &= !verifying || (self.verify_passed && self.verifies_by_tracking(&a));
                 a
             }
         };
@@ -711,6 +721,7 @@ impl Localizer {
             // Confirming a relocalization: no pose until it is confirmed.
             self.verify_left -= 1;
             if self.verify_left > 0 {
+                self.verify_passed = true;
                 self.stats.lost_frames += 1;
                 out.searching = true;
                 return Ok(out);

@@ -39,7 +39,8 @@ use crate::reloc::rivals::{elsewhere, Judgment, RivalRule, LISTED_RIVALS};
 use crate::reloc::twins::{plan, plan_needs_twins, twin_pose, TwinPlan, TwinRefusal};
 use crate::reloc::{is_landmark_index, MAX_LANDMARK_ELSEWHERE};
 use crate::reloc::{
-    passes_gate, passes_resume_gate, resume_local_floor, start_yaws_rad, Candidate, MAX_TOP_K,
+    passes_gate, passes_resume_gate, passes_whole_gate, resume_local_floor, start_yaws_rad,
+    Candidate, MAX_TOP_K,
 };
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
@@ -104,6 +105,18 @@ impl Localizer {
             }
             _ => None,
         }
+    }
+
+    /// Whether `a`, a frame tracked from a verification frame that passed
+    /// (`verify_passed`) after the search from the keyframe failed,
+    /// confirms the relocalization: through the relocalization's own whole
+    /// gate, correlations included, as the search's frames are.
+    pub(super) fn verifies_by_tracking(&self, a: &crate::track::Alignment) -> bool {
+        let Some(config) = relocalization_gate_config(&self.reloc, &self.start_gate) else {
+            return false;
+        };
+        passes_gate(&a.quality, a.gain, config)
+            && passes_whole_gate(&self.keyframe, &self.pyramid, &self.camera, a, config).is_some()
     }
 
     /// Whether a frame that passed the ordinary lost test may be output:
@@ -259,6 +272,7 @@ impl Localizer {
         self.state = TrackState::Lost;
         self.lost_since_ns = Some(0);
         self.verify_left = if hint { gate.verify_frames + 1 } else { 0 };
+        self.verify_passed = false;
         self.verify_prior_only = hint;
         tracing::info!(
             hint,
@@ -277,6 +291,7 @@ impl Localizer {
         if let Some(gate) = &self.start_gate {
             if self.lost_s(capture_ns) > gate.resume_window_s {
                 self.verify_left = gate.verify_frames + 1;
+                self.verify_passed = false;
                 self.verify_prior_only = true;
             }
         }
@@ -898,6 +913,7 @@ impl Localizer {
         self.tracked_run = 0;
         self.continuity.reset();
         self.verify_left = verify_frames;
+        self.verify_passed = false;
         self.verify_prior_only = false;
         if self.verify_left == 0 {
             self.confirm_relocalization();
