@@ -115,8 +115,7 @@ impl Localizer {
         let Some(config) = relocalization_gate_config(&self.reloc, &self.start_gate) else {
             return false;
         };
-        passes_gate(&a.quality, a.gain, config)
-            && passes_whole_gate(&self.keyframe, &self.pyramid, &self.camera, a, config).is_some()
+        passes_whole_gate(&self.keyframe, &self.pyramid, &self.camera, a, config).is_some()
     }
 
     /// Whether a frame that passed the ordinary lost test may be output:
