@@ -89,6 +89,9 @@ pub struct OfflineReport {
     pub tracked: Vec<(f64, bool)>,
     /// Relocalizations accepted and confirmed.
     pub relocalizations: u64,
+    /// Verifying frames that confirmed by tracking after their search
+    /// failed ([`crate::localizer::LoopStats::verified_by_tracking`]).
+    pub verified_by_tracking: u64,
     /// Frames that resumed tracking after a loss and were held, not output
     /// ([`crate::localizer::LoopStats::held_resumes`]).
     pub held_resumes: u64,
@@ -316,6 +319,7 @@ pub fn localize_dataset_recorded(
         tracked: Vec::with_capacity(n),
         relocalizations: 0,
         held_resumes: 0,
+        verified_by_tracking: 0,
         lost_keyframes: 0,
         reloc_ambiguous: 0,
         reloc_decided: 0,
@@ -417,6 +421,7 @@ pub fn localize_dataset_recorded(
     report.keyframes = stats.keyframes;
     report.relocalizations = stats.relocalizations;
     report.held_resumes = stats.held_resumes;
+    report.verified_by_tracking = stats.verified_by_tracking;
     report.lost_keyframes = stats.lost_keyframes;
     report.reloc_ambiguous = stats.reloc_ambiguous;
     report.reloc_decided = stats.reloc_decided;

@@ -262,6 +262,10 @@ pub struct LoopStats {
     pub reloc_candidates: u64,
     /// Relocalizations accepted and verified (tracking restarted).
     pub relocalizations: u64,
+    /// Frames that confirmed a relocalization or a start pose by ordinary
+    /// tracking from the verifying frame before them, after their own
+    /// search against the keyframe failed (`Localizer::verifies_by_tracking`).
+    pub verified_by_tracking: u64,
     /// Relocalization attempts refused because candidates at two places
     /// passed the gate (look-alike rooms).
     pub reloc_ambiguous: u64,
@@ -526,7 +530,9 @@ impl Localizer {
         // speed) with no velocity to predict from: it gets the same coarse
         // multi-start search and gate as the candidate did.
         let verifying = self.verify_left > 0;
-        let result = match self.verify_alignment().filter(|_| verifying) {
+        let searched = self.verify_alignment().filter(|_| verifying);
+        let by_search = searched.is_some();
+        let result = match searched {
             Some(a) => a,
             None => {
                 let mut a = self.aligner.align(
@@ -541,9 +547,10 @@ impl Localizer {
                 a
             }
         };
-        let (max_jump_m, max_jump_deg) = if verifying {
+        let (max_jump_m, max_jump_deg) = if by_search {
             (f64::INFINITY, f64::INFINITY) // bounded by the search (two grid spacings)
         } else {
+            // Tracked, a verifying frame too: from the prediction.
             self.policy
                 .jump_limits(dt_s, self.continuity.motion_known())
         };
@@ -720,6 +727,9 @@ impl Localizer {
         if self.verify_left > 0 {
             // Confirming a relocalization: no pose until it is confirmed.
             self.verify_left -= 1;
+            if !by_search {
+                self.stats.verified_by_tracking += 1;
+            }
             if self.verify_left > 0 {
                 self.verify_passed = true;
                 self.stats.lost_frames += 1;

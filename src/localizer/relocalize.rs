@@ -40,7 +40,7 @@ use crate::reloc::twins::{plan, plan_needs_twins, twin_pose, TwinPlan, TwinRefus
 use crate::reloc::{is_landmark_index, MAX_LANDMARK_ELSEWHERE};
 use crate::reloc::{
     passes_gate, passes_resume_gate, passes_whole_gate, resume_local_floor, start_yaws_rad,
-    Candidate, MAX_TOP_K,
+    through_lowered_first_level, Candidate, MAX_TOP_K,
 };
 use crate::reloc::{
     try_candidate, verify_candidate, MotionPrior, Query, RelocConfig, RelocDbError, Relocalizer,
@@ -110,12 +110,16 @@ impl Localizer {
     /// Whether `a`, a frame tracked from a verification frame that passed
     /// (`verify_passed`) after the search from the keyframe failed,
     /// confirms the relocalization: through the relocalization's own whole
-    /// gate, correlations included, as the search's frames are.
+    /// gate, correlations included, as the search's frames are, and as
+    /// they are, not through its lowered first level where a prior alone
+    /// vouches for the pose (a start pose or the last keyframe without a
+    /// database: [`Self::verify_alignment`]).
     pub(super) fn verifies_by_tracking(&self, a: &crate::track::Alignment) -> bool {
         let Some(config) = relocalization_gate_config(&self.reloc, &self.start_gate) else {
             return false;
         };
-        passes_whole_gate(&self.keyframe, &self.pyramid, &self.camera, a, config).is_some()
+        passes_whole_gate(&self.keyframe, &self.pyramid, &self.camera, a, config)
+            .is_some_and(|c| !(self.verify_prior_only && through_lowered_first_level(&c, config)))
     }
 
     /// Whether a frame that passed the ordinary lost test may be output:

@@ -86,5 +86,6 @@ pub use search::{
 };
 pub use verify::{
     passes_gate, passes_resume_gate, passes_whole_gate, resume_local_floor, start_yaws_rad,
-    try_candidate, verify_candidate, Verdict, Verified, PRECISE_START_SKIPPED_LEVELS,
+    through_lowered_first_level, try_candidate, verify_candidate, Verdict, Verified,
+    PRECISE_START_SKIPPED_LEVELS,
 };

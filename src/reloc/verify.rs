@@ -211,6 +211,13 @@ fn local_contrast_passes(
     c.local >= first_floor && coarser_local >= min_local
 }
 
+/// True when the whole gate passed `c` only through its lowered first
+/// level (`gate_at_map_detail`): its local contrast is short of
+/// `min_local_correlation` ([`Verified::lowered_first_level`]).
+pub fn through_lowered_first_level(c: &Correlations, config: &RelocConfig) -> bool {
+    c.local < config.min_local_correlation
+}
+
 /// The first pyramid level the gate reads: the keyframe's
 /// [`Keyframe::gate_level`] with `gate_at_map_detail`, else 0.
 fn first_gate_level(keyframe: &Keyframe, config: &RelocConfig) -> usize {
@@ -410,7 +417,7 @@ pub fn verify_candidate(
                     trimmed_correlation: ncc.trimmed,
                     kept: ncc.kept,
                     local_correlation: ncc.local,
-                    lowered_first_level: ncc.local < config.min_local_correlation,
+                    lowered_first_level: through_lowered_first_level(&ncc, config),
                 });
             }
         } else if q.inlier_ratio >= config.refine_min_inlier_ratio
