@@ -85,6 +85,34 @@ impl Run {
         Self { dataset, localizer }
     }
 
+    /// [`Self::start`], then frame 6 fed: it passes the search and is not
+    /// sent (the first of three verifying frames).
+    fn after_a_passed_frame(dir: &Path) -> Self {
+        let mut run = Self::start(dir);
+        let out = run.feed(6, 6);
+        assert!(
+            out.world_from_camera.is_none(),
+            "frame 6 sent before confirmation"
+        );
+        assert_eq!(
+            run.localizer.stats().verified_by_tracking,
+            0,
+            "frame 6 was searched"
+        );
+        run
+    }
+
+    /// Asserts that `out`, the output of `what`, was neither sent nor
+    /// counted as confirmed by tracking.
+    fn assert_refused(&self, out: &FrameOutput, what: &str) {
+        assert!(out.world_from_camera.is_none(), "{what} sent");
+        assert_eq!(
+            self.localizer.stats().verified_by_tracking,
+            0,
+            "{what} confirmed by tracking"
+        );
+    }
+
     /// Feeds the image of frame `image` at the time of frame `at`.
     fn feed(&mut self, image: usize, at: usize) -> FrameOutput {
         let frame = self.dataset.load_frame(image).expect("frame");
@@ -148,20 +176,9 @@ fn stamp_ns(dataset: &Dataset, i: usize) -> u64 {
 #[test]
 fn verifying_frames_beyond_the_search_confirm_by_tracking_from_the_one_that_passed() {
     let tmp = tempfile::tempdir().expect("tmp");
-    let mut run = Run::start(tmp.path());
-
     // Frame 6 passes the search; 12 and 18 are beyond its reach and
     // confirm by tracking, each from the frame before.
-    let out = run.feed(6, 6);
-    assert!(
-        out.world_from_camera.is_none(),
-        "frame 6 sent before confirmation"
-    );
-    assert_eq!(
-        run.localizer.stats().verified_by_tracking,
-        0,
-        "frame 6 was searched"
-    );
+    let mut run = Run::after_a_passed_frame(tmp.path());
     let out = run.feed(12, 12);
     assert!(
         out.world_from_camera.is_none(),
@@ -189,24 +206,10 @@ fn verifying_frames_beyond_the_search_confirm_by_tracking_from_the_one_that_pass
 #[test]
 fn a_frame_of_another_place_after_one_that_passed_is_not_confirmed_by_tracking() {
     let tmp = tempfile::tempdir().expect("tmp");
-    let mut run = Run::start(tmp.path());
-
-    let out = run.feed(6, 6);
-    assert!(
-        out.world_from_camera.is_none(),
-        "frame 6 sent before confirmation"
-    );
+    let mut run = Run::after_a_passed_frame(tmp.path());
     // The image of frame 100, 1 m on, where frame 12 was due.
     let out = run.feed(100, 12);
-    assert!(
-        out.world_from_camera.is_none(),
-        "another place's frame sent"
-    );
-    assert_eq!(
-        run.localizer.stats().verified_by_tracking,
-        0,
-        "another place's frame confirmed by tracking"
-    );
+    run.assert_refused(&out, "another place's frame");
     // Whatever follows, nothing sent is wrong.
     for i in 18..60 {
         let out = run.feed(i, i);
@@ -219,22 +222,11 @@ fn a_frame_of_another_place_after_one_that_passed_is_not_confirmed_by_tracking()
 #[test]
 fn a_frame_the_gate_refuses_after_one_that_passed_is_not_confirmed_by_tracking() {
     let tmp = tempfile::tempdir().expect("tmp");
-    let mut run = Run::start(tmp.path());
-
-    let out = run.feed(6, 6);
-    assert!(
-        out.world_from_camera.is_none(),
-        "frame 6 sent before confirmation"
-    );
+    let mut run = Run::after_a_passed_frame(tmp.path());
     // Frame 12 blurred: it still tracks, but its local contrast is short
     // of the relocalization gate's floor (`min_local_correlation`).
     let out = run.feed_blurred(12, 12, 2);
-    assert!(out.world_from_camera.is_none(), "a blurred frame sent");
-    assert_eq!(
-        run.localizer.stats().verified_by_tracking,
-        0,
-        "a blurred frame confirmed by tracking"
-    );
+    run.assert_refused(&out, "a blurred frame");
     let out = run.feed(18, 18);
     assert!(
         out.world_from_camera.is_none(),
@@ -264,20 +256,9 @@ fn a_first_verifying_frame_confirms_only_through_the_search() {
 #[test]
 fn a_frame_tracked_for_a_verification_keeps_to_the_jump_limits() {
     let tmp = tempfile::tempdir().expect("tmp");
-    let mut run = Run::start(tmp.path());
-
-    let out = run.feed(6, 6);
-    assert!(
-        out.world_from_camera.is_none(),
-        "frame 6 sent before confirmation"
-    );
+    let mut run = Run::after_a_passed_frame(tmp.path());
     // The image of frame 20, 15 cm on, 20 ms after frame 6: it tracks and
     // passes the gate, but no vehicle moves 7 m/s between two frames.
     let out = run.feed(20, 7);
-    assert!(out.world_from_camera.is_none(), "a jumping frame sent");
-    assert_eq!(
-        run.localizer.stats().verified_by_tracking,
-        0,
-        "a jumping frame confirmed by tracking"
-    );
+    run.assert_refused(&out, "a jumping frame");
 }
