@@ -89,8 +89,8 @@ pub struct OfflineReport {
     pub tracked: Vec<(f64, bool)>,
     /// Relocalizations accepted and confirmed.
     pub relocalizations: u64,
-    /// Verifying frames that confirmed by tracking after their search
-    /// failed ([`crate::localizer::LoopStats::verified_by_tracking`]).
+    /// Verifying frames that passed by tracking after their search failed
+    /// ([`crate::localizer::LoopStats::verified_by_tracking`]).
     pub verified_by_tracking: u64,
     /// Frames that resumed tracking after a loss and were held, not output
     /// ([`crate::localizer::LoopStats::held_resumes`]).

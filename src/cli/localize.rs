@@ -256,7 +256,7 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
     }
     if report.reloc_attempts > 0 || report.relocalizations > 0 {
         println!(
-            "  relocalization: {} attempts, {} relocalized, {} verifying frames confirmed by tracking (reset_counter {})",
+            "  relocalization: {} attempts, {} relocalized, {} verifying frames passed by tracking (reset_counter {})",
             report.reloc_attempts,
             report.relocalizations,
             report.verified_by_tracking,

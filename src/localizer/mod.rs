@@ -262,9 +262,10 @@ pub struct LoopStats {
     pub reloc_candidates: u64,
     /// Relocalizations accepted and verified (tracking restarted).
     pub relocalizations: u64,
-    /// Frames that confirmed a relocalization or a start pose by ordinary
-    /// tracking from the verifying frame before them, after their own
-    /// search against the keyframe failed (`Localizer::verifies_by_tracking`).
+    /// Verifying frames (of a relocalization or a start pose) that passed
+    /// by ordinary tracking from the verifying frame before them, after
+    /// their own search against the keyframe failed
+    /// (`Localizer::verifies_by_tracking`).
     pub verified_by_tracking: u64,
     /// Relocalization attempts refused because candidates at two places
     /// passed the gate (look-alike rooms).
