@@ -43,7 +43,8 @@ impl Run {
         Self::start_with(dir, Config::default())
     }
 
-    /// [`Self::start`] with `config`'s tracker and keyframe settings.
+    /// [`Self::start`] with `config`'s settings (its search grid set to
+    /// [`GRID_SPACING_M`]).
     fn start_with(dir: &Path, config: Config) -> Self {
         common::star_cli::synth_no_depth(dir, "ideal", 21, FRAMES);
         let dataset = Dataset::open(dir).expect("open");
@@ -124,7 +125,7 @@ impl Run {
 
     /// Feeds the image of frame `image` at the time of frame `at`, blurred
     /// by three box filters of `radius` pixels each way (about a Gaussian
-    /// of that sigma): a frame shaken or out of focus.
+    /// of sigma `sqrt(radius (radius + 1))`): a frame out of focus.
     fn feed_blurred(&mut self, image: usize, at: usize, radius: usize) -> FrameOutput {
         let frame = self.dataset.load_frame(image).expect("frame");
         let (w, h) = (frame.width(), frame.height());
