@@ -12,7 +12,7 @@ use crate::geometry::Pose;
 use crate::imgproc::ImageU8;
 use crate::render::Renderer;
 
-use crate::localizer::{Localizer, LocalizerError, TrackState};
+use crate::localizer::{FrameOutput, Localizer, LocalizerError, NextFrameHold, TrackState};
 use crate::output::{FramePixels, FrameSinks, RecordSink};
 
 /// Errors of an offline run.
@@ -95,6 +95,9 @@ pub struct OfflineReport {
     /// Frames that resumed tracking after a loss and were held, not output
     /// ([`crate::localizer::LoopStats::held_resumes`]).
     pub held_resumes: u64,
+    /// With `[keyframe] hold_for_next_frame`: tracked frames not output
+    /// because the next frame was lost (or none came).
+    pub held_for_next_frame: Option<u64>,
     /// Keyframes asked for during short losses, following the camera
     /// ([`crate::localizer::LoopStats::lost_keyframes`]).
     pub lost_keyframes: u64,
@@ -128,6 +131,23 @@ pub struct OfflineReport {
     /// the tracker spent handing it over (row, and every Nth frame the
     /// picture copy), ms.
     pub record_ms: Vec<f64>,
+}
+
+impl OfflineReport {
+    /// Counts one frame as it goes out: its pose, or a lost frame.
+    fn output(&mut self, out: &FrameOutput, stamp_s: f64) {
+        self.tracked
+            .push((stamp_s, out.world_from_camera.is_some()));
+        match (out.state, out.world_from_camera) {
+            (TrackState::Tracking, Some(pose)) => {
+                self.estimate.push(stamp_s, pose);
+                let q = &out.quality;
+                self.min_inlier_ratio = self.min_inlier_ratio.min(q.inlier_ratio);
+                self.min_correlation = self.min_correlation.min(q.correlation);
+            }
+            _ => self.lost_frames += 1,
+        }
+    }
 }
 
 /// Poses output that were wrong: the figure that matters most.
@@ -319,6 +339,7 @@ pub fn localize_dataset_recorded(
         tracked: Vec::with_capacity(n),
         relocalizations: 0,
         held_resumes: 0,
+        held_for_next_frame: None,
         verified_by_tracking: 0,
         lost_keyframes: 0,
         reloc_ambiguous: 0,
@@ -338,6 +359,8 @@ pub fn localize_dataset_recorded(
     };
     let levels = config.tracker.pyramid_levels as usize;
     let mut points: Vec<Vec<u32>> = vec![Vec::with_capacity(n); levels];
+    // What is sent waits for the next frame when `hold_for_next_frame` is on.
+    let mut hold = NextFrameHold::new(config.keyframe.hold_for_next_frame);
     let wall_start = Instant::now();
     for i in 0..n {
         let stamp_s = dataset.frames[i].timestamp_s;
@@ -394,20 +417,11 @@ pub fn localize_dataset_recorded(
                 report.frames += 1;
                 report.track_ms.push(ms);
                 report.reset_counters.push(out.reset_counter);
-                report
-                    .tracked
-                    .push((stamp_s, out.world_from_camera.is_some()));
                 for (l, p) in points.iter_mut().enumerate() {
                     p.push(out.quality.points_used[l]);
                 }
-                match (out.state, out.world_from_camera) {
-                    (TrackState::Tracking, Some(pose)) => {
-                        report.estimate.push(stamp_s, pose);
-                        let q = &out.quality;
-                        report.min_inlier_ratio = report.min_inlier_ratio.min(q.inlier_ratio);
-                        report.min_correlation = report.min_correlation.min(q.correlation);
-                    }
-                    _ => report.lost_frames += 1,
+                if let Some((out, stamp_s)) = hold.push(out, stamp_s) {
+                    report.output(&out, stamp_s);
                 }
             }
             Err(e) => {
@@ -417,6 +431,10 @@ pub fn localize_dataset_recorded(
         }
         on_frame(i);
     }
+    if let Some((out, stamp_s)) = hold.finish() {
+        report.output(&out, stamp_s);
+    }
+    report.held_for_next_frame = hold.enabled().then(|| hold.withheld());
     let stats = localizer.stats();
     report.keyframes = stats.keyframes;
     report.relocalizations = stats.relocalizations;

@@ -353,3 +353,77 @@ fn texture_less_view_is_lost_or_refused() {
         }
     }
 }
+
+/// `[keyframe] hold_for_next_frame`: a tracked frame is sent only once the
+/// next frame tracks too, through `star localize`'s path. Frames 10 and 11
+/// are black (lost): frame 9 is tracked but not sent, nor is the last frame
+/// (no frame follows it); every other pose goes out as without the hold.
+#[test]
+fn a_pose_held_for_the_next_frame_is_not_sent_when_that_frame_is_lost() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    synth(tmp.path());
+    let dataset = Dataset::open(tmp.path()).expect("open");
+    for i in [10, 11] {
+        let path = tmp.path().join(&dataset.frames[i].path);
+        let frame = image::open(&path).expect("frame");
+        image::DynamicImage::new(frame.width(), frame.height(), frame.color())
+            .save(&path)
+            .expect("black frame");
+    }
+    let run = |hold: bool| {
+        let mut config = Config::default();
+        config.keyframe.hold_for_next_frame = hold;
+        localize_dataset(
+            &dataset,
+            cpu_renderer(tmp.path()),
+            &config,
+            &OfflineOptions::default(),
+            |_| {},
+        )
+        .expect("localize")
+    };
+    let stamp = |i: usize| dataset.frames[i].timestamp_s;
+    let sent = |report: &star::offline::OfflineReport| -> Vec<usize> {
+        (0..FRAMES)
+            .filter(|&i| report.estimate.stamps_s.iter().any(|&s| s == stamp(i)))
+            .collect()
+    };
+    let plain = run(false);
+    let held = run(true);
+    let plain_sent = sent(&plain);
+    // Without the hold: every frame but the two black ones and the resume
+    // (12), which is held as a resume is.
+    let expected_plain: Vec<usize> = (0..FRAMES).filter(|i| ![10, 11, 12].contains(i)).collect();
+    assert_eq!(plain_sent, expected_plain);
+    assert_eq!(plain.held_for_next_frame, None);
+    let expected_held: Vec<usize> = expected_plain
+        .iter()
+        .copied()
+        .filter(|&i| i != 9 && i != FRAMES - 1)
+        .collect();
+    assert_eq!(
+        sent(&held),
+        expected_held,
+        "frames 9 and {} withheld",
+        FRAMES - 1
+    );
+    assert_eq!(held.held_for_next_frame, Some(2));
+    assert_eq!(
+        held.frames, plain.frames,
+        "every frame processed either way"
+    );
+    assert_eq!(held.lost_frames, plain.lost_frames + 2);
+    // The poses that go out are the frames' own, at their own stamps.
+    for (i, s) in held.estimate.stamps_s.iter().enumerate() {
+        let k = plain
+            .estimate
+            .stamps_s
+            .iter()
+            .position(|p| p == s)
+            .expect("sent without the hold too");
+        let d = (held.estimate.poses[i].translation.vector
+            - plain.estimate.poses[k].translation.vector)
+            .norm();
+        assert!(d < 0.01, "frame at {s} s differs by {d} m");
+    }
+}

@@ -254,6 +254,11 @@ pub fn print_summary(report: &OfflineReport, output: &Path) {
             report.held_resumes, report.lost_keyframes
         );
     }
+    if let Some(withheld) = report.held_for_next_frame {
+        println!(
+            "  poses held for the next frame ([keyframe] hold_for_next_frame): {withheld} tracked frames not sent, the frame after each lost"
+        );
+    }
     if report.reloc_attempts > 0 || report.relocalizations > 0 {
         println!(
             "  relocalization: {} attempts, {} relocalized, {} verifying frames passed by tracking (reset_counter {})",

@@ -61,6 +61,14 @@ pub struct KeyframeConfig {
     /// limit: the gate tells look-alike rooms apart by what it sees through
     /// their doors.
     pub far_m: f32,
+    /// Hold each pose until the next frame has tracked too; a frame whose
+    /// next frame is lost is never sent ([`super::hold`]). One frame of
+    /// latency on every pose (the capture time sent stays the frame's
+    /// own) against the wrong poses at the end of a slide: on `aggressive
+    /// --scanned` the next frame was lost after each wrong pose of the
+    /// slides and steps measured (docs/benchmarks.md, "A pose held for the
+    /// next frame"). Off by default.
+    pub hold_for_next_frame: bool,
 }
 
 impl Default for KeyframeConfig {
@@ -79,6 +87,7 @@ impl Default for KeyframeConfig {
             lost_correlation_drop: 0.6,
             lost_local_correlation_drop: 0.7,
             far_m: 0.0,
+            hold_for_next_frame: false,
         }
     }
 }

@@ -23,11 +23,13 @@
 
 pub mod config;
 pub mod continuity;
+pub mod hold;
 pub mod policy;
 mod relocalize;
 pub mod worker;
 
 pub use config::KeyframeConfig;
+pub use hold::NextFrameHold;
 
 use nalgebra::Matrix6;
 

@@ -30,7 +30,7 @@ use crate::geometry::Pose;
 use crate::ipc::{
     FrameSubscriber, FrameView, PoseMsg, PosePublisher, TrackingState, NO_DATASET_STAMP,
 };
-use crate::localizer::{FrameOutput, Localizer, LocalizerError, TrackState};
+use crate::localizer::{FrameOutput, Localizer, LocalizerError, NextFrameHold, TrackState};
 use crate::mavlink_io::frames::{twist_covariance_world_from_camera, upper_triangle};
 use crate::mavlink_io::{LinkStats, MavlinkHandle, PoseSample};
 use crate::output::{FramePixels, FrameSinks, RecordSink, RecordSummary};
@@ -209,11 +209,21 @@ pub(super) struct LoopState {
     silent: bool,
     /// When the silent loop last checked the frame service.
     last_service_check: Option<Instant>,
+    /// What is sent waits for the next frame (`[keyframe] hold_for_next_frame`).
+    hold: NextFrameHold<SentFrame>,
+}
+
+/// What the send path needs of a frame besides its output.
+#[derive(Debug, Clone, Copy)]
+struct SentFrame {
+    capture_ns: u64,
+    sequence: u64,
+    stamp_s: f64,
 }
 
 impl LoopState {
     /// The state before the first iteration of `service`'s loop.
-    pub(super) fn new(service: &Service) -> Self {
+    pub(super) fn new(service: &Service, hold_for_next_frame: bool) -> Self {
         Self {
             status: service.status(),
             watchdog: service.watchdog(),
@@ -231,6 +241,7 @@ impl LoopState {
             last_frame_at: None,
             silent: false,
             last_service_check: None,
+            hold: NextFrameHold::new(hold_for_next_frame),
         }
     }
 }
@@ -436,18 +447,15 @@ impl Tracker {
         }
         log_state_change(state.previous, &out);
         state.previous = Some(out.state);
-        let tracking = out.state == TrackState::Tracking && out.world_from_camera.is_some();
-        let pose = out
-            .world_from_camera
-            .or(state.world_from_camera_last)
-            .unwrap_or(self.world_from_camera_start);
-        let covariance_world = twist_covariance_world_from_camera(&pose, &out.covariance);
         let stamp_s = if header.dataset_stamp_ns == NO_DATASET_STAMP {
             header.capture_ns as f64 * 1e-9
         } else {
             header.dataset_stamp_ns as f64 * 1e-9
         };
         if stop.record.is_some() || stop.has_rerun() {
+            // The flight log and the live view show what the tracker made
+            // of this frame; with `hold_for_next_frame` its pose goes out
+            // (or not) with the next frame.
             let pixels = FramePixels {
                 pixels: view.pixels,
                 width: view.width(),
@@ -461,6 +469,22 @@ impl Tracker {
             }
             .hand(&self.localizer, &out, stamp_s, track_ms, pixels);
         }
+        let sent = SentFrame {
+            capture_ns: header.capture_ns,
+            sequence: header.sequence,
+            stamp_s,
+        };
+        let Some((out, sent)) = state.hold.push(out, sent) else {
+            // The first frame, held for the next.
+            return Step::Lost;
+        };
+        let stamp_s = sent.stamp_s;
+        let tracking = out.state == TrackState::Tracking && out.world_from_camera.is_some();
+        let pose = out
+            .world_from_camera
+            .or(state.world_from_camera_last)
+            .unwrap_or(self.world_from_camera_start);
+        let covariance_world = twist_covariance_world_from_camera(&pose, &out.covariance);
         if tracking {
             state.tracked += 1;
             state.world_from_camera_last = Some(pose);
@@ -478,8 +502,8 @@ impl Tracker {
             state.status.set_state(ServiceState::Lost);
         }
         let mut msg = PoseMsg::new(
-            header.capture_ns,
-            header.sequence,
+            sent.capture_ns,
+            sent.sequence,
             &pose,
             if tracking {
                 TrackingState::Tracking
@@ -500,7 +524,7 @@ impl Tracker {
         }
         if let Some(link) = &self.mavlink {
             link.publish(PoseSample {
-                capture_ns: header.capture_ns,
+                capture_ns: sent.capture_ns,
                 world_from_camera: pose,
                 covariance_6x6: rows(&covariance_world),
                 reset_counter: out.reset_counter,

@@ -125,7 +125,7 @@ pub fn start(config: &Config, hint: Option<Pose>, shutdown: Arc<AtomicBool>) -> 
         renderer = localizer.renderer_name(),
         "tracker ready; waiting for frames"
     );
-    let looping = frame_loop::LoopState::new(&service);
+    let looping = frame_loop::LoopState::new(&service, config.keyframe.hold_for_next_frame);
     Ok(Tracker {
         subscriber,
         poses,
