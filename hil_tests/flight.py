@@ -61,6 +61,9 @@ FPS = float(os.environ.get("STAR_SIM_FPS", "50"))
 # a pose read one step early gets a jitter-corrected time under 20 ms after
 # the one before (docs/benchmarks.md, "Vision samples EKF3 drops").
 MAVLINK_EXTRA = os.environ.get("STAR_FLIGHT_MAVLINK", "autopilot_min_interval_ms = 25")
+# Extra `[keyframe]` keys for star, ';'-separated (STAR_FLIGHT_KEYFRAME), e.g.
+# "hold_for_next_frame = true".
+KEYFRAME_EXTRA = os.environ.get("STAR_FLIGHT_KEYFRAME", "")
 START_XY_M = (2.5, 4.0)
 # SITL's vehicle rests with its body origin this far above home altitude;
 # the room's floor is put there.
@@ -77,7 +80,7 @@ CONFIG_EXTRA = f"""[render]
 renderer = "cpu"
 [camera]
 fps = {FPS}
-"""
+""" + (f"[keyframe]\n{KEYFRAME_EXTRA.replace(';', chr(10))}\n" if KEYFRAME_EXTRA else "")
 CONFIG_TRACKER = """pyramid_levels = 3
 block_size_px = 16
 """

@@ -105,3 +105,84 @@ fn sigkill_loses_at_most_a_second_of_poses() {
         "{written} poses: more than the dataset's 60 frames"
     );
 }
+
+/// Stamps of a TUM trajectory file, seconds.
+fn stamps_in(path: &std::path::Path) -> Vec<f64> {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .filter_map(|l| l.split_whitespace().next()?.parse().ok())
+        .collect()
+}
+
+/// `[keyframe] hold_for_next_frame` in the service (`star run`): each pose
+/// goes out with the next frame, at its own stamp, and the last frame,
+/// which no frame confirms, is not sent.
+#[test]
+fn the_service_holds_each_pose_for_the_next_frame() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let src = format!("replay:{}", dataset().display());
+    // 0.5x: the tracker keeps up, so both runs process the same frames.
+    let run = |tag: &str, extra: &str| {
+        let cfg = config(
+            dir.path(),
+            tag,
+            &format!("{extra}\n[camera]\nreplay_speed = 0.5\n"),
+        );
+        let est = dir.path().join(format!("{tag}.txt"));
+        let out = star(&[
+            "--log",
+            "info",
+            "run",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--source",
+            &src,
+            "--trajectory",
+            est.to_str().unwrap(),
+            "--idle-exit-s",
+            "1",
+        ]);
+        let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(
+            out.status.success(),
+            "{tag}: {stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (stamps_in(&est), stdout)
+    };
+    let (plain, plain_out) = run("holdoff", "");
+    let (held, held_out) = run("holdon", "[keyframe]\nhold_for_next_frame = true\n");
+    assert!(plain.len() >= 50, "the plain run tracked: {plain_out}");
+    assert!(
+        !plain_out.contains("held for the next frame"),
+        "{plain_out}"
+    );
+    let line = held_out
+        .lines()
+        .find(|l| l.contains("poses held for the next frame"))
+        .unwrap_or_else(|| panic!("no hold line: {held_out}"));
+    let withheld: usize = line
+        .split(": ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("cannot read {line}"));
+    assert!(withheld >= 1, "the last frame is never confirmed: {line}");
+    let last = *plain.last().expect("poses");
+    assert!(
+        !held.contains(&last),
+        "the last frame's pose went out without a frame after it"
+    );
+    assert!(
+        held.iter().all(|s| plain.contains(s)),
+        "every pose held goes out at its own frame's stamp"
+    );
+    assert!(
+        held.len() + withheld >= plain.len() - 2 && held.len() < plain.len(),
+        "held {} + withheld {withheld} against {} sent without the hold",
+        held.len(),
+        plain.len()
+    );
+}

@@ -202,6 +202,11 @@ pub fn finish(summary: &TrackSummary, trajectory: Option<&Path>) -> Result<()> {
         summary.keyframes,
         summary.renderer
     );
+    if let Some(withheld) = summary.held_for_next_frame {
+        println!(
+            "track: poses held for the next frame ([keyframe] hold_for_next_frame): {withheld} tracked frames not sent, the frame after each lost"
+        );
+    }
     match &summary.link {
         Some(s) => println!(
             "track: MAVLink sent VISION_POSITION_ESTIMATE {}  ODOMETRY {}  HEARTBEAT {}  TIMESYNC requests {}  TIMESYNC replies {}; dropped: lost {} rate {} stale {} link {} clock {} spacing {}; autopilot heartbeats {}",

@@ -135,6 +135,10 @@ pub struct TrackSummary {
     pub stop_reason: Option<StopReason>,
     /// What the flight log recorded, when one was kept.
     pub record: Option<RecordSummary>,
+    /// With `[keyframe] hold_for_next_frame`: tracked frames whose pose was
+    /// not sent because the next frame was lost (or none came before the
+    /// end; that last frame counts as lost).
+    pub held_for_next_frame: Option<u64>,
     /// What the live view logged, when it was on.
     #[cfg(feature = "rerun")]
     pub rerun: Option<crate::output::rerun_log::RerunSummary>,
@@ -358,11 +362,14 @@ impl Tracker {
     /// Ends the run: stops the MAVLink link and the service thread, flushes
     /// the trajectory file and says what the loop did.
     pub fn finish(mut self, stop: &mut StopWhen) -> Result<TrackSummary> {
+        // The frame still held for the next one: none came, nothing is sent.
+        let last_held = self.looping.hold.finish().is_some();
         let state = &self.looping;
         let mut summary = TrackSummary {
             frames: state.frames,
             tracked: state.tracked,
-            lost: state.lost,
+            lost: state.lost + u64::from(last_held),
+            held_for_next_frame: state.hold.enabled().then(|| state.hold.withheld()),
             renderer: self.localizer.renderer_name().to_string(),
             ..TrackSummary::default()
         };
