@@ -164,8 +164,8 @@ fn the_service_holds_each_pose_for_the_next_frame() {
         .find(|l| l.contains("poses held for the next frame"))
         .unwrap_or_else(|| panic!("no hold line: {held_out}"));
     let withheld: usize = line
-        .split(": ")
-        .nth(1)
+        .rsplit(": ")
+        .next()
         .and_then(|r| r.split_whitespace().next())
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("cannot read {line}"));
