@@ -167,7 +167,8 @@ pub struct LoggedFrame {
     pub keyframe_age_ms: f32,
     /// Reset counter.
     pub reset_counter: u8,
-    /// Whether a pose went out.
+    /// Whether a pose went out (with `[keyframe] hold_for_next_frame`: was
+    /// output by the tracker, and went out if the next frame tracked too).
     pub pose_sent: bool,
     /// When the MAVLink pose message went out, CLOCK_MONOTONIC ns.
     pub mavlink_send_ns: Option<u64>,
