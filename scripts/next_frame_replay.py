@@ -20,32 +20,12 @@ Needs numpy.
 
 import argparse
 import csv
-import math
 import signal
 import sys
 
 import numpy as np
 
-WRONG_DEG = 5.0
-
-
-def read_tum(path):
-    """Stamp (rounded to 1 ms) -> [tx ty tz qx qy qz qw]."""
-    poses = {}
-    with open(path) as f:
-        for line in f:
-            if line.startswith("#") or not line.strip():
-                continue
-            v = [float(x) for x in line.split()]
-            poses[round(v[0], 3)] = np.array(v[1:8])
-    return poses
-
-
-def angle_deg(qa, qb):
-    """Angle between two unit quaternions (x y z w), degrees."""
-    d = abs(float(np.dot(qa / np.linalg.norm(qa), qb / np.linalg.norm(qb))))
-    return math.degrees(2.0 * math.acos(min(1.0, d)))
-
+from wrong_poses import WRONG_DEG, angle_deg, read_tum  # the same truth, the same line
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
