@@ -288,9 +288,14 @@ impl Tracker {
             state.last_frame_at = Some(now);
             let changes = self.subscriber.stats().publisher_changes;
             if state.silent || changes != state.publisher_changes {
-                // A gap or a new camera: the velocity is stale.
+                // A gap or a new camera: the velocity is stale, and a frame
+                // held for the next one is not confirmed by a frame after
+                // the gap (`hold_for_next_frame`): withheld, counted lost.
                 self.localizer.forget_motion();
                 state.publisher_changes = changes;
+                if state.hold.finish().is_some() {
+                    state.lost += 1;
+                }
             }
             if state.silent {
                 info!("camera frames resumed");
