@@ -123,7 +123,7 @@ fn stamps_in(path: &std::path::Path) -> Vec<f64> {
 fn the_service_holds_each_pose_for_the_next_frame() {
     let dir = tempfile::tempdir().expect("tmp");
     let src = format!("replay:{}", dataset().display());
-    // 0.5x: the tracker keeps up, so both runs process the same frames.
+    // 0.5x: the tracker keeps up with every frame.
     let run = |tag: &str, extra: &str| {
         let cfg = config(
             dir.path(),

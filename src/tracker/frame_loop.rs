@@ -166,7 +166,9 @@ pub enum Step {
     /// and to the trajectory file.
     Tracked,
     /// A frame was processed without a pose (lost): the last pose went to
-    /// the pose service and to MAVLink, marked lost.
+    /// the pose service and to MAVLink, marked lost. With `[keyframe]
+    /// hold_for_next_frame` both name the frame sent, the one before the
+    /// frame processed; the first frame, held, is `Lost` with nothing sent.
     Lost,
     /// A frame arrived but was rejected (inconsistent header, or refused by
     /// the localizer: wrong size, timestamps out of order); nothing went out.
