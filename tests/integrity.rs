@@ -149,22 +149,26 @@ fn frames_of_a_look_alike_room_send_nothing() {
 
     // Frames from a place that looks alike: another seed's room (another
     // layout and flight) papered with the very textures of the mapped room
-    // (seed 3). Any pose sent for them is wrong; their truth is set 1 km
-    // away so the count sees it.
+    // (seed 3), LOOK_ALIKE_FRAMES of them from FAULT_START on, then the
+    // mapped room's own frames again. Any pose sent for the look-alike
+    // frames is wrong; their truth is set 1 km away so the count sees it.
+    // (The look-alike ran to the end of the sequence until 2026-12-07,
+    // 150 frames, each searched in the database: 96 s of CI's time.)
+    const LOOK_ALIKE_FRAMES: usize = 75;
     let other = tmp.path().join("other");
     let mut preset = Preset::by_name("realistic").expect("preset");
     preset.scene.texture_seed = Some(3);
     let options = SequenceOptions {
         preset,
         seed: 11,
-        frames: FRAMES,
+        frames: FAULT_START + LOOK_ALIKE_FRAMES,
         write_depth: false,
     };
     write_sequence(&other, &options, &mut |_| {}).expect("other sequence");
     let other_ds = Dataset::open(&other).expect("other dataset");
     let elsewhere = Pose::translation(1000.0, 0.0, 0.0);
     let ds = assembled(fx, &tmp.path().join("elsewhere"), |i| {
-        if i >= FAULT_START {
+        if (FAULT_START..FAULT_START + LOOK_ALIKE_FRAMES).contains(&i) {
             (other.join(&other_ds.frames[i].path), elsewhere)
         } else {
             (frame_path(fx, i), fx.gt.poses[i])
@@ -172,13 +176,20 @@ fn frames_of_a_look_alike_room_send_nothing() {
     });
     let report = run_with(fx, &ds, OfflineOptions::default(), true);
     integrity(&report, "look-alike room");
-    let sent_elsewhere = report.tracked[FAULT_START + 2..]
+    let back = FAULT_START + LOOK_ALIKE_FRAMES;
+    let sent_elsewhere = report.tracked[FAULT_START + 2..back]
         .iter()
         .filter(|t| t.1)
         .count();
     assert_eq!(
         sent_elsewhere, 0,
         "poses sent for frames of the look-alike room"
+    );
+    // Back in the mapped room, the search finds it again.
+    let resumed = (back..FRAMES).find(|&i| report.tracked[i].1);
+    assert!(
+        resumed.is_some_and(|i| i <= back + 50),
+        "back in the mapped room at frame {back}: resumed at {resumed:?}"
     );
 }
 
@@ -246,94 +257,110 @@ fn a_view_that_jumps_is_not_sent() {
     }
 }
 
-/// Localizes the fixture's flight (cold or from a right hint) in a map of
-/// the fixture room and a copy of it beyond the far limit (`shade` paints
-/// the copy, see [`twin_map`]), with database views along the flight in
-/// both rooms.
-fn run_in_twin_map(
-    shade: impl Fn([f32; 3], f32) -> f32,
-    starts: &[StartMode],
-) -> Vec<OfflineReport> {
-    let fx = fixture();
-    let hint = fx.gt.poses[0];
-    let starts: Vec<(StartMode, Option<Pose>)> = starts
-        .iter()
-        .map(|&s| (s, (s == StartMode::Hint).then_some(hint)))
-        .collect();
-    run_in_twin_map_from(shade, &starts)
+/// A map of the fixture room and a copy of it beyond the far limit (`shade`
+/// paints the copy, see [`twin_map`]), and a database with views along the
+/// flight in both rooms.
+struct TwinMap {
+    mesh: std::sync::Arc<star::map::Mesh>,
+    db: star::reloc::RelocDatabase,
 }
 
-/// As [`run_in_twin_map`], each run with its own start hint.
-fn run_in_twin_map_from(
-    shade: impl Fn([f32; 3], f32) -> f32,
-    starts: &[(StartMode, Option<Pose>)],
-) -> Vec<OfflineReport> {
-    use star::reloc::{build_database_along, AlongTrajectory, Relocalizer};
-    use star::render::cpu::CpuRenderer;
-    use std::sync::Arc;
+impl TwinMap {
+    fn new(shade: impl Fn([f32; 3], f32) -> f32) -> Self {
+        use star::reloc::{build_database_along, AlongTrajectory};
+        use star::render::cpu::CpuRenderer;
+        use std::sync::Arc;
 
-    let fx = fixture();
-    let ds = plain(fx);
-    let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
-    // Far enough along that neither room is seen from the other (through a
-    // doorway) within the renderer's far limit, a whole number of grid
-    // steps, so that the twins' database views are the same views.
-    let (lo_m, hi_m) = mesh.bounds().expect("bounds");
-    let step_m = fx.config.reloc.grid_spacing_m;
-    let clear_m = f64::from(hi_m[0] - lo_m[0]) + fx.config.render.far_m + 1.0;
-    let offset_x_m = (clear_m / step_m).ceil() * step_m;
-    let twin = Arc::new(twin_map(&mesh, offset_x_m as f32, shade));
-    let mut renderer = CpuRenderer::new(twin.clone()).expect("renderer");
-    // The grid over the flown region, and views along the flight in both
-    // rooms (as `star reloc build --poses` takes them).
-    let shifted = Translation3::new(offset_x_m, 0.0, 0.0);
-    let along = AlongTrajectory {
-        poses: fx
-            .gt
-            .poses
+        let fx = fixture();
+        let ds = plain(fx);
+        let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
+        // Far enough along that neither room is seen from the other (through a
+        // doorway) within the renderer's far limit, a whole number of grid
+        // steps, so that the twins' database views are the same views.
+        let (lo_m, hi_m) = mesh.bounds().expect("bounds");
+        let step_m = fx.config.reloc.grid_spacing_m;
+        let clear_m = f64::from(hi_m[0] - lo_m[0]) + fx.config.render.far_m + 1.0;
+        let offset_x_m = (clear_m / step_m).ceil() * step_m;
+        let twin = Arc::new(twin_map(&mesh, offset_x_m as f32, shade));
+        let mut renderer = CpuRenderer::new(twin.clone()).expect("renderer");
+        // The grid over the flown region, and views along the flight in both
+        // rooms (as `star reloc build --poses` takes them).
+        let shifted = Translation3::new(offset_x_m, 0.0, 0.0);
+        let along = AlongTrajectory {
+            poses: fx
+                .gt
+                .poses
+                .iter()
+                .copied()
+                .chain(
+                    fx.gt
+                        .poses
+                        .iter()
+                        .map(|p| Pose::from_parts(shifted * p.translation, p.rotation)),
+                )
+                .collect(),
+            spacing_m: 0.3,
+        };
+        let db = build_database_along(
+            &twin,
+            ds.camera(),
+            &mut renderer,
+            &fx.config.reloc,
+            Some(fx.region),
+            &along,
+            &mut |_, _| {},
+        )
+        .expect("database over both rooms");
+        Self { mesh: twin, db }
+    }
+
+    /// The room and its exact copy, built once per test binary: two tests
+    /// fly it (one database build less: docs/ci.md).
+    fn identical() -> &'static Self {
+        static SHARED: std::sync::OnceLock<TwinMap> = std::sync::OnceLock::new();
+        SHARED.get_or_init(|| Self::new(|_, g| g))
+    }
+
+    /// Localizes the fixture's flight (cold or from a right hint) in this map.
+    fn run(&self, starts: &[StartMode]) -> Vec<OfflineReport> {
+        let hint = fixture().gt.poses[0];
+        let starts: Vec<(StartMode, Option<Pose>)> = starts
             .iter()
-            .copied()
-            .chain(
-                fx.gt
-                    .poses
-                    .iter()
-                    .map(|p| Pose::from_parts(shifted * p.translation, p.rotation)),
-            )
-            .collect(),
-        spacing_m: 0.3,
-    };
-    let db = build_database_along(
-        &twin,
-        ds.camera(),
-        &mut renderer,
-        &fx.config.reloc,
-        Some(fx.region),
-        &along,
-        &mut |_, _| {},
-    )
-    .expect("database over both rooms");
+            .map(|&s| (s, (s == StartMode::Hint).then_some(hint)))
+            .collect();
+        self.run_from(&starts)
+    }
 
-    starts
-        .iter()
-        .map(|&(start, hint)| {
-            let options = OfflineOptions {
-                start,
-                world_from_camera_start: hint,
-                relocalizer: Some(
-                    Relocalizer::new(db.clone(), &fx.config.reloc, ds.camera()).expect("reloc"),
-                ),
-                ..OfflineOptions::default()
-            };
-            let renderer = Box::new(CpuRenderer::new(twin.clone()).expect("renderer"));
-            star::offline::localize_dataset(&ds, renderer, &fx.config, &options, |_| {})
-                .expect("localize")
-        })
-        .collect()
+    /// As [`Self::run`], each run with its own start hint.
+    fn run_from(&self, starts: &[(StartMode, Option<Pose>)]) -> Vec<OfflineReport> {
+        use star::reloc::Relocalizer;
+        use star::render::cpu::CpuRenderer;
+
+        let fx = fixture();
+        let ds = plain(fx);
+        starts
+            .iter()
+            .map(|&(start, hint)| {
+                let options = OfflineOptions {
+                    start,
+                    world_from_camera_start: hint,
+                    relocalizer: Some(
+                        Relocalizer::new(self.db.clone(), &fx.config.reloc, ds.camera())
+                            .expect("reloc"),
+                    ),
+                    ..OfflineOptions::default()
+                };
+                let renderer = Box::new(CpuRenderer::new(self.mesh.clone()).expect("renderer"));
+                star::offline::localize_dataset(&ds, renderer, &fx.config, &options, |_| {})
+                    .expect("localize")
+            })
+            .collect()
+    }
 }
 
 #[test]
 fn a_twin_room_refuses_a_cold_start_and_a_hint_still_starts() {
-    let reports = run_in_twin_map(|_, g| g, &[StartMode::Cold, StartMode::Hint]);
+    let reports = TwinMap::identical().run(&[StartMode::Cold, StartMode::Hint]);
     let [cold, hinted] = &reports[..] else {
         panic!("two runs");
     };
@@ -360,23 +387,21 @@ fn a_look_alike_room_is_told_apart_by_its_correlation() {
     // (a fifth of the room's length): views of it still pass the gate in
     // the copy, which tolerates what the map lacks, but correlate worse.
     let mesh_x = std::sync::OnceLock::new();
-    let reports = run_in_twin_map(
-        |p, g| {
-            let &(lo, hi) = mesh_x.get_or_init(|| {
-                let fx = fixture();
-                let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
-                let (lo, hi) = mesh.bounds().expect("bounds");
-                (lo[0], hi[0])
-            });
-            let t = (p[0] - lo) / (hi - lo);
-            if (0.4..0.6).contains(&t) {
-                0.5 * g
-            } else {
-                g
-            }
-        },
-        &[StartMode::Cold],
-    );
+    let reports = TwinMap::new(|p, g| {
+        let &(lo, hi) = mesh_x.get_or_init(|| {
+            let fx = fixture();
+            let mesh = star::map::load_obj(&fx.root.join("map").join("map.obj")).expect("map");
+            let (lo, hi) = mesh.bounds().expect("bounds");
+            (lo[0], hi[0])
+        });
+        let t = (p[0] - lo) / (hi - lo);
+        if (0.4..0.6).contains(&t) {
+            0.5 * g
+        } else {
+            g
+        }
+    })
+    .run(&[StartMode::Cold]);
     let cold = &reports[0];
     let i = integrity(cold, "cold start, look-alike rooms");
     assert!(
@@ -401,7 +426,7 @@ fn a_hint_at_the_right_place_facing_the_wrong_way_is_not_trusted() {
     let hint = fx.gt.poses[0];
     let turn = nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
     let turned = Pose::from_parts(hint.translation, turn * hint.rotation);
-    let reports = run_in_twin_map_from(|_, g| g, &[(StartMode::Hint, Some(turned))]);
+    let reports = TwinMap::identical().run_from(&[(StartMode::Hint, Some(turned))]);
     let report = &reports[0];
     let i = integrity(report, "hint facing the wrong way, twin rooms");
     assert_eq!(i.poses_checked, 0, "a pose was sent");
