@@ -3,14 +3,7 @@
 # installs the missing system packages and creates the Python venv (.venv)
 # used by the evaluation and hardware-in-the-loop tests.
 # Usage: scripts/setup.sh            (called by `make demo` and `make test`)
-#        scripts/setup.sh --system   the system packages only
-#        scripts/setup.sh --venv     the venv only (CI makes it beside the build)
 set -euo pipefail
-parts="${1:-all}"
-case "$parts" in
-  all | --system | --venv) ;;
-  *) echo "setup: unknown argument '$parts' (expected --system or --venv)" >&2; exit 2 ;;
-esac
 
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
@@ -28,7 +21,6 @@ packages=(
   socat
 )
 missing=()
-if [ "$parts" = --venv ]; then packages=(); fi
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
@@ -38,10 +30,9 @@ if ((${#missing[@]})); then
   if [ "$(id -u)" -ne 0 ]; then sudo_cmd=(sudo); fi
   "${sudo_cmd[@]}" apt-get update -qq
   DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"
-elif [ "$parts" != --venv ]; then
+else
   echo "setup: system packages present"
 fi
-if [ "$parts" = --system ]; then exit 0; fi
 
 # Python venv for evo (trajectory metrics), pymavlink and pytest.
 venv="${STAR_VENV:-$root/.venv}"
