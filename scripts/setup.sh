@@ -49,8 +49,11 @@ if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; 
   # bundle pip is given through its environment are passed on.
   uv_args=()
   if [ -n "${PIP_INDEX_URL:-}" ]; then uv_args+=(--index-url "$PIP_INDEX_URL"); fi
-  if [ -n "${PIP_EXTRA_INDEX_URL:-}" ]; then uv_args+=(--extra-index-url "$PIP_EXTRA_INDEX_URL"); fi
-  if [ -n "${PIP_FIND_LINKS:-}" ] && [ -d "$PIP_FIND_LINKS" ]; then uv_args+=(--find-links "$PIP_FIND_LINKS"); fi
+  # pip takes several, separated by spaces.
+  for url in ${PIP_EXTRA_INDEX_URL:-}; do uv_args+=(--extra-index-url "$url"); done
+  for links in ${PIP_FIND_LINKS:-}; do
+    if [ -e "$links" ] || [[ "$links" == *://* ]]; then uv_args+=(--find-links "$links"); fi
+  done
   uv_cert=()
   if [ -n "${PIP_CERT:-}" ] && [ -f "$PIP_CERT" ]; then uv_cert=(env SSL_CERT_FILE="$PIP_CERT"); fi
   if "$venv/bin/pip" install -q uv \
