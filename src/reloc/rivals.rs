@@ -98,11 +98,25 @@ pub const DECISIVE_MARGIN: f32 = 0.08;
 /// the `realistic` test room correlate at 0.72-0.79).
 pub const DECISIVE_MIN_CORRELATION: f32 = 0.7;
 
+/// A candidate turned more than this from the accepted pose stands at
+/// another place too, whatever the distance, degrees. A room's own
+/// symmetry can pass the gate there: in the one-room `building` (seed 3 of
+/// `star bench reloc`, 2026-12-07) a landmark pose 0.86 m from the truth
+/// and turned 89.8 degrees passed at correlation 0.52, while the true place,
+/// among the candidates at 0.86 m, correlated at 0.96 and was never
+/// verified against it. Three of the database's 15-degree yaw steps.
+pub const RIVAL_MIN_TURN_DEG: f64 = 45.0;
+
 /// Whether a rival verified at `rival` stands at another place than
-/// `accepted` (a rival can align back to the accepted pose itself: that is
-/// no ambiguity).
+/// `accepted`: farther than [`RIVAL_MIN_M`] or turned by more than
+/// [`RIVAL_MIN_TURN_DEG`] (a rival can align back to the accepted pose
+/// itself: that is no ambiguity).
 pub fn elsewhere(accepted: &Pose, rival: &Pose) -> bool {
     (rival.translation.vector - accepted.translation.vector).norm() > RIVAL_MIN_M
+        || (accepted.rotation.inverse() * rival.rotation)
+            .angle()
+            .to_degrees()
+            > RIVAL_MIN_TURN_DEG
 }
 
 /// What a rival that passed the gate means for the pose held.
@@ -568,6 +582,15 @@ mod tests {
         )
     }
 
+    /// `c` looking along `yaw_deg` (a held pose's own candidate faces as it does).
+    fn facing(c: Candidate, yaw_deg: f64) -> Candidate {
+        let x = c.world_from_camera.translation.vector.x;
+        Candidate {
+            world_from_camera: pose(x, yaw_deg),
+            ..c
+        }
+    }
+
     /// Database entry `index` at `x` with the coarse `score`.
     fn at(index: u32, x: f64, score: f32) -> Candidate {
         Candidate {
@@ -645,7 +668,7 @@ mod tests {
         );
         // The truth at the origin, scored below the look-alike but within
         // the cold margin (not the near one), is its rival ...
-        let candidates = [at(1, 1.4, 0.9), at(2, 0.0, 0.7)];
+        let candidates = [facing(at(1, 1.4, 0.9), 90.0), at(2, 0.0, 0.7)];
         let mut out = [usize::MAX; LISTED_RIVALS];
         let n = lowered.rivals(&candidates, &accepted, &[], &mut out);
         assert_eq!(&out[..n], &[1]);
@@ -690,7 +713,7 @@ mod tests {
             }
         );
         // The truth at the origin, scored near the look-alike: its rival.
-        let candidates = [at(1, 1.4, 0.9), at(2, 0.0, 0.8)];
+        let candidates = [facing(at(1, 1.4, 0.9), 90.0), at(2, 0.0, 0.8)];
         let mut out = [usize::MAX; LISTED_RIVALS];
         let n = weak.rivals(&candidates, &accepted, &[], &mut out);
         assert_eq!(&out[..n], &[1]);
@@ -727,7 +750,7 @@ mod tests {
                 world_from_camera: pose(6.0, 0.0),
                 ..at(LANDMARK_ELSEWHERE - 1, 0.0, 0.0)
             },
-            at(1, 1.8, 0.9),
+            facing(at(1, 1.8, 0.9), 90.0),
             Candidate {
                 world_from_camera: pose(0.3, 270.0),
                 ..at(2, 0.0, 0.85)
@@ -818,7 +841,11 @@ mod tests {
             }
         );
         // The truth (the origin) scored near the best: it is the rival.
-        let candidates = [at(1, 1.4, 0.9), at(2, 0.0, 0.8), at(3, 0.3, 0.6)];
+        let candidates = [
+            facing(at(1, 1.4, 0.9), 180.0),
+            at(2, 0.0, 0.8),
+            at(3, 0.3, 0.6),
+        ];
         let mut out = [usize::MAX; LISTED_RIVALS];
         let n = rule.rivals(&candidates, &accepted, &[], &mut out);
         assert_eq!(&out[..n], &[1]);
@@ -868,6 +895,37 @@ mod tests {
         assert!(RivalRule::is_rival(&accepted, &candidates[5], &[]));
         assert!(!RivalRule::is_rival(&accepted, &candidates[5], &[6]));
         assert!(!RivalRule::is_rival(&accepted, &candidates[0], &[]));
+    }
+
+    #[test]
+    fn a_place_turned_beyond_the_limit_is_another_place_at_any_distance() {
+        // The one-room `building`'s wrong accept: held 0.86 m from the
+        // true place and turned 90 degrees.
+        let held = pose(0.0, 90.0);
+        let truth = pose(0.86, 0.0);
+        assert!(elsewhere(&held, &truth) && elsewhere(&truth, &held));
+        assert!(elsewhere(
+            &held,
+            &pose(0.0, 90.0 + RIVAL_MIN_TURN_DEG + 1.0)
+        ));
+        assert!(!elsewhere(
+            &held,
+            &pose(0.3, 90.0 + RIVAL_MIN_TURN_DEG - 1.0)
+        ));
+        assert!(!elsewhere(&held, &held));
+        // So the true place is verified as a rival, and a pass there is
+        // judged: decisively better, it is chosen.
+        let mut turned = at(1, 0.86, 0.96);
+        turned.world_from_camera = truth;
+        let candidates = [turned, at(2, 0.1, 0.5)];
+        let mut out = [usize::MAX; LISTED_RIVALS];
+        let cold = RivalRule::new(None);
+        assert_eq!(cold.rivals(&candidates, &held, &[], &mut out), 1);
+        assert_eq!(out[0], 0);
+        assert_eq!(
+            cold.judge((&held, 0.52), (&truth, 0.96), true),
+            Judgment::RivalIsBetter
+        );
     }
 
     #[test]
