@@ -571,7 +571,8 @@ impl LandmarkLocator {
             else {
                 continue;
             };
-            // Best first; one per place (poses within a meter are one).
+            // Best first; one per place (poses within a meter and
+            // `rivals::RIVAL_MIN_TURN_DEG` of each other are one).
             if out
                 .iter()
                 .any(|o| !super::rivals::elsewhere(&o.world_from_camera, &found.world_from_camera))
