@@ -913,11 +913,10 @@ mod tests {
             &pose(0.3, 90.0 + RIVAL_MIN_TURN_DEG - 1.0)
         ));
         assert!(!elsewhere(&held, &held));
-        // So the true place is verified as a rival, and a pass there is
-        // judged: decisively better, it is chosen.
-        let mut turned = at(1, 0.86, 0.96);
-        turned.world_from_camera = truth;
-        let candidates = [turned, at(2, 0.1, 0.5)];
+        // So the true place is verified as a rival (entry 2 stands at the
+        // same place and is listed once), and a pass there is judged:
+        // decisively better, it is chosen.
+        let candidates = [at(1, 0.86, 0.96), at(2, 0.1, 0.5)];
         let mut out = [usize::MAX; LISTED_RIVALS];
         let cold = RivalRule::new(None);
         assert_eq!(cold.rivals(&candidates, &held, &[], &mut out), 1);
