@@ -767,10 +767,9 @@ impl Localizer {
     }
 
     /// A pose where the frame also passes the gate through one of the map's
-    /// known symmetries of the held pose (each way), more than
-    /// [`AMBIGUITY_RADIUS_M`] away, and that the held pose does not beat by
-    /// a decisive correlation ([`Judgment::HeldIsBetter`] under the
-    /// attempt's `rule`); `None` when none does.
+    /// known symmetries of the held pose (each way), at another place than
+    /// the held pose, and that the held pose does not beat by a decisive
+    /// correlation ([`twin_refuses`]); `None` when none does.
     fn twin_passes(
         &mut self,
         reloc: &Relocalizer,
@@ -790,15 +789,12 @@ impl Localizer {
                     continue;
                 };
                 self.worker.recycle(kf);
-                let apart_m = (v.world_from_camera.translation.vector
-                    - world_from_camera.translation.vector)
-                    .norm();
                 let beaten = rule.judge(
                     (world_from_camera, held.correlation),
                     (&v.world_from_camera, v.correlation),
                     true,
                 ) == Judgment::HeldIsBetter;
-                if apart_m > AMBIGUITY_RADIUS_M && !beaten {
+                if twin_refuses(world_from_camera, &v.world_from_camera, beaten) {
                     return Some(v.world_from_camera);
                 }
             }
@@ -934,9 +930,22 @@ const MAX_PASSED_UNHELD: usize = 8;
 /// two view steps (near the last position, the whole map) and the
 /// landmark poses at other places.
 const MAX_ATTEMPT_CANDIDATES: usize = 2 * MAX_TOP_K + 1 + MAX_LANDMARK_ELSEWHERE;
-/// How far apart two passing poses must be to be two places, m (the
-/// remembered symmetries; `reloc::rivals::RIVAL_MIN_M`).
+/// How far apart the translations of two remembered symmetries must be for
+/// them to be two symmetries, m (`reloc::rivals::RIVAL_MIN_M`).
 const AMBIGUITY_RADIUS_M: f64 = crate::reloc::rivals::RIVAL_MIN_M;
+
+/// Whether a pose `twin`, where the frame passed the gate through one of
+/// the map's remembered symmetries of the `held` pose, refuses it: it
+/// stands at another place ([`elsewhere`]: farther than
+/// `reloc::rivals::RIVAL_MIN_M`, or turned by more than
+/// `reloc::rivals::RIVAL_MIN_TURN_DEG`, as for the attempt's rivals) and
+/// the held pose does not correlate decisively better (`beaten`). A twin
+/// that aligned back onto the held pose is no other place. A symmetry of a
+/// room turned about its middle can put the twin beside the held pose,
+/// facing another wall: another place too.
+fn twin_refuses(held: &Pose, twin: &Pose, beaten: bool) -> bool {
+    elsewhere(held, twin) && !beaten
+}
 /// Look-alike pairs of places the localizer remembers (the map's
 /// symmetries, see [`Localizer::remember_symmetry`]).
 pub(super) const MAX_SYMMETRIES: usize = 8;
@@ -1036,6 +1045,33 @@ fn relocalization_gate_config<'a>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn facing(x_m: f64, yaw_deg: f64) -> Pose {
+        Pose::from_parts(
+            nalgebra::Translation3::new(x_m, 0.0, 1.4),
+            nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_deg.to_radians()),
+        )
+    }
+
+    #[test]
+    fn a_twin_turned_at_the_held_spot_refuses_it() {
+        let held = facing(1.0, 10.0);
+        // The seed-3 case of the one-room building, remembered: 0.86 m and
+        // 89.8 degrees from the held pose. Under the old rule (distance
+        // alone, 1 m) it refused nothing.
+        let turned = facing(1.86, 99.8);
+        assert!(twin_refuses(&held, &turned, false));
+        // Turned half round at the same spot.
+        assert!(twin_refuses(&held, &facing(1.0, 190.0), false));
+        // Two metres away, not turned.
+        assert!(twin_refuses(&held, &facing(3.0, 10.0), false));
+        // The held pose correlates decisively better: it stands.
+        assert!(!twin_refuses(&held, &turned, true));
+        // Aligned back onto the held pose (near, barely turned): no other
+        // place.
+        assert!(!twin_refuses(&held, &facing(1.3, 25.0), false));
+        assert!(!twin_refuses(&held, &held, false));
+    }
 
     #[test]
     fn local_contrast_drops_only_against_a_settled_mean() {
