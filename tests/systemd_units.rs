@@ -156,6 +156,17 @@ fn units_have_the_required_settings() {
     }
 }
 
+/// The tracker creates a wgpu instance at start; Mesa's drivers complain on
+/// stderr (the journal) without `XDG_RUNTIME_DIR`, which a system service
+/// lacks. The unit gives it a runtime directory of its own.
+#[test]
+fn the_tracker_has_a_runtime_directory_for_mesa() {
+    let text = std::fs::read_to_string(repo().join("systemd/star-track.service")).unwrap();
+    let set = |s: &str| text.lines().any(|l| l.trim() == s);
+    assert!(set("RuntimeDirectory=star-track"));
+    assert!(set("Environment=XDG_RUNTIME_DIR=%t/star-track"));
+}
+
 #[test]
 fn systemd_analyze_verify_accepts_the_installed_units() {
     if !have_systemd_analyze() {
