@@ -946,6 +946,7 @@ const AMBIGUITY_RADIUS_M: f64 = crate::reloc::rivals::RIVAL_MIN_M;
 fn twin_refuses(held: &Pose, twin: &Pose, beaten: bool) -> bool {
     elsewhere(held, twin) && !beaten
 }
+
 /// Look-alike pairs of places the localizer remembers (the map's
 /// symmetries, see [`Localizer::remember_symmetry`]).
 pub(super) const MAX_SYMMETRIES: usize = 8;
