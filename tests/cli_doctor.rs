@@ -8,7 +8,11 @@ use std::process::Command;
 use star::render::gpu;
 
 fn doctor(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_star"))
+    doctor_in(Command::new(env!("CARGO_BIN_EXE_star")), args)
+}
+
+fn doctor_in(mut command: Command, args: &[&str]) -> (bool, String) {
+    let out = command
         .arg("doctor")
         .args(args)
         .output()
@@ -50,4 +54,25 @@ fn doctor_tests_the_configured_renderer() {
     let (ok, text) = doctor(&["--config", path.to_str().expect("utf-8 path")]);
     assert!(ok, "{text}");
     assert!(text.contains("test render (Cpu): ok on cpu"), "{text}");
+}
+
+/// Without `XDG_RUNTIME_DIR` (a system service, a container) Mesa prints an
+/// "error" line on stderr; doctor says what it is and how to quiet it.
+#[test]
+fn doctor_explains_mesas_line_without_a_runtime_dir() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The CPU rasterizer: the test render needs no adapter.
+    let config = dir.path().join("star.toml");
+    std::fs::write(&config, "[render]\nrenderer = \"cpu\"\n").expect("write config");
+    let args = ["--config", config.to_str().expect("utf-8 path")];
+    let mut unset = Command::new(env!("CARGO_BIN_EXE_star"));
+    unset.env_remove("XDG_RUNTIME_DIR");
+    let (ok, text) = doctor_in(unset, &args);
+    assert!(ok, "{text}");
+    assert!(text.contains("XDG_RUNTIME_DIR: not set"), "{text}");
+    let mut set = Command::new(env!("CARGO_BIN_EXE_star"));
+    set.env("XDG_RUNTIME_DIR", dir.path());
+    let (ok, text) = doctor_in(set, &args);
+    assert!(ok, "{text}");
+    assert!(!text.contains("XDG_RUNTIME_DIR"), "{text}");
 }

@@ -49,6 +49,15 @@ pub fn check_renderer(kind: RendererKind) -> Result<()> {
             "not installed (apt install mesa-vulkan-drivers)"
         }
     );
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        // Mesa's complaint, printed (on stderr) while the adapters above were
+        // listed: harmless, and alarming in a journal.
+        println!(
+            "  XDG_RUNTIME_DIR: not set; Mesa prints \"error: XDG_RUNTIME_DIR is invalid or not \
+             set\" when wgpu starts (harmless: no display is used). star-track.service sets it; \
+             elsewhere export XDG_RUNTIME_DIR=/run/user/$(id -u) or any folder this user owns"
+        );
+    }
     match gpu::auto_choice(&adapters) {
         Some(a) => println!("  auto would choose: wgpu on {} ({:?})", a.name, a.backend),
         None => println!(
