@@ -789,12 +789,11 @@ impl Localizer {
                     continue;
                 };
                 self.worker.recycle(kf);
-                let beaten = rule.judge(
+                if twin_refuses(
+                    rule,
                     (world_from_camera, held.correlation),
                     (&v.world_from_camera, v.correlation),
-                    true,
-                ) == Judgment::HeldIsBetter;
-                if twin_refuses(world_from_camera, &v.world_from_camera, beaten) {
+                ) {
                     return Some(v.world_from_camera);
                 }
             }
@@ -934,17 +933,19 @@ const MAX_ATTEMPT_CANDIDATES: usize = 2 * MAX_TOP_K + 1 + MAX_LANDMARK_ELSEWHERE
 /// them to be two symmetries, m (`reloc::rivals::RIVAL_MIN_M`).
 const AMBIGUITY_RADIUS_M: f64 = crate::reloc::rivals::RIVAL_MIN_M;
 
-/// Whether a pose `twin`, where the frame passed the gate through one of
-/// the map's remembered symmetries of the `held` pose, refuses it: it
-/// stands at another place ([`elsewhere`]: farther than
-/// `reloc::rivals::RIVAL_MIN_M`, or turned by more than
-/// `reloc::rivals::RIVAL_MIN_TURN_DEG`, as for the attempt's rivals) and
-/// the held pose does not correlate decisively better (`beaten`). A twin
-/// that aligned back onto the held pose is no other place. A symmetry of a
+/// Whether a pose `twin` (with its plain correlation), where the frame
+/// passed the gate through one of the map's remembered symmetries of the
+/// `held` pose, refuses it: judged as a rival that passed, every rival
+/// checked (`RivalRule::judge`), anything but the same place
+/// (`reloc::rivals::elsewhere`: within `RIVAL_MIN_M` and turned by at most
+/// `RIVAL_MIN_TURN_DEG`) or a held pose decisively better. A symmetry of a
 /// room turned about its middle can put the twin beside the held pose,
 /// facing another wall: another place too.
-fn twin_refuses(held: &Pose, twin: &Pose, beaten: bool) -> bool {
-    elsewhere(held, twin) && !beaten
+fn twin_refuses(rule: &RivalRule, held: (&Pose, f32), twin: (&Pose, f32)) -> bool {
+    !matches!(
+        rule.judge(held, twin, true),
+        Judgment::SamePlace | Judgment::HeldIsBetter
+    )
 }
 
 /// Look-alike pairs of places the localizer remembers (the map's
@@ -1056,22 +1057,25 @@ mod tests {
 
     #[test]
     fn a_twin_turned_at_the_held_spot_refuses_it() {
+        let cold = RivalRule::new(None);
         let held = facing(1.0, 10.0);
+        // Both places read alike: no decisive correlation.
+        let refuses = |twin: &Pose| twin_refuses(&cold, (&held, 0.8), (twin, 0.78));
         // The seed-3 case of the one-room building, remembered: 0.86 m and
         // 89.8 degrees from the held pose. Under the old rule (distance
         // alone, 1 m) it refused nothing.
         let turned = facing(1.86, 99.8);
-        assert!(twin_refuses(&held, &turned, false));
+        assert!(refuses(&turned));
         // Turned half round at the same spot.
-        assert!(twin_refuses(&held, &facing(1.0, 190.0), false));
+        assert!(refuses(&facing(1.0, 190.0)));
         // Two metres away, not turned.
-        assert!(twin_refuses(&held, &facing(3.0, 10.0), false));
+        assert!(refuses(&facing(3.0, 10.0)));
         // The held pose correlates decisively better: it stands.
-        assert!(!twin_refuses(&held, &turned, true));
+        assert!(!twin_refuses(&cold, (&held, 0.9), (&turned, 0.6)));
         // Aligned back onto the held pose (near, barely turned): no other
         // place.
-        assert!(!twin_refuses(&held, &facing(1.3, 25.0), false));
-        assert!(!twin_refuses(&held, &held, false));
+        assert!(!refuses(&facing(1.3, 25.0)));
+        assert!(!refuses(&held));
     }
 
     #[test]
